@@ -1,0 +1,124 @@
+"""Loading a user's mesh: any format trimesh reads, in mm, checked, and simplified when too heavy."""
+
+from __future__ import annotations
+
+import io
+import logging
+from pathlib import Path
+
+import numpy as np
+import trimesh
+from scipy.spatial import cKDTree
+
+log = logging.getLogger(__name__)
+
+MESH_FORMATS = ("ply", "obj", "stl", "glb", "gltf", "off")
+UNIT_SCALE = {"mm": 1.0, "m": 1000.0}
+
+
+class MeshError(ValueError):
+    """A mesh that cannot be used; the message says why, in one line."""
+
+
+def load_mesh(
+    source: str | Path | bytes,
+    units: str = "mm",
+    file_type: str | None = None,
+    max_faces: int | None = 200_000,
+) -> trimesh.Trimesh:
+    """One triangle mesh in millimetres from a path or bytes (`file_type` needed for bytes).
+
+    Multi-part files (OBJ groups, GLB scenes) are merged with their colours and textures baked to
+    vertex colours where the parts differ. A mesh over `max_faces` is simplified to it."""
+    if units not in UNIT_SCALE:
+        raise MeshError(f"units must be one of {sorted(UNIT_SCALE)}, got {units!r}")
+    if isinstance(source, (str, Path)):
+        path = Path(source)
+        if not path.is_file():
+            raise MeshError(f"no such file: {path}")
+        file_type = file_type or path.suffix.lstrip(".").lower()
+        data = path.read_bytes()
+    else:
+        data = source
+    file_type = (file_type or "").lower()
+    if file_type not in MESH_FORMATS:
+        raise MeshError(f"unsupported mesh format {file_type!r}; use one of {', '.join(MESH_FORMATS)}")
+    try:
+        loaded = trimesh.load(io.BytesIO(data), file_type=file_type, process=False)
+    except Exception as e:  # trimesh raises anything from KeyError to struct.error on garbage
+        raise MeshError(f"not a readable {file_type.upper()} mesh ({type(e).__name__}: {e})") from None
+    mesh = _as_single_mesh(loaded)
+    _check(mesh)
+    mesh.apply_scale(UNIT_SCALE[units])
+    if max_faces is not None and len(mesh.faces) > max_faces:
+        mesh = simplify(mesh, max_faces)
+    return mesh
+
+
+def _as_single_mesh(loaded: object) -> trimesh.Trimesh:
+    if isinstance(loaded, trimesh.Scene):
+        parts = [g for g in loaded.dump() if isinstance(g, trimesh.Trimesh) and len(g.faces)]
+        if not parts:
+            raise MeshError("the file holds no triangles")
+        if len(parts) == 1:
+            return parts[0]
+        for p in parts:  # mixed textures cannot be merged: bake each part to vertex colours first
+            if p.visual.kind == "texture":
+                p.visual = p.visual.to_color()
+        return trimesh.util.concatenate(parts)
+    if not isinstance(loaded, trimesh.Trimesh):
+        raise MeshError(f"the file holds a {type(loaded).__name__}, not a triangle mesh")
+    return loaded
+
+
+def _check(mesh: trimesh.Trimesh) -> None:
+    if len(mesh.faces) == 0 or len(mesh.vertices) == 0:
+        raise MeshError("the mesh is empty: no faces")
+    if not np.all(np.isfinite(mesh.vertices)):
+        raise MeshError("the mesh has NaN or infinite vertex coordinates")
+    if mesh.faces.max() >= len(mesh.vertices) or mesh.faces.min() < 0:
+        raise MeshError("the mesh's faces point at vertices that do not exist")
+    extent = mesh.vertices.max(axis=0) - mesh.vertices.min(axis=0)
+    if np.sort(extent)[-2] <= 0 or mesh.area <= 0:
+        raise MeshError("the mesh is degenerate: it has no area (all points on a line or a point)")
+
+
+def simplify(mesh: trimesh.Trimesh, max_faces: int) -> trimesh.Trimesh:
+    """Quadric decimation to at most `max_faces`, colours carried over from the nearest old vertex."""
+    simple = mesh.simplify_quadric_decimation(face_count=max_faces)
+    if mesh.visual.kind in ("vertex", "texture"):
+        colors = mesh.visual.to_color().vertex_colors if mesh.visual.kind == "texture" else None
+        colors = mesh.visual.vertex_colors if colors is None else colors
+        _, nearest = cKDTree(mesh.vertices).query(simple.vertices)
+        simple.visual = trimesh.visual.ColorVisuals(simple, vertex_colors=colors[nearest])
+    log.info("simplified mesh from %d to %d faces", len(mesh.faces), len(simple.faces))
+    return simple
+
+
+def diameter(mesh: trimesh.Trimesh) -> float:
+    """Largest distance between two vertices of the convex hull, mm (BOP's `diameter`)."""
+    try:
+        pts = mesh.convex_hull.vertices
+    except Exception:  # qhull fails on flat meshes
+        pts = mesh.vertices
+    if len(pts) > 2000:
+        pts = pts[np.random.default_rng(0).choice(len(pts), 2000, replace=False)]
+    d = pts[:, None, :] - pts[None, :, :]
+    return float(np.sqrt((d**2).sum(-1)).max())
+
+
+def scale_warning(mesh: trimesh.Trimesh, window_mm: float) -> str | None:
+    """A message when the object would fill far more or far less of the patch window than it should:
+    the usual sign of a mesh in metres given as mm (or the reverse)."""
+    d = diameter(mesh)
+    if d > 4 * window_mm:
+        return (
+            f"object diameter {d:.0f} mm is over 4x the {window_mm:.0f} mm window: "
+            "is the mesh in mm given as metres?"
+        )
+    if d < window_mm / 20:
+        return (
+            f"object diameter {d:.2f} mm is under 1/20 of the {window_mm:.0f} mm window: "
+            "is the mesh in metres given as mm? (use units=m)"
+        )
+    return None
