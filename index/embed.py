@@ -1,0 +1,109 @@
+"""The ONNX embedder: patches -> descriptors with onnxruntime. Everything the patch pipeline needs to
+prepare the network's input (modality, window, size) is read from the model's own metadata, so the
+service, the evaluation and training can never disagree about it."""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import onnxruntime as ort
+
+from index.patches import MODALITY_CHANNELS, PatchSpec, batch_inputs
+
+INPUT_NAME, OUTPUT_NAME = "patch", "descriptor"
+
+
+@dataclass(frozen=True)
+class ModelInfo:
+    """What a descriptor model says about itself (ONNX metadata_props)."""
+
+    modality: str
+    window_mm: float
+    size: int
+    descriptor_dim: int
+    extra: dict[str, str]
+
+    @property
+    def spec(self) -> PatchSpec:
+        return PatchSpec(self.size, self.window_mm)
+
+    def to_metadata(self) -> dict[str, str]:
+        return {
+            "modality": self.modality,
+            "window_mm": str(self.window_mm),
+            "size": str(self.size),
+            "descriptor_dim": str(self.descriptor_dim),
+            "normalisation": "rgb: per-channel zero mean, unit variance; depth: (d - surface depth at "
+            "centre) / (window/2) clipped to [-1, 1], empty = +1 (index/patches.py)",
+            **self.extra,
+        }
+
+    @classmethod
+    def from_metadata(cls, meta: dict[str, str]) -> ModelInfo:
+        known = {"modality", "window_mm", "size", "descriptor_dim", "normalisation"}
+        try:
+            return cls(
+                modality=meta["modality"],
+                window_mm=float(meta["window_mm"]),
+                size=int(meta["size"]),
+                descriptor_dim=int(meta["descriptor_dim"]),
+                extra={k: v for k, v in meta.items() if k not in known},
+            )
+        except (KeyError, ValueError) as e:
+            raise ValueError(f"not a posedesc model: metadata lacks {e}") from None
+
+
+class Embedder:
+    """Descriptors of patches with one ONNX model. Thread-safe (onnxruntime sessions are)."""
+
+    def __init__(self, path: str | Path, threads: int | None = None):
+        self.path = Path(path)
+        opts = ort.SessionOptions()
+        # Two cores here: one intra-op thread per call by default, so concurrent requests each get a
+        # core instead of fighting over both; set POSEDESC_ORT_THREADS (or `threads`) to change it.
+        opts.intra_op_num_threads = threads or int(os.environ.get("POSEDESC_ORT_THREADS", "1"))
+        opts.inter_op_num_threads = 1
+        try:
+            self.session = ort.InferenceSession(str(self.path), opts, providers=["CPUExecutionProvider"])
+        except Exception as e:
+            raise ValueError(f"cannot load ONNX model {self.path}: {e}") from None
+        self.info = ModelInfo.from_metadata(self.session.get_modelmeta().custom_metadata_map)
+        if self.info.modality not in MODALITY_CHANNELS:
+            raise ValueError(f"model {self.path} has unknown modality {self.info.modality!r}")
+
+    @property
+    def modality(self) -> str:
+        return self.info.modality
+
+    @property
+    def dim(self) -> int:
+        return self.info.descriptor_dim
+
+    def __call__(self, inputs: np.ndarray, batch: int = 512) -> np.ndarray:
+        """Network inputs (N, C, S, S) float32 -> descriptors (N, D) float32."""
+        out = [
+            self.session.run(
+                [OUTPUT_NAME], {INPUT_NAME: np.ascontiguousarray(inputs[i : i + batch], np.float32)}
+            )[0]
+            for i in range(0, len(inputs), batch)
+        ]
+        return np.concatenate(out) if out else np.zeros((0, self.dim), np.float32)
+
+    def embed_patches(
+        self,
+        rgb: np.ndarray | None,
+        depth: np.ndarray | None,
+        nominal_mm: float | np.ndarray,
+        fill: bool = True,
+    ) -> np.ndarray:
+        """Cropped patches (rgb (N, S, S, 3) uint8, depth (N, S, S) mm) -> descriptors (N, D)."""
+        x = batch_inputs(self.modality, rgb, depth, nominal_mm, self.info.window_mm, fill)
+        return self(x)
+
+
+def metadata_json(meta: dict[str, str]) -> str:
+    return json.dumps(meta, indent=2, sort_keys=True)
