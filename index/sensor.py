@@ -39,7 +39,7 @@ class SensorModel:
     focal_px: float = 580.0  # Kinect depth camera, for disparity quantisation
     baseline_mm: float = 75.0
     edge_dropout: float = 0.6  # chance that a depth pixel at a depth edge is missing
-    random_dropout: float = 0.01  # fraction of pixels lost in small random holes
+    random_dropout: float = 0.003  # fraction of pixels lost in small random holes
     rgb_noise_std: tuple[float, float] = (1.0, 6.0)  # range of per-image Gaussian noise, grey levels
     gain: tuple[float, float] = (0.6, 1.4)  # range of global brightness change
     channel_gain: float = 0.12  # +- per-channel colour cast

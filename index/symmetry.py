@@ -46,7 +46,7 @@ def from_bop(info: dict) -> str | list[np.ndarray]:
     if not discrete:
         return "none"
     mats = [np.asarray(m, float).reshape(4, 4) for m in discrete]
-    if len(mats) == 1 and np.allclose(mats[0][:3, :3], _rot_z(180.0), atol=1e-2):
+    if len(mats) == 1 and np.allclose(mats[0][:3, :3], _rot_z(180.0), atol=0.05):
         return "180"
     return mats
 

@@ -1,0 +1,49 @@
+"""Shared fixtures: small meshes the tests make themselves, one renderer, the real data when present."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+
+SHARED_LMO = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "lmo"
+
+
+def coloured(mesh: trimesh.Trimesh, rgb: tuple[int, int, int]) -> trimesh.Trimesh:
+    mesh.visual = trimesh.visual.ColorVisuals(mesh, vertex_colors=np.tile([*rgb, 255], (len(mesh.vertices), 1)))
+    return mesh
+
+
+def make_l_shape() -> trimesh.Trimesh:
+    """An asymmetric, three-coloured object about 120 mm across, origin at its middle."""
+    a = coloured(trimesh.creation.box(extents=[120, 30, 30]), (200, 40, 40))
+    b = coloured(trimesh.creation.box(extents=[30, 80, 30]), (40, 180, 60))
+    b.apply_translation([45, 55, 0])
+    c = coloured(trimesh.creation.cylinder(radius=12, height=70), (40, 60, 200))
+    c.apply_translation([-45, 0, 50])
+    m = trimesh.util.concatenate([a, b, c])
+    m.apply_translation(-m.bounding_box.centroid)
+    return m
+
+
+@pytest.fixture(scope="session")
+def l_shape() -> trimesh.Trimesh:
+    return make_l_shape()
+
+
+@pytest.fixture(scope="session")
+def renderer():
+    from index.render import Renderer
+
+    r = Renderer()
+    yield r
+    r.close()
+
+
+@pytest.fixture(scope="session")
+def lmo() -> Path:
+    if not (SHARED_LMO / "models" / "models_info.json").is_file():
+        pytest.skip(f"real data not present at {SHARED_LMO}")
+    return SHARED_LMO
