@@ -183,7 +183,18 @@ class Renderer:
         return np.ascontiguousarray(color[..., :3]), depth.astype(np.float32)
 
     def close(self) -> None:
-        self._gl.delete()
+        """Frees this renderer's GL resources and context, but not the EGL display: every context of the
+        process shares that display, and pyrender's own `delete` terminates it under the others' feet."""
+        from OpenGL.EGL import EGL_NO_CONTEXT, EGL_NO_SURFACE, eglDestroyContext, eglMakeCurrent
+
+        gl = self._gl
+        platform = gl._platform
+        platform.make_current()
+        gl._renderer.delete()
+        eglMakeCurrent(platform._egl_display, EGL_NO_SURFACE, EGL_NO_SURFACE, EGL_NO_CONTEXT)
+        eglDestroyContext(platform._egl_display, platform._egl_context)
+        platform._egl_context = platform._egl_display = None
+        gl._renderer = gl._platform = None  # so pyrender's __del__ has nothing left to terminate
 
 
 def _light_pose(direction: np.ndarray) -> np.ndarray:

@@ -14,7 +14,7 @@ import sys
 COMMANDS = ("render", "train", "export", "build-index", "serve", "evaluate", "bench")
 
 
-class UserError(Exception):
+class UserError(ValueError):
     """Bad input from the user: printed as one line, no traceback."""
 
 
