@@ -12,7 +12,9 @@ SHARED_LMO = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "l
 
 
 def coloured(mesh: trimesh.Trimesh, rgb: tuple[int, int, int]) -> trimesh.Trimesh:
-    mesh.visual = trimesh.visual.ColorVisuals(mesh, vertex_colors=np.tile([*rgb, 255], (len(mesh.vertices), 1)))
+    mesh.visual = trimesh.visual.ColorVisuals(
+        mesh, vertex_colors=np.tile([*rgb, 255], (len(mesh.vertices), 1))
+    )
     return mesh
 
 
