@@ -99,3 +99,22 @@ def test_render_worker_owns_its_context(l_shape):
         assert all(s > 0 for s in sums) and len(set(sums)) == 3
     finally:
         w.close()
+
+
+def test_textured_mesh(renderer):
+    from PIL import Image
+
+    from index.mesh import load_mesh
+
+    box = trimesh.creation.box(extents=[100, 100, 100])
+    uv = (box.vertices[:, :2] - box.vertices[:, :2].min(0)) / 100.0
+    img = np.zeros((64, 64, 3), np.uint8)
+    img[:, :32] = [255, 0, 0]
+    img[:, 32:] = [0, 0, 255]
+    box.visual = trimesh.visual.TextureVisuals(uv=uv, image=Image.fromarray(img))
+    mesh = load_mesh(box.export(file_type="glb"), file_type="glb")
+    t = renderer.render(mesh, [View(0, 90, 0, 400)])
+    obj = t.rgb[0][t.depth[0] > 0].astype(int)
+    red = (obj[:, 0] > 3 * obj[:, 2] + 10) & (obj[:, 1] < 5)
+    blue = (obj[:, 2] > 3 * obj[:, 0] + 10) & (obj[:, 1] < 5)
+    assert 0.3 < red.mean() < 0.7 and 0.3 < blue.mean() < 0.7
