@@ -3,7 +3,9 @@ SHELL := /bin/bash
 PY ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
-APT_PACKAGES := libegl1 libegl-mesa0 libgl1-mesa-dri libgl1 libopengl0 python3-venv
+# podman & co. build and run deploy/Dockerfile in tests/deploy (no Docker engine on these machines).
+APT_PACKAGES := libegl1 libegl-mesa0 libgl1-mesa-dri libgl1 libopengl0 python3-venv \
+  podman buildah uidmap runc debootstrap iptables podman-compose
 STAMP := $(VENV)/.setup-stamp
 
 .PHONY: setup test lint serve bench clean models
