@@ -1,0 +1,114 @@
+"""LineMOD baseline: OpenCV's `cv2.linemod` (Hinterstoisser et al.), colour gradients and, with depth,
+surface normals from depth, on the same template renders and test patches as our descriptor.
+
+Settings for 64x64 patches (LineMOD's defaults are for 640x480 frames):
+- two pyramid levels with T = 4 and 8 px (defaults 5 and 8): a 64 px patch holds about 16 x 16 cells of 4;
+- 32 colour-gradient features (weak/strong magnitude thresholds 10 / 55) and 24 depth-normal features
+  (difference threshold 50 mm, extraction distance 2 px; depth shifted, see `depth_ref_mm`) instead of
+  LineMOD's 63 each: an object fills a quarter to a half of a 64 px patch, and with 63 features LineMOD
+  found too few candidates on 4% (colour) and 25% (depth) of the LM-O ape and eggbox templates
+  (with 32 / 24: none and 1%);
+- every image is padded to 160 x 160 (centred): OpenCV needs sides divisible by T at every level and its
+  SIMD spreading crashes unless the row width at every pyramid level is a multiple of 16 bytes
+  (opencv/opencv#29559), so 80 x 80 is not enough.
+A test patch's similarity to a template is the best LineMOD score (percent) over the positions where it
+matches above `threshold`; templates that never match there are not retrieved. A template from which
+LineMOD cannot extract enough features (a nearly featureless view) is not added; `skipped` counts them."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import cv2
+import numpy as np
+
+PAD = 160
+T_PYRAMID = (4, 8)
+COLOUR_FEATURES = 32
+DEPTH_FEATURES = 24
+LINEMOD_FOCAL_PX = 1150.0  # the focal length hard-coded in cv2.linemod's normals ("magic number 1150")
+
+
+def _pad(img: np.ndarray) -> np.ndarray:
+    out = np.zeros((PAD, PAD, *img.shape[2:]), img.dtype)
+    o = (PAD - img.shape[0]) // 2
+    out[o : o + img.shape[0], o : o + img.shape[1]] = img
+    return out
+
+
+class LineModIndex:
+    """Templates of several objects in one LineMOD detector; `search` ranks them for a test patch."""
+
+    def __init__(self, modality: str, window_mm: float, size: int = 64, threshold: float = 50.0):
+        self.modality = modality
+        self.threshold = threshold
+        mods = []
+        if modality in ("rgb", "rgbd"):
+            mods.append(cv2.linemod.ColorGradient_create(10.0, COLOUR_FEATURES, 55.0))
+        if modality in ("depth", "rgbd"):
+            mods.append(cv2.linemod.DepthNormal_create(10_000, 50, DEPTH_FEATURES, 2))
+        self.detector = cv2.linemod.Detector(mods, list(T_PYRAMID))
+        # LineMOD computes normals from depth with a fixed focal length in mind, but a patch's pixel spans
+        # window/size mm whatever the object's distance. Shifting every patch's depth so the object
+        # sits at focal * window / size makes LineMOD's idea of a pixel's width the true one, the same
+        # for templates (400 mm) and test patches (any distance).
+        self.depth_ref_mm = LINEMOD_FOCAL_PX * window_mm / size
+        self._index: dict[tuple[str, int], int] = {}  # (class id, LineMOD template id) -> our index
+        self.skipped = 0
+
+    def _sources(
+        self, rgb: np.ndarray | None, depth: np.ndarray | None, nominal_mm: float
+    ) -> list[np.ndarray]:
+        sources = []
+        if self.modality in ("rgb", "rgbd"):
+            sources.append(_pad(np.ascontiguousarray(rgb[..., ::-1])))  # type: ignore[index]  # BGR
+        if self.modality in ("depth", "rgbd"):
+            d = np.where(depth > 0, depth - nominal_mm + self.depth_ref_mm, 0.0)  # type: ignore[operator]
+            sources.append(_pad(np.clip(d, 0, 65535).astype(np.uint16)))
+        return sources
+
+    def add(
+        self,
+        obj_ids: np.ndarray,
+        rgb: np.ndarray | None,
+        depth: np.ndarray | None,
+        mask: np.ndarray,
+        nominal_mm: float,
+        progress: Callable[[int], None] | None = None,
+    ) -> None:
+        """Adds templates 0..T-1 (our indices): rgb (T, S, S, 3), depth (T, S, S) mm, mask (T, S, S)."""
+        for i in range(len(obj_ids)):
+            class_id = f"obj_{int(obj_ids[i])}"
+            sources = self._sources(
+                None if rgb is None else rgb[i], None if depth is None else depth[i], nominal_mm
+            )
+            tid, _ = self.detector.addTemplate(sources, class_id, _pad(mask[i].astype(np.uint8) * 255))
+            if tid < 0:
+                self.skipped += 1
+            else:
+                self._index[(class_id, tid)] = i
+            if progress and (i + 1) % 100 == 0:
+                progress(100)
+        if progress:
+            progress(len(obj_ids) % 100)
+
+    def similarities(
+        self, rgb: np.ndarray | None, depth: np.ndarray | None, nominal_mm: float
+    ) -> dict[int, float]:
+        """Best similarity (percent) of every template that matches above the threshold, by our index.
+        `nominal_mm`: the object's distance (the patch's depth is shifted, see `depth_ref_mm`)."""
+        matches, _ = self.detector.match(self._sources(rgb, depth, nominal_mm), self.threshold)
+        best: dict[int, float] = {}
+        for m in matches:
+            i = self._index[(m.class_id, m.template_id)]
+            best[i] = max(best.get(i, -1.0), m.similarity)
+        return best
+
+
+def top_k(similarities: dict[int, float], k: int) -> tuple[np.ndarray, np.ndarray]:
+    """The k most similar templates: (indices (k,), -1 = none; similarities (k,) percent, 0 = none)."""
+    ranked = sorted(similarities.items(), key=lambda kv: -kv[1])[:k]
+    idx, sim = np.full(k, -1, int), np.zeros(k)
+    for j, (i, s) in enumerate(ranked):
+        idx[j], sim[j] = i, s
+    return idx, sim

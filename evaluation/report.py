@@ -1,0 +1,143 @@
+"""The report: the JSON contract, a markdown table like the paper's Table 1, per-object results, and the
+pictures, all in one folder."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from evaluation import pictures
+from evaluation.run import Evaluation
+
+NAMES = {"ours": "ours", "hog": "HOG", "linemod": "LineMOD"}
+
+
+def write_json(ev: Evaluation, path: Path) -> dict:
+    summary = ev.summary()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(summary, indent=1))
+    return summary
+
+
+def _pct(x: float) -> str:
+    return f"{100 * x:.1f}"
+
+
+def table(summary: dict, ks: tuple[int, ...] = (1, 22)) -> str:
+    """Rows method x k; columns: within 5°, 20°, 40°, and the right object (percent of test patches)."""
+    lines = [
+        "| method | k | 5° | 20° | 40° | right object |",
+        "|---|---|---|---|---|---|",
+    ]
+    for k in ks:
+        for name, res in summary["methods"].items():
+            row = res[f"k{k}"]
+            cells = " | ".join(_pct(row[t]) for t in ("5", "20", "40", "180"))
+            lines.append(f"| {NAMES.get(name, name)} | {k} | {cells} |")
+    return "\n".join(lines)
+
+
+def per_object_table(summary: dict, k: int = 1) -> str:
+    """Per object, k nearest: within 20° / right object, percent, for every method."""
+    methods = list(summary["methods"])
+    unseen = set(summary.get("unseen", []))
+    head = "| object | patches | " + " | ".join(f"{NAMES.get(m, m)} 20° / object" for m in methods) + " |"
+    lines = [head, "|---|---|" + "---|" * len(methods)]
+    for obj, res in summary["per_object"].items():
+        cells = " | ".join(f"{_pct(res[m][f'k{k}']['20'])} / {_pct(res[m][f'k{k}']['180'])}" for m in methods)
+        label = f"{obj} (unseen)" if int(obj) in unseen else obj
+        lines.append(f"| {label} | {res['n_samples']} | {cells} |")
+    for group in ("seen_objects", "unseen_objects"):
+        if group in summary:
+            res = summary[group]
+            cells = " | ".join(
+                f"{_pct(res[m][f'k{k}']['20'])} / {_pct(res[m][f'k{k}']['180'])}" for m in methods
+            )
+            lines.append(f"| all {group.split('_')[0]} | {res['n_samples']} | {cells} |")
+    return "\n".join(lines)
+
+
+def frames_text(frames: list[int]) -> str:
+    """[1, 2, 3, 7] -> "1-3, 7"."""
+    if not frames:
+        return "none"
+    parts, start, prev = [], frames[0], frames[0]
+    for f in [*frames[1:], None]:
+        if f is not None and f == prev + 1:
+            prev = f
+            continue
+        parts.append(f"{start}-{prev}" if prev > start else f"{start}")
+        if f is not None:
+            start = prev = f
+    return ", ".join(parts)
+
+
+def write_report(ev: Evaluation, folder: Path, command: str, model_3d: Path | None = None) -> Path:
+    """Writes report.md and the pictures into `folder`; returns the markdown's path."""
+    folder.mkdir(parents=True, exist_ok=True)
+    summary = ev.summary()
+    pics = [
+        ("accuracy against threshold", pictures.accuracy_curves(ev, folder / "accuracy.png")),
+        ("distance against pose angle", pictures.distance_vs_angle(ev, folder / "distance_vs_angle.png")),
+        ("class separation", pictures.class_separation(ev, folder / "class_separation.png")),
+    ]
+    for name in ev.results:
+        path = pictures.nearest_templates(ev, name, folder / f"nearest_{name}.png")
+        pics.append((f"nearest templates, {NAMES[name]}", path))
+    if (scatter := _descriptors_3d(ev, folder / "descriptors_3d.png", model_3d)) is not None:
+        pics.append(("descriptors in 3-D", scatter))
+    c = ev.config
+    md = [
+        f"# Evaluation: {c.modality}, {c.protocol} protocol",
+        "",
+        f"```sh\n{command}\n```",
+        "",
+        f"- model: `{c.model}`",
+        f"- data: `{c.dataset}` scene {c.scene}, {summary['test_data']} test patches "
+        f"({summary['n_samples']} instances with visible fraction ≥ {c.min_visib}), "
+        f"frames {frames_text(summary['frames'])}",
+        f"- templates: {summary['n_templates']} ({len(summary['objects'])} objects)",
+        f"- seconds: {', '.join(f'{k} {v}' for k, v in summary['seconds'].items())}",
+        *[f"- {note}" for note in summary["notes"]],
+        "",
+        "Percent of test patches whose best pose among the k nearest templates is within 5°, 20°, 40°, "
+        "and whose object is among them (a wrong object counts as 180°):",
+        "",
+        table(summary),
+        "",
+        "Per object, k = 1:",
+        "",
+        per_object_table(summary),
+        "",
+        *[f"![{title}]({path.name})\n" for title, path in pics],
+    ]
+    out = folder / "report.md"
+    out.write_text("\n".join(md))
+    return out
+
+
+def _descriptors_3d(ev: Evaluation, path: Path, model_3d: Path | None) -> Path | None:
+    """The templates (in-plane 0) as a 3-dimensional model describes them; without one, the first three
+    principal components of our descriptors."""
+    t = ev.templates
+    keep = np.array([v.inplane == 0 for v in t.views])
+    if model_3d is not None:
+        from evaluation.ours import embed
+        from evaluation.templates import TEMPLATE_DISTANCE_MM
+        from index.embed import Embedder
+
+        emb = Embedder(model_3d)
+        if emb.dim != 3 or emb.modality != ev.config.modality:
+            raise ValueError(f"--model-3d {model_3d}: needs a 3-dimensional {ev.config.modality} model")
+        rgb = None if t.rgb is None else t.rgb[keep]
+        depth = None if t.depth is None else t.depth[keep]
+        points = embed(emb, rgb, depth, TEMPLATE_DISTANCE_MM, False)
+        title = f"template descriptors of the 3-D model {model_3d.name}"
+    elif "templates" in ev.descriptors:
+        points = pictures.pca3(ev.descriptors["templates"][keep])
+        title = "template descriptors, first 3 principal components (no 3-D model given)"
+    else:
+        return None
+    return pictures.descriptors_3d(points, t.obj_ids[keep], title, path)

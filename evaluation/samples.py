@@ -1,0 +1,156 @@
+"""Test patches: one per annotated instance, cut at the true object centre and distance.
+
+Real frames where the dataset has the modality's images; otherwise synthetic test scenes: every frame's
+annotated objects rendered at their annotated poses with the frame's camera (so the arrangement and the
+occlusions between annotated objects are the real ones), over a random background, through the sensor
+model. Instances are chosen by the dataset's visible fraction in both cases."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from index.bop import BopDataset, Instance, instance_patch
+from index.patches import PatchSpec
+from index.pose import View
+
+
+@dataclass
+class Samples:
+    """Test patches. rgb (N, S, S, 3) uint8 or None; depth (N, S, S) mm or None; views: the true view
+    of each patch (in-plane 0 when rectified); source: "real" or "synthetic"."""
+
+    obj_ids: np.ndarray
+    frame_ids: np.ndarray
+    visib: np.ndarray
+    views: list[View]
+    rgb: np.ndarray | None
+    depth: np.ndarray | None
+    source: str
+
+    def __len__(self) -> int:
+        return len(self.views)
+
+
+def select_instances(
+    dataset: BopDataset, scene: int, min_visib: float, frames: Sequence[int] | None, obj_ids: Sequence[int]
+) -> list[Instance]:
+    """Instances of `scene` with visible fraction ≥ min_visib, in `frames` (None: all), of known objects."""
+    wanted = None if frames is None else set(frames)
+    return [
+        inst
+        for inst in dataset.instances(scene, min_visib=min_visib)
+        if (wanted is None or inst.frame_id in wanted) and inst.obj_id in obj_ids
+    ]
+
+
+def needs_synthetic(modality: str, instances: Sequence[Instance]) -> bool:
+    """True when some instance lacks an image the modality needs."""
+    need_depth = modality in ("depth", "rgbd")
+    need_rgb = modality in ("rgb", "rgbd")
+    return any((need_depth and i.depth_path is None) or (need_rgb and i.rgb_path is None) for i in instances)
+
+
+def _by_frame(instances: Sequence[Instance]) -> dict[int, list[Instance]]:
+    frames: dict[int, list[Instance]] = {}
+    for inst in instances:
+        frames.setdefault(inst.frame_id, []).append(inst)
+    return frames
+
+
+def real_samples(
+    instances: Sequence[Instance],
+    modality: str,
+    spec: PatchSpec,
+    rectify: bool,
+    progress: Callable[[int], None] | None = None,
+) -> Samples:
+    """Patches from the real frames; each frame is read once."""
+    rgbs, depths, views = [], [], []
+    ordered = []
+    for group in _by_frame(instances).values():
+        rgb = group[0].load_rgb() if modality in ("rgb", "rgbd") else None
+        depth = group[0].load_depth() if modality in ("depth", "rgbd") else None
+        for inst in group:
+            prgb, pdepth, view = instance_patch(inst, spec, rectify, rgb=rgb, depth=depth)
+            rgbs.append(prgb)
+            depths.append(pdepth)
+            views.append(view)
+            ordered.append(inst)
+        if progress:
+            progress(len(group))
+    return _samples(ordered, views, rgbs, depths, "real")
+
+
+def synthetic_samples(
+    dataset: BopDataset,
+    instances: Sequence[Instance],
+    modality: str,
+    spec: PatchSpec,
+    rectify: bool,
+    seed: int = 0,
+    progress: Callable[[int], None] | None = None,
+) -> Samples:
+    """Patches from synthetic frames: the annotated objects of each frame rendered at their annotated
+    poses, composited over a random background, through the sensor model."""
+    from index.render import Renderer
+    from index.sensor import SensorModel, random_background
+
+    rng = np.random.default_rng(seed)
+    sensor = SensorModel()
+    meshes: dict[int, object] = {}
+    renderer = Renderer(window_mm=spec.window_mm)
+    rgbs, depths, views, ordered = [], [], [], []
+    # Every annotated object of a frame occludes, not only the selected ones.
+    scenes = {i.scene_id for i in instances}
+    everyone_by_frame = _by_frame([a for s in scenes for a in dataset.instances(s)])
+    try:
+        for frame_id, group in _by_frame(instances).items():
+            everyone = everyone_by_frame[frame_id]
+            for inst in everyone:
+                if inst.obj_id not in meshes:
+                    meshes[inst.obj_id] = dataset.mesh(inst.obj_id, max_faces=20_000)
+            w, h = _frame_size(group[0])
+            rgb, depth = renderer.render_frame(
+                [(meshes[i.obj_id], i.R, i.t) for i in everyone], group[0].K, w, h
+            )
+            far = max(float(np.linalg.norm(i.t)) for i in everyone)
+            bg_rgb, bg_depth = random_background((h, w), rng, far)
+            rgb, depth = sensor.apply(rgb, depth, rng, bg_rgb, bg_depth)
+            for inst in group:
+                prgb, pdepth, view = instance_patch(inst, spec, rectify, rgb=rgb, depth=depth)
+                rgbs.append(prgb if modality in ("rgb", "rgbd") else None)
+                depths.append(pdepth if modality in ("depth", "rgbd") else None)
+                views.append(view)
+                ordered.append(inst)
+            if progress:
+                progress(len(group))
+    finally:
+        renderer.close()
+    return _samples(ordered, views, rgbs, depths, "synthetic")
+
+
+def _frame_size(inst: Instance) -> tuple[int, int]:
+    """(width, height) of the instance's frame: from its image when there is one, else from K."""
+    import cv2
+
+    for path in (inst.rgb_path, inst.depth_path):
+        if path is not None:
+            img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+            if img is not None:
+                return img.shape[1], img.shape[0]
+    return int(round(2 * inst.K[0, 2] + 1)), int(round(2 * inst.K[1, 2] + 1))
+
+
+def _samples(instances, views, rgbs, depths, source: str) -> Samples:
+    return Samples(
+        obj_ids=np.array([i.obj_id for i in instances], int),
+        frame_ids=np.array([i.frame_id for i in instances], int),
+        visib=np.array([i.visib_fract for i in instances]),
+        views=views,
+        rgb=np.stack(rgbs) if rgbs and rgbs[0] is not None else None,
+        depth=np.stack(depths) if depths and depths[0] is not None else None,
+        source=source,
+    )
