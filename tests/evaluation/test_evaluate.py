@@ -1,0 +1,105 @@
+"""`posedesc evaluate` end to end on a dataset the tests write: the JSON contract, the report, both
+baselines on two tiny rendered shapes, synthetic depth scenes, the full protocol."""
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from evaluation.hog import HOG_DIM_PER_CHANNEL, hog_descriptors
+from evaluation.metric import THRESHOLDS
+from evaluation.run import Config, evaluate
+from posedesc.cli import main
+from tests.evaluation.conftest import N_FRAMES
+
+
+def check_table(table: dict) -> None:
+    assert set(table) == {f"k{k}" for k in range(1, 23)}
+    for k in range(1, 23):
+        row = table[f"k{k}"]
+        assert set(row) == {str(t) for t in THRESHOLDS}
+        values = [row[str(t)] for t in THRESHOLDS]
+        assert all(0.0 <= v <= 1.0 for v in values)
+        assert values == sorted(values)  # a looser threshold never counts fewer patches
+        if k > 1:
+            assert all(row[t] >= table[f"k{k - 1}"][t] for t in row)  # nor does a larger k
+
+
+def test_json_contract_and_report(tiny_bop, untrained_models, tmp_path):
+    out = tmp_path / "rgb.json"
+    args = [
+        "evaluate",
+        "--dataset",
+        str(tiny_bop),
+        "--modality",
+        "rgb",
+        "--model",
+        str(untrained_models["rgb"]),
+    ]
+    args += ["--unseen", "2", "--frames", "0-3", "--json", str(out), "--report", str(tmp_path / "report")]
+    args += ["--model-3d", str(untrained_models["rgb3"])]
+    assert main(args) == 0
+    summary = json.loads(out.read_text())
+    assert summary["modality"] == "rgb" and summary["protocol"] == "paper"
+    assert summary["n_samples"] == 8 and summary["test_data"] == "real"
+    assert summary["frames"] == [0, 1, 2, 3]
+    assert set(summary["methods"]) == {"ours", "hog", "linemod"}
+    for table in summary["methods"].values():
+        check_table(table)
+    assert set(summary["per_object"]) == {"1", "2"}
+    for per in summary["per_object"].values():
+        for name in ("ours", "hog", "linemod"):
+            check_table(per[name])
+    assert summary["unseen_objects"]["n_samples"] == 4
+    report = tmp_path / "report"
+    md = (report / "report.md").read_text()
+    assert "| ours | 1 |" in md and "2 (unseen)" in md
+    for png in ("accuracy", "distance_vs_angle", "class_separation", "nearest_ours", "descriptors_3d"):
+        assert (report / f"{png}.png").stat().st_size > 5000
+
+
+def test_baselines_on_two_tiny_shapes(tiny_bop, untrained_models):
+    """Clean renders of two distinct shapes: both baselines find the object and, mostly, the view."""
+    cfg = Config(tiny_bop, untrained_models["rgb"], "rgb", methods=("hog", "linemod"))
+    summary = evaluate(cfg).summary()
+    assert summary["n_samples"] == 2 * N_FRAMES
+    for name in ("hog", "linemod"):
+        k1 = summary["methods"][name]["k1"]
+        assert k1["180"] >= 0.9, (name, k1)
+        assert k1["20"] >= 0.6, (name, k1)
+
+
+def test_depth_on_synthetic_scenes_and_the_full_protocol(tiny_bop, untrained_models, tmp_path):
+    """No depth in the dataset: the depth run says it used synthetic scenes. The full protocol's
+    templates carry in-plane variants."""
+    cfg = Config(
+        tiny_bop, untrained_models["depth"], "depth", protocol="full", inplane_step=90.0, frames=[0, 1]
+    )
+    ev = evaluate(cfg)
+    summary = ev.summary()
+    assert summary["test_data"] == "synthetic" and summary["notes"]
+    assert summary["n_templates"] == 2 * 301 * 4
+    assert {v.inplane for v in ev.templates.views} == {-90.0, 0.0, 90.0, 180.0}
+    assert ev.samples.depth is not None and (ev.samples.depth > 0).mean() > 0.3
+    for table in summary["methods"].values():
+        check_table(table)
+
+
+def test_hog_descriptor_shape():
+    rng = np.random.default_rng(0)
+    rgb = rng.integers(0, 255, (3, 64, 64, 3), dtype=np.uint8)
+    depth = rng.uniform(380, 420, (3, 64, 64)).astype(np.float32)
+    d = hog_descriptors("rgbd", rgb, depth, 400.0, 200.0, fill=True)
+    assert d.shape == (3, 4 * HOG_DIM_PER_CHANNEL)
+    np.testing.assert_allclose(np.linalg.norm(d.astype(np.float32), axis=1), 1.0, atol=1e-2)
+
+
+def test_bad_input_is_one_line(tiny_bop, untrained_models, tmp_path, capsys):
+    base = ["evaluate", "--dataset", str(tiny_bop), "--json", str(tmp_path / "x.json")]
+    assert main([*base, "--modality", "depth", "--model", str(untrained_models["rgb"])]) == 2
+    assert "is a rgb model" in capsys.readouterr().err
+    assert (
+        main([*base, "--modality", "rgb", "--model", str(untrained_models["rgb"]), "--methods", "sift"]) == 2
+    )
+    assert main([*base, "--modality", "rgb", "--model", str(untrained_models["rgb"]), "--frames", "a-b"]) == 2
+    assert main([*base, "--modality", "rgb", "--model", str(Path(tmp_path / "none.onnx"))]) == 2
