@@ -4,6 +4,7 @@ service, the evaluation and training can never disagree about it."""
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 from dataclasses import dataclass
@@ -107,3 +108,27 @@ class Embedder:
 
 def metadata_json(meta: dict[str, str]) -> str:
     return json.dumps(meta, indent=2, sort_keys=True)
+
+
+#: The shipped models' file names, by modality; a models folder holds any of them.
+MODEL_FILES = {m: f"posedesc-{m}.onnx" for m in ("rgb", "depth", "rgbd")}
+
+
+def load_models(models_dir: str | Path, threads: int | None = None) -> dict[str, Embedder]:
+    """The models of `models_dir` by modality (whichever of `MODEL_FILES` exist; at least one)."""
+    models_dir = Path(models_dir)
+    found = {m: models_dir / f for m, f in MODEL_FILES.items() if (models_dir / f).is_file()}
+    if not found:
+        raise FileNotFoundError(
+            f"no models in {models_dir}: expected any of {', '.join(MODEL_FILES.values())}"
+        )
+    models = {m: Embedder(p, threads) for m, p in found.items()}
+    for m, e in models.items():
+        if e.modality != m:
+            raise ValueError(f"{e.path.name} is a {e.modality} model, not {m}")
+    return models
+
+
+def fingerprint(path: str | Path) -> str:
+    """Short sha256 of a model file: templates made with one model are useless to another."""
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()[:16]

@@ -1,0 +1,60 @@
+"""Start-up work before /readyz says ready: templates a changed model lacks, and the demo objects.
+
+The demo objects are generated shapes (`index.shapes.demo_shapes`), registered once into an empty data
+dir through the same code path as `POST /objects`, so the README's first `POST /recognize` finds them."""
+
+from __future__ import annotations
+
+import logging
+
+from index.register import reembed, register
+from service.state import AppState
+
+log = logging.getLogger("service")
+
+SEEDED = "demo_seeded"
+
+
+def startup(state: AppState) -> None:
+    """Runs on the registration thread; sets `state.ready` when done (also after a failure, logged)."""
+    try:
+        made = reembed(state.store, state.worker, state.embedders, state.templates, state.embed_pool)
+        if made:
+            log.info("made templates again for %d (object, model) pairs", made)
+        if state.settings.demo_objects:
+            seed(state)
+    except Exception as e:  # the service still serves what it has; /readyz shows the reason
+        log.exception("start-up work failed")
+        state.startup_error = f"start-up work failed: {e}"
+    finally:
+        state.ready.set()
+
+
+def seed(state: AppState) -> None:
+    store = state.store
+    if store.get_meta(SEEDED):
+        return
+    from index.shapes import demo_shapes
+
+    present = {r.name for r in store.snapshot.objects.values()}
+    if present and not present & set(demo_shapes()):
+        return  # a data dir made before seeding existed: leave it as it is
+    for name, mesh in demo_shapes().items():
+        if state.stopping.is_set():
+            return
+        if name in present:
+            continue
+        reg = register(
+            mesh,
+            name,
+            "none",
+            worker=state.worker,
+            embedders=state.embedders,
+            store=store,
+            cfg=state.templates,
+            pool=state.embed_pool,
+            extra={"demo": True},
+        )
+        state.metrics.observe_registration(reg.timings)
+        log.info("demo object %s registered in %.2f s", name, reg.timings["total"])
+    store.set_meta(SEEDED, "1")

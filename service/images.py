@@ -1,0 +1,61 @@
+"""Uploaded images: PNG or JPEG colour, 16-bit PNG depth. The header is read (and its size checked)
+before any pixel is decoded, so a small file that claims to be gigapixels is refused cheaply."""
+
+from __future__ import annotations
+
+import io
+import warnings
+
+import numpy as np
+from PIL import Image, UnidentifiedImageError
+
+from service.errors import ApiError
+
+Image.MAX_IMAGE_PIXELS = None  # our own limit, checked below, replaces Pillow's warning-then-error
+
+
+def _open(data: bytes, what: str, max_pixels: int) -> Image.Image:
+    if not data:
+        raise ApiError(422, f"{what}: the file is empty")
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            im = Image.open(io.BytesIO(data))  # parses the header only
+    except (UnidentifiedImageError, OSError, ValueError, SyntaxError):
+        raise ApiError(422, f"{what}: not an image (PNG or JPEG expected)") from None
+    if im.format not in ("PNG", "JPEG"):
+        raise ApiError(422, f"{what}: {im.format} is not accepted; send PNG or JPEG")
+    w, h = im.size
+    if w * h > max_pixels:
+        raise ApiError(413, f"{what}: {w} x {h} px is over the limit of {max_pixels} pixels")
+    if w < 8 or h < 8:
+        raise ApiError(422, f"{what}: {w} x {h} px is too small")
+    try:
+        im.load()
+    except Exception:  # truncated or corrupt data: Pillow raises OSError, SyntaxError, ValueError...
+        raise ApiError(422, f"{what}: the {im.format} data is truncated or corrupt") from None
+    return im
+
+
+def read_rgb(data: bytes, max_pixels: int) -> np.ndarray:
+    """A colour image. Shape: (H, W, 3) uint8, RGB order."""
+    im = _open(data, "rgb", max_pixels)
+    if im.mode in ("I", "I;16", "I;16B", "I;16L", "F"):
+        raise ApiError(422, "rgb: a 16-bit single-channel image; send depth as `depth`, colour as `rgb`")
+    return np.asarray(im.convert("RGB"))
+
+
+def read_depth(data: bytes, scale: float, max_pixels: int) -> np.ndarray:
+    """A 16-bit PNG depth image, times `scale`, in mm (0 = no measurement). Shape: (H, W) float32."""
+    im = _open(data, "depth", max_pixels)
+    if im.format != "PNG":
+        raise ApiError(422, f"depth: {im.format} holds 8-bit values; depth must be a 16-bit PNG in mm")
+    if im.mode not in ("I", "I;16", "I;16B", "I;16L"):
+        kind = "colour" if im.mode in ("RGB", "RGBA", "P", "CMYK", "YCbCr") else "8-bit"
+        raise ApiError(
+            422, f"depth: a {kind} image ({im.mode}); depth must be a single-channel 16-bit PNG in mm"
+        )
+    d = np.asarray(im).astype(np.float32)
+    if (d < 0).any():
+        raise ApiError(422, "depth: negative values")
+    return d * np.float32(scale)

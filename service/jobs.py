@@ -1,0 +1,46 @@
+"""Registrations that outlive their request: `POST /objects` answers 202 with a job id when it takes
+longer than `sync_seconds`; `GET /jobs/{id}` tells how it went."""
+
+from __future__ import annotations
+
+import threading
+import time
+import uuid
+from collections import OrderedDict
+from dataclasses import dataclass, field
+from typing import Any
+
+
+@dataclass
+class Job:
+    job_id: str
+    name: str
+    status: str = "running"  # running | done | failed
+    created: float = field(default_factory=time.time)
+    result: dict[str, Any] | None = None
+    error: str | None = None
+
+
+class Jobs:
+    """The last `keep` jobs, thread-safe."""
+
+    def __init__(self, keep: int = 1000):
+        self._jobs: OrderedDict[str, Job] = OrderedDict()
+        self._lock = threading.Lock()
+        self.keep = keep
+
+    def new(self, name: str) -> Job:
+        job = Job(uuid.uuid4().hex, name)
+        with self._lock:
+            self._jobs[job.job_id] = job
+            while len(self._jobs) > self.keep:
+                self._jobs.popitem(last=False)
+        return job
+
+    def get(self, job_id: str) -> Job | None:
+        with self._lock:
+            return self._jobs.get(job_id)
+
+    def running(self) -> int:
+        with self._lock:
+            return sum(j.status == "running" for j in self._jobs.values())

@@ -1,0 +1,68 @@
+"""The FastAPI app: the lifespan loads models, stores and the render thread onto `app.state.posedesc`."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
+
+from fastapi import FastAPI, Request
+from fastapi.concurrency import run_in_threadpool
+
+from service import errors
+from service.demo import startup
+from service.limits import BodyLimit
+from service.routes import health, jobs, objects, recognize
+from service.settings import Settings
+from service.state import close_state, load_state
+
+DESCRIPTION = """Recognises known 3-D objects in images and tells from which viewpoint they are seen
+(Wohlhart & Lepetit, CVPR 2015: learnt descriptors, nearest templates). Register a mesh with
+`POST /objects`, then `POST /recognize` a patch or a frame. Angles are degrees: azimuth about the
+object's +z from +x towards +y, elevation above its xy plane, in-plane counter-clockwise in the image."""
+
+
+def create_app(settings: Settings | None = None) -> FastAPI:
+    settings = settings or Settings()
+
+    @asynccontextmanager
+    async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        state = await run_in_threadpool(load_state, settings)
+        app.state.posedesc = state
+        state.registrar.submit(startup, state)
+        try:
+            yield
+        finally:
+            app.state.posedesc = None
+            await run_in_threadpool(close_state, state)
+
+    app = FastAPI(title="posedesc", version="0.1.0", description=DESCRIPTION, lifespan=lifespan)
+    app.state.settings = settings
+    errors.install(app)
+    for r in (recognize.router, objects.router, jobs.router, health.router):
+        app.include_router(r)
+
+    @app.middleware("http")
+    async def observe(request: Request, call_next):
+        t0 = time.perf_counter()
+        response = await call_next(request)
+        state = getattr(request.app.state, "posedesc", None)
+        if state is not None:
+            route = request.scope.get("route")
+            path = getattr(route, "path", "unmatched")  # the template, so ids do not blow up the labels
+            state.metrics.requests.labels(request.method, path, str(response.status_code)).inc()
+            state.metrics.latency.labels(path).observe(time.perf_counter() - t0)
+        return response
+
+    def limit_for(path: str) -> int | None:
+        if path.startswith("/objects"):
+            return int(settings.max_mesh_mb * 1e6)
+        if path.startswith("/recognize"):
+            return int(settings.max_image_mb * 1e6)
+        return None
+
+    app.add_middleware(BodyLimit, limit_for=limit_for)
+    return app
+
+
+app = create_app()  # `uvicorn service.main:app`; `posedesc serve` builds its own from its arguments

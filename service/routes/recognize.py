@@ -1,0 +1,65 @@
+"""Recognition: which known object is at the given place of an image, and seen from where."""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+from fastapi import APIRouter, File, Form, UploadFile
+from fastapi.concurrency import run_in_threadpool
+
+from service.deps import StateDep
+from service.recognition import Query, recognise
+from service.schemas import MatchOut, RecognizeOut
+
+router = APIRouter(tags=["recognition"])
+
+Coord = Annotated[float | None, Form(allow_inf_nan=False)]
+
+
+@router.post(
+    "/recognize",
+    response_model=RecognizeOut,
+    summary="Nearest templates of a patch, or of the object at (u, v) in a full frame",
+    description=(
+        "Send `rgb` (PNG/JPEG) and/or `depth` (16-bit PNG, mm x `depth_scale`): the modality picks the "
+        "model. Either a square patch already centred on the object and spanning the model's metric "
+        "window, or a full frame with intrinsics `fx`, `fy`, `cx`, `cy` and the object's centre `u`, `v` "
+        "(pixels); a colour-only frame also needs `distance_mm`."
+    ),
+    responses={413: {"description": "upload or image over the limit"}, 422: {"description": "bad input"}},
+)
+async def recognize(
+    state: StateDep,
+    rgb: Annotated[UploadFile | None, File(description="colour image, PNG or JPEG")] = None,
+    depth: Annotated[UploadFile | None, File(description="depth image, 16-bit PNG")] = None,
+    depth_scale: Annotated[float, Form(gt=0, le=1000, allow_inf_nan=False, description="mm per unit")] = 1.0,
+    fx: Annotated[float | None, Form(gt=0, allow_inf_nan=False, examples=[572.4])] = None,
+    fy: Annotated[float | None, Form(gt=0, allow_inf_nan=False, examples=[573.6])] = None,
+    cx: Coord = None,
+    cy: Coord = None,
+    u: Coord = None,
+    v: Coord = None,
+    distance_mm: Annotated[float | None, Form(gt=0, le=100_000, allow_inf_nan=False)] = None,
+    k: Annotated[int, Form(ge=1, description="how many matches")] = 5,
+) -> RecognizeOut:
+    q = Query(
+        rgb=await rgb.read() if rgb is not None else None,
+        depth=await depth.read() if depth is not None else None,
+        depth_scale=depth_scale,
+        fx=fx,
+        fy=fy,
+        cx=cx,
+        cy=cy,
+        u=u,
+        v=v,
+        distance_mm=distance_mm,
+        k=k,
+    )
+    result = await run_in_threadpool(recognise, state, q)
+    matches = [MatchOut(**m.__dict__) for m in result.matches]
+    return RecognizeOut(
+        matches=matches,
+        best=matches[0] if matches else None,
+        timings_ms=result.timings_ms,
+        model=result.model,
+    )

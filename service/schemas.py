@@ -1,0 +1,105 @@
+"""Response models: what a client gets back, with examples for /docs."""
+
+from __future__ import annotations
+
+from pydantic import BaseModel, ConfigDict, Field
+
+MATCH_EXAMPLE = {
+    "object_id": 3,
+    "name": "robot",
+    "azimuth": 126.0,
+    "elevation": 31.7,
+    "inplane": 0.0,
+    "distance": 0.42,
+}
+
+
+class MatchOut(BaseModel):
+    """A template close to the query: its object and its pose (degrees, see the pose conventions)."""
+
+    model_config = ConfigDict(json_schema_extra={"examples": [MATCH_EXAMPLE]})
+
+    object_id: int
+    name: str
+    azimuth: float = Field(description="camera azimuth about the object's +z, from +x towards +y, degrees")
+    elevation: float = Field(description="camera elevation above the object's xy plane, degrees")
+    inplane: float = Field(description="roll about the optical axis, counter-clockwise in the image, degrees")
+    distance: float = Field(description="descriptor distance (L2); smaller is closer")
+
+
+class RecognizeOut(BaseModel):
+    model_config = ConfigDict(
+        json_schema_extra={
+            "examples": [
+                {
+                    "matches": [MATCH_EXAMPLE],
+                    "best": MATCH_EXAMPLE,
+                    "timings_ms": {"decode": 2.1, "patch": 0.8, "embed": 1.9, "search": 0.1, "total": 4.9},
+                    "model": "posedesc-rgb",
+                }
+            ]
+        }
+    )
+
+    matches: list[MatchOut] = Field(description="the k nearest templates, nearest first")
+    best: MatchOut | None = Field(description="the nearest template (null when no object is registered)")
+    timings_ms: dict[str, float]
+    model: str = Field(description="the model that matched the modality sent")
+
+
+class ObjectOut(BaseModel):
+    object_id: int
+    name: str
+    symmetry: str
+    faces: int
+    templates: dict[str, int] = Field(description="templates per model")
+    created: float = Field(description="unix time")
+
+
+class ObjectCreated(BaseModel):
+    model_config = ConfigDict(
+        json_schema_extra={
+            "examples": [
+                {
+                    "object_id": 5,
+                    "name": "my-part",
+                    "templates": 301,
+                    "seconds": 1.84,
+                    "timings": {"render": 1.3, "embed": 1.1, "store": 0.04, "total": 1.84},
+                    "warnings": [],
+                }
+            ]
+        }
+    )
+
+    object_id: int
+    name: str
+    templates: int = Field(description="templates added per model (viewpoints x in-plane steps)")
+    seconds: float = Field(description="time the registration took")
+    timings: dict[str, float] = Field(description="seconds rendering, embedding (they overlap), storing")
+    warnings: list[str] = Field(default_factory=list)
+
+
+class JobAccepted(BaseModel):
+    job_id: str
+    status: str = "running"
+
+
+class JobOut(BaseModel):
+    job_id: str
+    status: str = Field(description="running | done | failed")
+    object_id: int | None = None
+    result: ObjectCreated | None = None
+    error: str | None = None
+
+
+class Health(BaseModel):
+    status: str
+
+
+class Ready(BaseModel):
+    status: str = Field(description="ready | starting")
+    models: dict[str, str] = Field(description="modality -> model name")
+    objects: int
+    templates: dict[str, int]
+    detail: str | None = None

@@ -1,0 +1,33 @@
+"""The service's settings: one class, read from `POSEDESC_*` environment variables (and `posedesc serve`)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Literal
+
+from pydantic import Field, SecretStr
+from pydantic_settings import BaseSettings, SettingsConfigDict
+
+
+class Settings(BaseSettings):
+    model_config = SettingsConfigDict(env_prefix="POSEDESC_", env_file=None, extra="ignore")
+
+    data_dir: Path = Field(Path("data/default"), description="store (SQLite + FAISS snapshots) lives here")
+    models_dir: Path = Field(Path("models"), description="posedesc-{rgb,depth,rgbd}.onnx, any of them")
+    api_key: SecretStr | None = Field(None, description="when set, POST/DELETE /objects need it (X-API-Key)")
+
+    max_image_mb: float = Field(25.0, gt=0, description="largest /recognize request body")
+    max_mesh_mb: float = Field(50.0, gt=0, description="largest /objects request body")
+    # Checked in the image header before decoding: a 20 kB PNG can claim to be 50000 x 50000 pixels.
+    max_image_pixels: int = Field(4096 * 4096, gt=0, description="largest width x height accepted")
+    max_faces: int = Field(200_000, gt=0, description="meshes above this are simplified to it")
+    max_k: int = Field(100, gt=0, description="largest k of /recognize")
+
+    threads: int = Field(1, ge=1, description="onnxruntime intra-op and FAISS OpenMP threads per call")
+    inplane_step: float = Field(0.0, ge=0, description="template in-plane step, degrees (0: none)")
+    inplane_max: float = Field(45.0, ge=0, le=180, description="template in-plane range +-, degrees")
+    level: int = Field(3, ge=0, le=4, description="template viewpoints: icosphere level (3 = 301)")
+    index_kind: Literal["flat", "ivf"] = Field("flat", description="flat = exact; ivf for large collections")
+
+    sync_seconds: float = Field(2.0, ge=0, description="POST /objects answers 201 within this, else 202")
+    demo_objects: bool = Field(True, description="register the built-in demo shapes into an empty data dir")

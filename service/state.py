@@ -1,0 +1,69 @@
+"""What the lifespan loads once and every request shares (`app.state.posedesc`)."""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+
+from index.embed import Embedder, fingerprint, load_models
+from index.register import TemplateConfig
+from index.render import RenderWorker
+from index.store import Store, set_threads
+from service.jobs import Jobs
+from service.metrics import Metrics
+from service.settings import Settings
+
+log = logging.getLogger("service")
+
+
+@dataclass
+class AppState:
+    settings: Settings
+    embedders: dict[str, Embedder]
+    store: Store
+    worker: RenderWorker
+    templates: TemplateConfig
+    #: registrations one at a time: rendering is one thread anyway, and two cores must keep serving
+    registrar: ThreadPoolExecutor = field(default_factory=lambda: ThreadPoolExecutor(1, "register"))
+    #: the models of a registration embed side by side (onnxruntime releases the GIL)
+    embed_pool: ThreadPoolExecutor = field(default_factory=lambda: ThreadPoolExecutor(2, "embed"))
+    jobs: Jobs = field(default_factory=Jobs)
+    metrics: Metrics = field(default_factory=Metrics)
+    ready: threading.Event = field(default_factory=threading.Event)
+    stopping: threading.Event = field(default_factory=threading.Event)
+    started: float = field(default_factory=time.time)
+    startup_error: str | None = None
+
+    @property
+    def model_names(self) -> dict[str, str]:
+        return {m: e.path.stem for m, e in self.embedders.items()}
+
+
+def load_state(settings: Settings) -> AppState:
+    """Models, store and render thread; raises with a one-line message when something is missing."""
+    set_threads(settings.threads)
+    embedders = load_models(settings.models_dir, settings.threads)
+    windows = {e.info.window_mm for e in embedders.values()}
+    sizes = {e.info.size for e in embedders.values()}
+    if len(sizes) != 1:
+        raise ValueError(f"the models disagree about the patch size: {sorted(sizes)}")
+    store = Store(
+        settings.data_dir,
+        {m: (e.dim, fingerprint(e.path)) for m, e in embedders.items()},
+        kind=settings.index_kind,
+    )
+    worker = RenderWorker(size=sizes.pop(), window_mm=min(windows))
+    cfg = TemplateConfig(settings.level, settings.inplane_step, settings.inplane_max)
+    log.info("models %s, %d objects in %s", sorted(embedders), len(store.snapshot.objects), settings.data_dir)
+    return AppState(settings, embedders, store, worker, cfg)
+
+
+def close_state(state: AppState) -> None:
+    state.stopping.set()
+    state.registrar.shutdown(wait=True, cancel_futures=True)  # a registration in flight finishes (atomic)
+    state.embed_pool.shutdown(wait=True)
+    state.worker.close()
+    state.store.close()
