@@ -1,0 +1,78 @@
+"""Register every mesh of a folder into a data dir offline (the same code path as POST /objects)."""
+
+from __future__ import annotations
+
+import argparse
+import time
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+from posedesc.cli import UserError
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--meshes", type=Path, required=True, help="folder of PLY, OBJ, STL or GLB files")
+    p.add_argument("--data-dir", type=Path, required=True, help="the store to add them to (made if missing)")
+    p.add_argument("--models", type=Path, default=Path("models"), help="folder of posedesc-*.onnx models")
+    p.add_argument("--units", choices=("mm", "m"), default="mm", help="units of the mesh files")
+    p.add_argument("--symmetry", choices=("none", "180", "full"), default="none", help="of every mesh")
+    p.add_argument("--inplane-step", type=float, default=0.0, help="template in-plane step, degrees")
+    p.add_argument("--level", type=int, default=3, help="template viewpoints: icosphere level (3 = 301)")
+    p.add_argument("--max-faces", type=int, default=200_000, help="meshes above this are simplified")
+
+
+def run(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from index.embed import fingerprint, load_models
+    from index.mesh import MESH_FORMATS, MeshError, load_mesh
+    from index.register import TemplateConfig, register
+    from index.render import RenderWorker
+    from index.store import Store, StoreError
+
+    if not args.meshes.is_dir():
+        raise UserError(f"--meshes {args.meshes}: not a folder")
+    files = sorted(f for f in args.meshes.iterdir() if f.suffix.lstrip(".").lower() in MESH_FORMATS)
+    if not files:
+        raise UserError(f"no meshes ({', '.join(MESH_FORMATS)}) in {args.meshes}")
+    embedders = load_models(args.models)
+    try:
+        store = Store(args.data_dir, {m: (e.dim, fingerprint(e.path)) for m, e in embedders.items()})
+    except StoreError as e:
+        raise UserError(str(e)) from None
+    present = {r.name for r in store.snapshot.objects.values()}
+    window = min(e.info.window_mm for e in embedders.values())
+    worker = RenderWorker(size=next(iter(embedders.values())).info.size, window_mm=window)
+    cfg = TemplateConfig(level=args.level, inplane_step=args.inplane_step)
+    added, failed, t0 = 0, [], time.perf_counter()
+    try:
+        with ThreadPoolExecutor(2) as pool:
+            for f in tqdm(files, desc="register", unit="mesh", disable=None):
+                if f.stem in present:
+                    tqdm.write(f"{f.name}: {f.stem} is already in the store, skipped")
+                    continue
+                try:
+                    mesh = load_mesh(f, units=args.units, max_faces=args.max_faces)
+                    register(
+                        mesh,
+                        f.stem,
+                        args.symmetry,
+                        worker=worker,
+                        embedders=embedders,
+                        store=store,
+                        cfg=cfg,
+                        pool=pool,
+                    )
+                    added += 1
+                except MeshError as e:
+                    failed.append(f"{f.name}: {e}")
+    finally:
+        worker.close()
+        store.close()
+    for line in failed:
+        print(f"posedesc build-index: skipped {line}")
+    print(
+        f"{added} objects added to {args.data_dir} in {time.perf_counter() - t0:.1f} s "
+        f"({len(present)} already there, {len(failed)} unusable); models {', '.join(sorted(embedders))}"
+    )
+    return 1 if failed and not added else 0

@@ -1,0 +1,44 @@
+"""Serve the recognition API (FastAPI on uvicorn); other settings from POSEDESC_* environment variables."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from posedesc.cli import UserError
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--host", default="127.0.0.1", help="address to listen on (0.0.0.0: every interface)")
+    p.add_argument("--port", type=int, default=8000, help="port to listen on")
+    p.add_argument("--data-dir", type=Path, help="store folder (default: POSEDESC_DATA_DIR or data/default)")
+    p.add_argument("--models", type=Path, help="models folder (default: POSEDESC_MODELS_DIR or models)")
+    p.add_argument("--log-level", default="info", choices=("debug", "info", "warning", "error"))
+
+
+def run(args: argparse.Namespace) -> int:
+    import logging
+
+    import uvicorn
+    from pydantic import ValidationError
+
+    from index.embed import MODEL_FILES
+    from service.main import create_app
+    from service.settings import Settings
+
+    try:
+        overrides = {"data_dir": args.data_dir, "models_dir": args.models}
+        settings = Settings(**{k: v for k, v in overrides.items() if v is not None})
+    except ValidationError as e:
+        raise UserError(
+            "bad setting: " + "; ".join(f"{x['loc'][0]}: {x['msg']}" for x in e.errors())
+        ) from None
+    if not any((settings.models_dir / f).is_file() for f in MODEL_FILES.values()):
+        raise UserError(
+            f"no models in {settings.models_dir}: expected any of {', '.join(MODEL_FILES.values())}"
+        )
+    if not 0 < args.port < 65536:
+        raise UserError(f"--port {args.port}: not a port")
+    logging.getLogger().setLevel(args.log_level.upper())
+    uvicorn.run(create_app(settings), host=args.host, port=args.port, log_level=args.log_level)
+    return 0
