@@ -49,3 +49,28 @@ def lmo() -> Path:
     if not (SHARED_LMO / "models" / "models_info.json").is_file():
         pytest.skip(f"real data not present at {SHARED_LMO}")
     return SHARED_LMO
+
+
+@pytest.fixture(scope="session")
+def posedesc_models(tmp_path_factory) -> Path:
+    """A models folder as the service expects it: untrained posedesc-{rgb,depth,rgbd}.onnx (16-d)."""
+    torch = pytest.importorskip("torch")
+    from training.export import export_onnx
+    from training.model import DescriptorNet, NetConfig
+
+    torch.manual_seed(0)
+    folder = tmp_path_factory.mktemp("posedesc-models")
+    for modality in ("rgb", "depth", "rgbd"):
+        net = DescriptorNet(NetConfig(modality=modality))
+        export_onnx(net, folder / f"posedesc-{modality}.onnx", 200.0, {"note": "untrained, for tests"})
+    return folder
+
+
+@pytest.fixture(scope="session")
+def render_worker():
+    """One render thread for the whole session (EGL: one context per thread)."""
+    from index.render import RenderWorker
+
+    worker = RenderWorker()
+    yield worker
+    worker.close()
