@@ -64,7 +64,8 @@ def template_views(symmetry: str, cfg: TemplateConfig = TemplateConfig()) -> lis
     if symmetry == "none":
         return views
     wedge = {"180": 180.0, "full": 72.0}[symmetry]
-    return [v for v in views if v.azimuth < wedge - 1e-6]
+    # +1e-6: a vertex on a wedge's edge may come out of arctan2 a hair below it (359.9999... for 0)
+    return [v for v in views if (v.azimuth + 1e-6) % 360.0 < wedge]
 
 
 def render_templates(

@@ -1,0 +1,102 @@
+"""Registration: mesh -> templates of every model -> store, with the real renderer and untrained models."""
+
+from __future__ import annotations
+
+from concurrent.futures import ThreadPoolExecutor
+
+import numpy as np
+import pytest
+import trimesh
+
+from index.embed import fingerprint, load_models
+from index.mesh import MeshError
+from index.pose import View
+from index.register import TemplateConfig, embed_templates, reembed, register, template_views
+from index.store import Store
+from index.viewpoints import hemisphere
+
+CFG = TemplateConfig(level=2)  # 71 viewpoints: the same code path as level 3, four times faster
+
+
+@pytest.fixture(scope="module")
+def embedders(posedesc_models):
+    return load_models(posedesc_models)
+
+
+def keys(embedders):
+    return {m: (e.dim, fingerprint(e.path)) for m, e in embedders.items()}
+
+
+def test_template_views_per_symmetry():
+    full_set = hemisphere(3)
+    assert len(template_views("none")) == len(full_set) == 301
+    half, fifth = template_views("180"), template_views("full")
+
+    def az(v):  # 359.99999 is 0
+        return (v.azimuth + 1e-6) % 360
+
+    assert all(az(v) < 180 for v in half) and 140 <= len(half) <= 160
+    assert all(az(v) < 72 for v in fifth) and 55 <= len(fifth) <= 65
+    # the 72 degree wedge keeps every elevation of the set (the icosphere is 5-fold symmetric about z)
+    assert {round(v.elevation, 3) for v in fifth} == {round(e, 3) for e in full_set[:, 1]}
+    assert len(template_views("none", TemplateConfig(inplane_step=15))) == 301 * 7
+    with pytest.raises(MeshError, match="symmetry"):
+        template_views("90")
+
+
+def test_register_then_find_its_own_templates(tmp_path, l_shape, render_worker, embedders):
+    store = Store(tmp_path, keys(embedders))
+    with ThreadPoolExecutor(2) as pool:
+        reg = register(
+            l_shape, "L", "none", worker=render_worker, embedders=embedders, store=store, cfg=CFG, pool=pool
+        )
+    n = len(template_views("none", CFG))
+    assert reg.record.templates == {"rgb": n, "depth": n, "rgbd": n}
+    assert set(reg.timings) == {"render", "embed", "store", "total"}
+    assert all(t > 0 for t in reg.timings.values())
+    # Templates rendered again at three of the views must find themselves (ids, poses and descriptors
+    # stay aligned through the chunks), at distance ~0.
+    views = [template_views("none", CFG)[i] for i in (0, n // 2, n - 1)]
+    rendered = render_worker.submit(lambda r: {200.0: r.render(l_shape, views)}).result()
+    for m, e in embedders.items():
+        ts = embed_templates(e, rendered)
+        for view, matches in zip(views, store.search(m, ts.descriptors, 1), strict=True):
+            assert matches[0].name == "L"
+            assert (matches[0].azimuth, matches[0].elevation) == pytest.approx(
+                (view.azimuth, view.elevation), abs=1e-3
+            )
+            assert matches[0].distance < 1e-3
+
+
+def test_in_plane_variants_are_stored_with_their_angle(tmp_path, l_shape, render_worker, embedders):
+    cfg = TemplateConfig(level=1, inplane_step=30, inplane_max=30)
+    only_rgb = {"rgb": embedders["rgb"]}
+    store = Store(tmp_path, keys(only_rgb))
+    register(l_shape, "L", "none", worker=render_worker, embedders=only_rgb, store=store, cfg=cfg)
+    mi = store.snapshot.models["rgb"]
+    assert sorted(set(np.round(mi.poses[:, 2]).tolist())) == [-30.0, 0.0, 30.0]
+    view = View(float(mi.poses[4, 0]), float(mi.poses[4, 1]), float(mi.poses[4, 2]))
+    rendered = render_worker.submit(lambda r: {200.0: r.render(l_shape, [view])}).result()
+    (match,) = store.search("rgb", embed_templates(only_rgb["rgb"], rendered).descriptors, 1)[0]
+    assert match.inplane == view.inplane and match.distance < 1e-3
+
+
+def test_unusable_meshes(tmp_path, render_worker, embedders):
+    store = Store(tmp_path, keys(embedders))
+    speck = trimesh.creation.box(extents=[0.01, 0.01, 0.01])  # a mesh in metres given as mm
+    with pytest.raises(MeshError, match="invisible"):
+        register(speck, "speck", "none", worker=render_worker, embedders=embedders, store=store, cfg=CFG)
+    assert store.snapshot.objects == {} and store.snapshot.models["rgb"].size == 0
+
+
+def test_reembed_after_a_model_changed(tmp_path, l_shape, render_worker, embedders):
+    only_rgb = {"rgb": embedders["rgb"]}
+    store = Store(tmp_path, keys(only_rgb))
+    reg = register(l_shape, "L", "180", worker=render_worker, embedders=only_rgb, store=store, cfg=CFG)
+    store.close()
+    store = Store(tmp_path, keys(embedders))  # depth and rgbd are new: the object lacks their templates
+    assert store.missing() == {"rgb": [], "depth": [reg.record.object_id], "rgbd": [reg.record.object_id]}
+    assert reembed(store, render_worker, embedders, CFG) == 2
+    assert store.missing() == {"rgb": [], "depth": [], "rgbd": []}
+    n = len(template_views("180", CFG))
+    assert store.snapshot.objects[reg.record.object_id].templates == {"rgb": n, "depth": n, "rgbd": n}
