@@ -1,0 +1,38 @@
+"""Export a trained run to one ONNX file with its patch conventions and provenance in the metadata."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from posedesc.cli import UserError
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("run", type=Path, help="run folder of `posedesc train`")
+    p.add_argument("--out", type=Path, required=True, help="MODEL.onnx")
+
+
+def run(args: argparse.Namespace) -> int:
+    if not (args.run / "checkpoint.pt").is_file():
+        raise UserError(f"{args.run} has no checkpoint.pt: not a training run folder")
+    from training.export import export_onnx
+    from training.train import load_checkpoint
+
+    net, ckpt = load_checkpoint(args.run)
+    extra = {"command": ckpt.get("command", ""), "epoch": str(ckpt["epoch"]), "steps": str(ckpt["step"])}
+    cfg_path = args.run / "config.json"
+    if cfg_path.is_file():
+        extra["data"] = json.dumps(json.loads(cfg_path.read_text())["data"])
+    report = args.run / "report.json"
+    if report.is_file():
+        r = json.loads(report.read_text())
+        extra["heldout_frames"] = json.dumps(r.get("heldout_frames", {}))
+        extra["train_minutes"] = str(r.get("train_minutes", ""))
+        for k in ("real_heldout", "synthetic_unseen_demo_shapes", "synthetic_bop_objects"):
+            if k in r:
+                extra[k] = json.dumps({a: b for a, b in r[k].items() if a != "bands"})
+    out = export_onnx(net, args.out, ckpt["window_mm"], extra)
+    print(f"{args.run} -> {out} ({out.stat().st_size / 1e6:.2f} MB)")
+    return 0

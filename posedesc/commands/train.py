@@ -1,0 +1,124 @@
+"""Train a descriptor network (Wohlhart & Lepetit 2015) on BOP data plus procedural shapes."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shlex
+import sys
+import time
+from dataclasses import asdict
+from pathlib import Path
+
+from posedesc.cli import UserError
+
+
+def _blocks(text: str) -> tuple[tuple[float, float], ...]:
+    try:
+        out = tuple(tuple(float(x) for x in b.split(":")) for b in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError("use A:B,C:D with fractions of the frame order") from None
+    if not all(len(b) == 2 and 0 <= b[0] < b[1] <= 1 for b in out):
+        raise argparse.ArgumentTypeError("each block is A:B with 0 <= A < B <= 1")
+    return out  # type: ignore[return-value]
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--modality", choices=("rgb", "depth", "rgbd"), required=True)
+    p.add_argument("--data", type=Path, nargs="+", required=True, help="BOP dataset folders (meshes, frames)")
+    p.add_argument(
+        "--out", type=Path, required=True, help="run folder: checkpoint.pt, log.jsonl, report.json"
+    )
+    p.add_argument("--minutes", type=float, default=25.0, help="wall-clock budget of the optimisation")
+    p.add_argument("--max-steps", type=int, default=0, help="also stop after this many batches (0: no limit)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--dim", type=int, default=16, help="descriptor dimension")
+    p.add_argument("--shapes", type=int, default=40, help="procedural objects besides the BOP meshes")
+    p.add_argument("--batch", type=int, default=48, help="training samples per batch")
+    p.add_argument("--lr", type=float, default=1e-3)
+    p.add_argument("--threads", type=int, default=2, help="torch threads")
+    p.add_argument(
+        "--holdout",
+        type=_blocks,
+        default=((0.25, 0.40), (0.70, 0.85)),
+        help="held-out blocks of each scene's frame order, as fractions: A:B,C:D",
+    )
+    p.add_argument("--cache", type=Path, default=Path("runs/cache"), help="rendered training data cache")
+    p.add_argument("--no-validate", action="store_true", help="skip the per-epoch and final validation")
+
+
+def run(args: argparse.Namespace) -> int:
+    for d in args.data:
+        if not (d / "models" / "models_info.json").is_file():
+            raise UserError(f"{d} is not a BOP dataset (no models/models_info.json)")
+    from training.data import DataConfig, build
+    from training.train import TrainConfig, train
+    from training.validate import validate_real, validate_synthetic
+
+    data_cfg = DataConfig(shapes=args.shapes, holdout=args.holdout, seed=args.seed)
+    cfg = TrainConfig(
+        modality=args.modality,
+        descriptor_dim=args.dim,
+        minutes=args.minutes,
+        max_steps=args.max_steps,
+        samples_per_batch=args.batch,
+        lr=args.lr,
+        threads=args.threads,
+        seed=args.seed,
+        data=data_cfg,
+    )
+    command = (
+        "posedesc " + shlex.join(sys.argv[1:]) if sys.argv[0].endswith("posedesc") else shlex.join(sys.argv)
+    )
+    args.out.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    data = build(args.data, data_cfg, args.cache)
+    data_minutes = (time.perf_counter() - t0) / 60
+    (args.out / "config.json").write_text(
+        json.dumps({"config": asdict(cfg), "data": [str(d) for d in args.data], "command": command}, indent=2)
+    )
+    has_real = bool(data.test_instances())
+
+    def validate(net):
+        from training.export import torch_descriptors
+
+        acc, _ = validate_real(data, lambda x: torch_descriptors(net, x), args.modality)
+        return acc.as_dict()
+
+    t1 = time.perf_counter()
+    net = train(cfg, data, args.out, None if args.no_validate or not has_real else validate, command)
+    train_minutes = (time.perf_counter() - t1) / 60
+    report = {
+        "command": command,
+        "data": [str(d) for d in args.data],
+        "heldout_frames": data.heldout_frames,
+        "data_minutes": round(data_minutes, 1),
+        "train_minutes": round(train_minutes, 1),
+    }
+    if not args.no_validate:
+        from index.shapes import demo_shapes
+        from training.export import torch_descriptors
+
+        embed = lambda x: torch_descriptors(net, x)  # noqa: E731
+        if has_real:
+            acc, bands = validate_real(data, embed, args.modality)
+            report["real_heldout"] = acc.as_dict() | {"bands": {k: v.as_dict() for k, v in bands.items()}}
+            print(f"real held-out frames: {acc.line()}")
+            for k, v in bands.items():
+                print(f"  visibility {k}: {v.line()}")
+        unseen = {k: (m, "none") for k, m in demo_shapes().items()}
+        acc = validate_synthetic(unseen, embed, args.modality, backgrounds=data.backgrounds)
+        report["synthetic_unseen_demo_shapes"] = acc.as_dict()
+        print(f"synthetic, objects never trained on (demo shapes): {acc.line()}")
+        from index.bop import BopDataset
+
+        seen = {}
+        for root in args.data:
+            ds = BopDataset(root)
+            seen |= {f"{root.name}/{o}": (ds.mesh(o, max_faces=20000), ds.symmetry(o)) for o in ds.obj_ids}
+        acc = validate_synthetic(seen, embed, args.modality, backgrounds=data.backgrounds)
+        report["synthetic_bop_objects"] = acc.as_dict()
+        print(f"synthetic, BOP objects at random viewpoints: {acc.line()}")
+    (args.out / "report.json").write_text(json.dumps(report, indent=2))
+    print(f"trained {args.modality} for {train_minutes:.1f} min (data {data_minutes:.1f} min) -> {args.out}")
+    return 0
