@@ -73,14 +73,16 @@ class LineModIndex:
         rgb: np.ndarray | None,
         depth: np.ndarray | None,
         mask: np.ndarray,
-        nominal_mm: float,
+        nominal_mm: float | np.ndarray,
         progress: Callable[[int], None] | None = None,
     ) -> None:
-        """Adds templates 0..T-1 (our indices): rgb (T, S, S, 3), depth (T, S, S) mm, mask (T, S, S)."""
+        """Adds templates 0..T-1 (our indices): rgb (T, S, S, 3), depth (T, S, S) mm, mask (T, S, S);
+        `nominal_mm`: their render distance."""
+        nominal = np.broadcast_to(np.asarray(nominal_mm, dtype=float), (len(obj_ids),))
         for i in range(len(obj_ids)):
             class_id = f"obj_{int(obj_ids[i])}"
             sources = self._sources(
-                None if rgb is None else rgb[i], None if depth is None else depth[i], nominal_mm
+                None if rgb is None else rgb[i], None if depth is None else depth[i], float(nominal[i])
             )
             tid, _ = self.detector.addTemplate(sources, class_id, _pad(mask[i].astype(np.uint8) * 255))
             if tid < 0:

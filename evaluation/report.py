@@ -59,10 +59,12 @@ def per_object_table(summary: dict, k: int = 1) -> str:
     return "\n".join(lines)
 
 
-def frames_text(frames: list[int]) -> str:
-    """[1, 2, 3, 7] -> "1-3, 7"."""
+def frames_text(frames: list[int], most: int = 20) -> str:
+    """[1, 2, 3, 7] -> "1-3, 7"; long lists as a count and a span (the JSON has them all)."""
     if not frames:
         return "none"
+    if len(frames) > most:
+        return f"{len(frames)} frames from {frames[0]} to {frames[-1]} (listed in the JSON)"
     parts, start, prev = [], frames[0], frames[0]
     for f in [*frames[1:], None]:
         if f is not None and f == prev + 1:
@@ -125,7 +127,6 @@ def _descriptors_3d(ev: Evaluation, path: Path, model_3d: Path | None) -> Path |
     keep = np.array([v.inplane == 0 for v in t.views])
     if model_3d is not None:
         from evaluation.ours import embed
-        from evaluation.templates import TEMPLATE_DISTANCE_MM
         from index.embed import Embedder
 
         emb = Embedder(model_3d)
@@ -133,7 +134,8 @@ def _descriptors_3d(ev: Evaluation, path: Path, model_3d: Path | None) -> Path |
             raise ValueError(f"--model-3d {model_3d}: needs a 3-dimensional {ev.config.modality} model")
         rgb = None if t.rgb is None else t.rgb[keep]
         depth = None if t.depth is None else t.depth[keep]
-        points = embed(emb, rgb, depth, TEMPLATE_DISTANCE_MM, False)
+        nominal = np.array([v.distance for v, k in zip(t.views, keep, strict=True) if k])
+        points = embed(emb, rgb, depth, nominal, False)
         title = f"template descriptors of the 3-D model {model_3d.name}"
     elif "templates" in ev.descriptors:
         points = pictures.pca3(ev.descriptors["templates"][keep])

@@ -14,7 +14,7 @@ from tqdm import tqdm
 
 from evaluation.metric import K_MAX, Poses, accuracy, neighbour_errors, pose_errors, same_object
 from evaluation.samples import Samples, needs_synthetic, real_samples, select_instances, synthetic_samples
-from evaluation.templates import TEMPLATE_DISTANCE_MM, TemplateSet, full_inplane, render_templates
+from evaluation.templates import RenderedTemplates, full_inplane, object_views, render_templates
 from index.bop import BopDataset
 from index.embed import Embedder
 
@@ -59,7 +59,7 @@ class MethodResult:
 class Evaluation:
     config: Config
     samples: Samples
-    templates: TemplateSet
+    templates: RenderedTemplates
     symmetries: dict[int, object]
     results: dict[str, MethodResult] = field(default_factory=dict)
     descriptors: dict[str, np.ndarray] = field(default_factory=dict)  # "templates" / "samples" (ours)
@@ -109,6 +109,8 @@ def _bar(total: int, desc: str, unit: str = "patch") -> tqdm:
 
 def evaluate(cfg: Config, embedder: Embedder | None = None) -> Evaluation:
     """Runs every method of `cfg.methods` on the same test patches and templates."""
+    if unknown := set(cfg.methods) - set(METHODS):
+        raise ValueError(f"unknown methods {sorted(unknown)}; use some of {', '.join(METHODS)}")
     dataset = BopDataset(cfg.dataset)
     embedder = embedder or Embedder(cfg.model, threads=2)
     spec = embedder.info.spec
@@ -119,7 +121,10 @@ def evaluate(cfg: Config, embedder: Embedder | None = None) -> Evaluation:
     t0 = time.perf_counter()
     instances = select_instances(dataset, cfg.scene, cfg.min_visib, cfg.frames, obj_ids)
     if not instances:
-        raise ValueError(f"no instance of scene {cfg.scene} with visible fraction ≥ {cfg.min_visib} there")
+        raise ValueError(
+            f"{cfg.dataset}: no instance of scene {cfg.scene} with visible fraction ≥ {cfg.min_visib} "
+            "in the frames and objects asked for"
+        )
     rectify = cfg.protocol == "paper"
     synthetic = needs_synthetic(cfg.modality, instances) if cfg.synthetic is None else cfg.synthetic
     with _bar(len(instances), "test patches") as bar:
@@ -137,32 +142,23 @@ def evaluate(cfg: Config, embedder: Embedder | None = None) -> Evaluation:
 
     t0 = time.perf_counter()
     meshes = {o: dataset.mesh(o) for o in obj_ids}
+    symmetries = {o: dataset.symmetry(o) for o in obj_ids}
     inplane = full_inplane(cfg.inplane_step) if cfg.protocol == "full" else None
-    n_views = 301 * (1 if inplane is None else len(inplane))
-    with _bar(n_views * len(meshes), "render templates", "template") as bar:
-        templates = render_templates(meshes, cfg.modality, spec.window_mm, inplane, progress=bar.update)
+    n_views = sum(len(object_views(symmetries[o], inplane)) for o in obj_ids)
+    with _bar(n_views, "render templates", "template") as bar:
+        templates = render_templates(
+            meshes, symmetries, cfg.modality, spec.window_mm, inplane, progress=bar.update
+        )
     seconds["render_templates"] = time.perf_counter() - t0
 
-    ev = Evaluation(cfg, samples, templates, {o: dataset.symmetry(o) for o in obj_ids}, seconds=seconds)
+    ev = Evaluation(cfg, samples, templates, symmetries, seconds=seconds)
     ev.notes = notes
     t_poses, s_poses = Poses.of(templates.views), Poses.of(samples.views)
     rng = np.random.default_rng(cfg.seed)
     hist_idx = rng.choice(len(samples), min(HISTOGRAM_SAMPLES, len(samples)), replace=False)
 
-    def score(name: str, neighbours: np.ndarray, scores: np.ndarray, sep, pairs, t_start: float) -> None:
-        errors = neighbour_errors(
-            neighbours, templates.obj_ids, t_poses, samples.obj_ids, s_poses, ev.symmetries, cfg.protocol
-        )
-        same = same_object(neighbours, templates.obj_ids, samples.obj_ids)
-        ev.results[name] = MethodResult(
-            neighbours, scores, errors, same, sep, pairs, time.perf_counter() - t_start
-        )
-        seconds[name] = ev.results[name].seconds
-
     retrieve = {"ours": _ours, "hog": _hog, "linemod": _linemod}
     for name in cfg.methods:
-        if name not in retrieve:
-            raise ValueError(f"unknown method {name!r}; use some of {', '.join(METHODS)}")
         t0 = time.perf_counter()
         neighbours, scores, sep, lookup = retrieve[name](ev, embedder)
         errors = neighbour_errors(
@@ -178,12 +174,18 @@ def evaluate(cfg: Config, embedder: Embedder | None = None) -> Evaluation:
 
 
 def _ours(ev: Evaluation, embedder: Embedder):
-    """Our descriptors: templates as registered, test patches with sensor holes filled; exact kNN."""
+    """Our descriptors: templates embedded by the service's own `index.register.embed_templates`, test
+    patches with sensor holes filled; exact nearest neighbours."""
     from evaluation.ours import distances, embed, nearest
+    from index.register import embed_templates
 
     t, s = ev.templates, ev.samples
+    t_desc = np.zeros((len(t), embedder.dim), np.float32)
     with _bar(len(t), "ours: templates", "template") as bar:
-        t_desc = embed(embedder, t.rgb, t.depth, TEMPLATE_DISTANCE_MM, False, progress=bar.update)
+        for obj in np.unique(t.obj_ids):
+            idx = t.of(int(obj))
+            t_desc[idx] = embed_templates(embedder, {t.window_mm: t.object_templates(int(obj))}).descriptors
+            bar.update(len(idx))
     s_desc = embed(embedder, s.rgb, s.depth, _distances(s), True)
     ev.descriptors = {"templates": t_desc, "samples": s_desc}
     dist = distances(s_desc, t_desc)
@@ -198,7 +200,7 @@ def _hog(ev: Evaluation, embedder: Embedder):
 
     t, s, m, w = ev.templates, ev.samples, ev.config.modality, embedder.info.window_mm
     with _bar(len(t), "hog: templates", "template") as bar:
-        t_desc = hog_descriptors(m, t.rgb, t.depth, TEMPLATE_DISTANCE_MM, w, False, progress=bar.update)
+        t_desc = hog_descriptors(m, t.rgb, t.depth, _template_distances(t), w, False, progress=bar.update)
     s_desc = hog_descriptors(m, s.rgb, s.depth, _distances(s), w, True)
     dist = _hog_distances(s_desc, t_desc)
     neighbours, scores = nearest(dist, K_MAX)
@@ -212,7 +214,7 @@ def _linemod(ev: Evaluation, embedder: Embedder):
     t, s, spec = ev.templates, ev.samples, embedder.info.spec
     index = LineModIndex(ev.config.modality, spec.window_mm, spec.size, ev.config.linemod_threshold)
     with _bar(len(t), "linemod: templates", "template") as bar:
-        index.add(t.obj_ids, t.rgb, t.depth, t.mask, TEMPLATE_DISTANCE_MM, progress=bar.update)
+        index.add(t.obj_ids, t.rgb, t.depth, t.mask, _template_distances(t), progress=bar.update)
     if index.skipped:
         ev.notes.append(
             f"LineMOD could not extract enough features from {index.skipped} of {len(t)} templates; "
@@ -233,6 +235,10 @@ def _linemod(ev: Evaluation, embedder: Embedder):
         return np.array([100.0 - sims[i].get(int(j), np.nan) for j in idx])
 
     return neighbours, scores, _linemod_separation(sims, t.obj_ids, s.obj_ids), lookup
+
+
+def _template_distances(templates: RenderedTemplates) -> np.ndarray:
+    return np.array([v.distance for v in templates.views])
 
 
 def _distances(samples: Samples) -> np.ndarray:

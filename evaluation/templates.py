@@ -1,6 +1,10 @@
-"""The templates every method is measured against: each object rendered from the paper's 301 template
-viewpoints (and, for the full protocol, in-plane variants), one set shared by our descriptors, HOG and
-LineMOD so that they differ only in how they compare patches."""
+"""The templates every method is measured against, one set shared by our descriptors, HOG and LineMOD so
+that they differ only in how they compare patches.
+
+The views are the service's (`index.register.template_views`): the paper's 301 viewpoints at 400 mm,
+fewer for symmetric objects (a "180" object keeps azimuths in [0, 180)). For the full protocol every
+view gets in-plane variants over the whole turn: real objects appear rolled by anything (LM-O: -105° to
+177°), beyond the service's default +-45°."""
 
 from __future__ import annotations
 
@@ -11,11 +15,8 @@ import numpy as np
 import trimesh
 
 from index.pose import View
-from index.render import Renderer
-from index.viewpoints import template_views
-
-#: Template distance, mm: LineMOD's. The patch window is metric, so only perspective depends on it.
-TEMPLATE_DISTANCE_MM = 400.0
+from index.register import TemplateConfig, template_views
+from index.render import Renderer, Templates
 
 
 def full_inplane(step_deg: float) -> np.ndarray:
@@ -25,7 +26,7 @@ def full_inplane(step_deg: float) -> np.ndarray:
 
 
 @dataclass
-class TemplateSet:
+class RenderedTemplates:
     """Templates of several objects, concatenated. rgb (T, S, S, 3) uint8 or None, depth (T, S, S) mm or
     None (only what the modality needs is kept: the full protocol has tens of thousands), mask (T, S, S)
     bool where the object is; obj_ids (T,); views: their pose (in-plane included)."""
@@ -44,20 +45,41 @@ class TemplateSet:
         """Indices of one object's templates."""
         return np.flatnonzero(self.obj_ids == obj_id)
 
+    def object_templates(self, obj_id: int) -> Templates:
+        """One object's templates as the renderer made them (what `index.register` embeds)."""
+        i = self.of(obj_id)
+        rgb = None if self.rgb is None else self.rgb[i]
+        depth = None if self.depth is None else self.depth[i]
+        return Templates([self.views[j] for j in i], rgb, depth, self.window_mm)  # type: ignore[arg-type]
+
+
+def service_symmetry(symmetry: object) -> str:
+    """The symmetry the service registers an object with; BOP's other discrete symmetries keep every view."""
+    return symmetry if isinstance(symmetry, str) else "none"
+
+
+def object_views(symmetry: object, inplane: np.ndarray | None = None) -> list[View]:
+    """The service's template views of an object, each times `inplane` (None: the service's own)."""
+    views = template_views(service_symmetry(symmetry), TemplateConfig())
+    if inplane is None:
+        return views
+    return [View(v.azimuth, v.elevation, float(ip), v.distance) for v in views for ip in inplane]
+
 
 def render_templates(
     meshes: dict[int, trimesh.Trimesh],
+    symmetries: dict[int, object],
     modality: str,
     window_mm: float,
     inplane: np.ndarray | None = None,
     progress: Callable[[int], None] | None = None,
-) -> TemplateSet:
-    """Renders every object from the 301 template viewpoints x `inplane` (None: in-plane 0 only)."""
+) -> RenderedTemplates:
+    """Renders every object's template views (`object_views`)."""
     renderer = Renderer(window_mm=window_mm)
-    views = template_views(3, inplane, TEMPLATE_DISTANCE_MM)
     obj_ids, rgbs, depths, masks, all_views = [], [], [], [], []
     try:
         for obj_id, mesh in meshes.items():
+            views = object_views(symmetries[obj_id], inplane)
             t = renderer.render(mesh, views, progress=progress)
             obj_ids.append(np.full(len(views), obj_id))
             all_views += t.views
@@ -66,7 +88,7 @@ def render_templates(
             masks.append(t.depth > 0)
     finally:
         renderer.close()
-    return TemplateSet(
+    return RenderedTemplates(
         obj_ids=np.concatenate(obj_ids),
         views=all_views,
         rgb=np.concatenate(rgbs) if rgbs and rgbs[0] is not None else None,
