@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import json
 import shlex
 import sys
 import time
@@ -25,6 +26,30 @@ def parse_ids(text: str) -> list[int]:
     return sorted(set(out))
 
 
+def heldout_frames(meta: dict[str, str], dataset: Path, scene: int) -> list[int] | None:
+    """The frames of `dataset`'s scene a model was not trained on, from its `heldout_frames` metadata
+    ({"<dataset folder>/<scene>": [frame ids]}, written by `posedesc export`); None when it has none."""
+    try:
+        heldout = json.loads(meta.get("heldout_frames", "{}"))
+    except json.JSONDecodeError:
+        return None
+    frames = heldout.get(f"{dataset.resolve().name}/{scene:06d}")
+    return sorted(int(f) for f in frames) if frames else None
+
+
+def _frames(args: argparse.Namespace, embedder) -> list[int] | None:
+    if not args.frames:
+        return None
+    if args.frames.strip() == "heldout":
+        frames = heldout_frames(embedder.info.extra, args.dataset, args.scene)
+        if not frames:
+            raise UserError(
+                f"{args.model} names no held-out frames of {args.dataset.name} scene {args.scene}"
+            )
+        return frames
+    return parse_ids(args.frames)
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--dataset", type=Path, required=True, help="BOP dataset folder (models/, test/)")
     p.add_argument("--modality", choices=("rgb", "depth", "rgbd"), required=True)
@@ -36,7 +61,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "3-D rotation error")  # fmt: skip
     p.add_argument("--methods", default=",".join(METHODS), help="comma-separated: ours,hog,linemod")
     p.add_argument("--unseen", default="", help="ids of objects the model never saw (reported apart)")
-    p.add_argument("--frames", default=None, help="frames to use, e.g. 0-399,1000 (default: all)")
+    p.add_argument("--frames", default=None,
+                   help="frames to use, e.g. 0-399,1000, or 'heldout': those the model's metadata says "
+                   "training never saw (default: all)")  # fmt: skip
     p.add_argument("--objects", default=None, help="register only these object ids (default: all)")
     p.add_argument("--inplane-step", type=float, default=20.0, help="full protocol: in-plane step, deg")
     p.add_argument("--synthetic", action="store_true",
@@ -74,7 +101,7 @@ def run(args: argparse.Namespace) -> int:
         protocol=args.protocol,
         methods=methods,
         unseen=tuple(parse_ids(args.unseen)),
-        frames=parse_ids(args.frames) if args.frames else None,
+        frames=_frames(args, embedder),
         objects=parse_ids(args.objects) if args.objects else None,
         inplane_step=args.inplane_step,
         synthetic=True if args.synthetic else None,

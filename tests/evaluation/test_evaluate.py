@@ -103,3 +103,24 @@ def test_bad_input_is_one_line(tiny_bop, untrained_models, tmp_path, capsys):
     )
     assert main([*base, "--modality", "rgb", "--model", str(untrained_models["rgb"]), "--frames", "a-b"]) == 2
     assert main([*base, "--modality", "rgb", "--model", str(Path(tmp_path / "none.onnx"))]) == 2
+
+
+def test_heldout_frames_come_from_the_models_metadata(tiny_bop, untrained_models, tmp_path, capsys):
+    from posedesc.commands.evaluate import heldout_frames, parse_ids
+
+    meta = {"heldout_frames": json.dumps({f"{tiny_bop.name}/000002": [3, 1, 2], "other/000002": [9]})}
+    assert heldout_frames(meta, tiny_bop, 2) == [1, 2, 3]
+    assert heldout_frames(meta, tiny_bop, 5) is None
+    assert heldout_frames({}, tiny_bop, 2) is None
+    assert parse_ids("8, 1-3,2") == [1, 2, 3, 8]
+    args = [
+        "evaluate",
+        "--dataset",
+        str(tiny_bop),
+        "--modality",
+        "rgb",
+        "--model",
+        str(untrained_models["rgb"]),
+    ]
+    assert main([*args, "--frames", "heldout", "--json", str(tmp_path / "x.json")]) == 2
+    assert "names no held-out frames" in capsys.readouterr().err
