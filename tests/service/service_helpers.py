@@ -1,0 +1,105 @@
+"""Helpers of the service tests (imported by path): settings for a temporary data dir, frames of a test
+mesh, PNG bytes, registration that follows a 202 job."""
+
+from __future__ import annotations
+
+import io
+import time
+from pathlib import Path
+
+import numpy as np
+import trimesh
+from PIL import Image
+
+from index.pose import View, view_to_pose
+
+# Kinect-like intrinsics (LineMOD's), 640 x 480.
+K = np.array([[572.4, 0.0, 325.3], [0.0, 573.6, 242.0], [0.0, 0.0, 1.0]])
+W, H = 640, 480
+
+
+def coloured(mesh: trimesh.Trimesh, rgb: tuple[int, int, int]) -> trimesh.Trimesh:
+    mesh.visual = trimesh.visual.ColorVisuals(
+        mesh, vertex_colors=np.tile([*rgb, 255], (len(mesh.vertices), 1))
+    )
+    return mesh
+
+
+def make_t_shape() -> trimesh.Trimesh:
+    """A second asymmetric object, other colours and shape than the L of tests/conftest.py."""
+    a = coloured(trimesh.creation.box(extents=[40, 40, 140]), (230, 200, 30))
+    b = coloured(trimesh.creation.box(extents=[110, 25, 25]), (30, 200, 220))
+    b.apply_translation([30, 0, 55])
+    c = coloured(trimesh.creation.icosphere(radius=22), (220, 60, 200))
+    c.apply_translation([0, 35, -40])
+    m = trimesh.util.concatenate([a, b, c])
+    m.apply_translation(-m.bounding_box.centroid)
+    return m
+
+
+def ply_bytes(mesh: trimesh.Trimesh) -> bytes:
+    return mesh.export(file_type="ply")
+
+
+def png(array: np.ndarray) -> bytes:
+    buf = io.BytesIO()
+    Image.fromarray(array).save(buf, format="PNG")
+    return buf.getvalue()
+
+
+def depth_png(depth_mm: np.ndarray) -> bytes:
+    return png(np.round(depth_mm).astype(np.uint16))
+
+
+def frame(renderer, mesh: trimesh.Trimesh, view: View, uv: tuple[float, float], wall_mm: float | None = None):
+    """rgb, depth of `mesh` seen from `view` with its origin at pixel `uv`, optionally before a black wall."""
+    ray = np.linalg.inv(K) @ np.array([uv[0], uv[1], 1.0])
+    R, t = view_to_pose(view, ray=ray)
+    scene = [(mesh, R, t)]
+    if wall_mm:
+        wall = coloured(trimesh.creation.box(extents=[8000, 8000, 10]), (0, 0, 0))
+        scene.append((wall, np.eye(3), np.array([0.0, 0.0, wall_mm])))
+    return renderer.render_frame(scene, K, W, H)
+
+
+def frame_fields(uv: tuple[float, float], **extra) -> dict[str, str]:
+    fields = {"fx": K[0, 0], "fy": K[1, 1], "cx": K[0, 2], "cy": K[1, 2], "u": uv[0], "v": uv[1], **extra}
+    return {k: str(v) for k, v in fields.items()}
+
+
+def service_settings(data_dir: Path, models: Path, **kw):
+    from service.settings import Settings
+
+    base = {"demo_objects": False, "level": 2, "sync_seconds": 60.0}
+    return Settings(data_dir=data_dir, models_dir=models, **{**base, **kw})
+
+
+def wait_ready(client, timeout: float = 120.0) -> dict:
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        r = client.get("/readyz")
+        if r.status_code == 200:
+            return r.json()
+        time.sleep(0.1)
+    raise AssertionError(f"not ready after {timeout} s: {r.json()}")
+
+
+def register(client, mesh: trimesh.Trimesh, name: str, headers=None, timeout: float = 120.0, **data) -> dict:
+    """POST /objects, following the job when the answer is 202; returns the created object."""
+    r = client.post(
+        "/objects",
+        files={"mesh": (f"{name}.ply", ply_bytes(mesh))},
+        data={"name": name, **data},
+        headers=headers,
+    )
+    if r.status_code == 201:
+        return r.json()
+    assert r.status_code == 202, r.text
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        job = client.get(f"/jobs/{r.json()['job_id']}").json()
+        if job["status"] != "running":
+            assert job["status"] == "done", job
+            return job["result"]
+        time.sleep(0.1)
+    raise AssertionError("registration did not finish")
