@@ -3,11 +3,11 @@ benchmarks: mesh -> renders of every template view (on the render thread) -> pat
 every model -> the store, in one transaction for all models.
 
 Template views: the paper's level-3 half-sphere (301 viewpoints) at 400 mm, times the in-plane steps.
-The default has no in-plane variants. Measured on this 2-core machine for a 20k-face mesh and the three
-models (`.venv/bin/python -m index.register --bench`): rendering 301 views takes ~1.3-2 s (Mesa's software
-rasteriser; in-plane variants are free), embedding ~0.3 s per model per 301 templates, so 3 variants
-(+-45 in 45 steps) would take embedding alone to ~2.7 s and 7 variants (15 steps) to ~6 s, while the
-target is ~2 s per registration. A service that must recognise rolled objects sets a step (settings).
+The default has no in-plane variants. Measured with `.venv/bin/python benchmarks/serving.py` (2 cores
+shared with other work, three models, a 21.8k-face mesh): 301 templates per model take render 2.5 s and
+embed 1.0 s, overlapping, 2.8 s in all (rendering alone is ~1.3 s on an idle machine); in-plane variants
+cost no render but multiply embedding: +-45 in 45 steps (903) 4.4 s, 15 steps (2107) 7.6 s, against a
+target of ~2 s per registration. A service that must recognise rolled objects sets a step (settings).
 
 Symmetric objects do not need every viewpoint: the views of a "180" object from azimuth a and a + 180
 are the same picture, so only azimuths in [0, 180) are kept; a "full" object looks the same from every

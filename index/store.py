@@ -378,12 +378,15 @@ class Store:
     def _swap(self, snap: Snapshot) -> None:
         old = self._snap
         self._snap = snap  # one reference assignment: readers get the old or the new state, never a mix
-        for m, mi in snap.models.items():
-            if old.models.get(m) is not mi:
-                self._save_index(m, mi, snap.generation)
-            elif m in self._tags:  # unchanged index: only its tag moves to the new generation
-                self._tags[m]["generation"] = snap.generation
-                _write_atomic(self._paths(m)[1], json.dumps(self._tags[m]).encode())
+        try:
+            for m, mi in snap.models.items():
+                if old.models.get(m) is not mi:
+                    self._save_index(m, mi, snap.generation)
+                elif m in self._tags:  # unchanged index: only its tag moves to the new generation
+                    self._tags[m]["generation"] = snap.generation
+                    _write_atomic(self._paths(m)[1], json.dumps(self._tags[m]).encode())
+        except OSError as e:  # the write is committed; a stale snapshot is rebuilt at the next start
+            log.warning("could not write index snapshots to %s: %s", self.dir, e)
 
     def _forget_changed_models(self, models: Mapping[str, tuple[int, str]]) -> None:
         known = {n: (f, d) for n, f, d in self._db.execute("SELECT name, fingerprint, dim FROM models")}

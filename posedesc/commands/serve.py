@@ -37,6 +37,10 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(
             f"no models in {settings.models_dir}: expected any of {', '.join(MODEL_FILES.values())}"
         )
+    try:
+        settings.data_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise UserError(f"data dir {settings.data_dir}: {e.strerror or e}") from None
     if not 0 < args.port < 65536:
         raise UserError(f"--port {args.port}: not a port")
     logging.getLogger().setLevel(args.log_level.upper())

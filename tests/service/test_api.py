@@ -304,3 +304,20 @@ def test_intrinsics_are_used(client, l_frame):
     bad = client.post("/recognize", files={"rgb": ("f.png", png(rgb))}, data=wrong)
     assert bad.status_code == 200
     assert bad.json()["best"]["distance"] > good.json()["best"]["distance"]
+
+
+def test_unexpected_errors_are_json_500(client, monkeypatch):
+    import service.routes.recognize as route
+
+    def broken(state, q):
+        raise RuntimeError("a bug")
+
+    monkeypatch.setattr(route, "recognise", broken)
+    raw = TestClient(client.app, raise_server_exceptions=False)  # the lifespan already ran in `client`
+    r = raw.post("/recognize", files={"rgb": ("g.png", png(GREY))})
+    assert r.status_code == 500 and r.json() == {"detail": "internal error (RuntimeError)"}
+
+
+def test_empty_api_key_means_none(tmp_path, posedesc_models):
+    assert service_settings(tmp_path, posedesc_models, api_key="  ").api_key is None
+    assert service_settings(tmp_path, posedesc_models, api_key="k").api_key.get_secret_value() == "k"
