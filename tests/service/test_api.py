@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import io
+import shutil
 import sqlite3
 
 import numpy as np
@@ -321,3 +322,19 @@ def test_unexpected_errors_are_json_500(client, monkeypatch):
 def test_empty_api_key_means_none(tmp_path, posedesc_models):
     assert service_settings(tmp_path, posedesc_models, api_key="  ").api_key is None
     assert service_settings(tmp_path, posedesc_models, api_key="k").api_key.get_secret_value() == "k"
+
+
+def test_a_changed_model_gets_its_templates_made_again(tmp_path, posedesc_models, l_shape):
+    onnx = pytest.importorskip("onnx")
+    models = tmp_path / "models"
+    shutil.copytree(posedesc_models, models)
+    with TestClient(create_app(service_settings(tmp_path / "data", models))) as c:
+        wait_ready(c)
+        oid = register(c, l_shape, "L")["object_id"]
+    model = onnx.load(str(models / "posedesc-rgb.onnx"))  # "retrained": a new file, a new fingerprint
+    model.metadata_props.add(key="note", value="retrained")
+    onnx.save(model, str(models / "posedesc-rgb.onnx"))
+    with TestClient(create_app(service_settings(tmp_path / "data", models))) as c:
+        ready = wait_ready(c)
+        assert ready["templates"] == {"rgb": 71, "depth": 71, "rgbd": 71} and ready["detail"] is None
+        assert c.get(f"/objects/{oid}").json()["templates"]["rgb"] == 71
