@@ -13,8 +13,6 @@ from service.schemas import MatchOut, RecognizeOut
 
 router = APIRouter(tags=["recognition"])
 
-Coord = Annotated[float | None, Form(allow_inf_nan=False)]
-
 
 @router.post(
     "/recognize",
@@ -33,14 +31,31 @@ async def recognize(
     rgb: Annotated[UploadFile | None, File(description="colour image, PNG or JPEG")] = None,
     depth: Annotated[UploadFile | None, File(description="depth image, 16-bit PNG")] = None,
     depth_scale: Annotated[float, Form(gt=0, le=1000, allow_inf_nan=False, description="mm per unit")] = 1.0,
-    fx: Annotated[float | None, Form(gt=0, allow_inf_nan=False, examples=[572.4])] = None,
-    fy: Annotated[float | None, Form(gt=0, allow_inf_nan=False, examples=[573.6])] = None,
-    cx: Coord = None,
-    cy: Coord = None,
-    u: Coord = None,
-    v: Coord = None,
-    distance_mm: Annotated[float | None, Form(gt=0, le=100_000, allow_inf_nan=False)] = None,
-    k: Annotated[int, Form(ge=1, description="how many matches")] = 5,
+    fx: Annotated[
+        float | None, Form(gt=0, allow_inf_nan=False, description="focal x, px", examples=[572.4])
+    ] = None,
+    fy: Annotated[
+        float | None, Form(gt=0, allow_inf_nan=False, description="focal y, px", examples=[573.6])
+    ] = None,
+    cx: Annotated[
+        float | None, Form(allow_inf_nan=False, description="principal point x, px", examples=[325.3])
+    ] = None,
+    cy: Annotated[
+        float | None, Form(allow_inf_nan=False, description="principal point y, px", examples=[242.0])
+    ] = None,
+    u: Annotated[
+        float | None,
+        Form(allow_inf_nan=False, description="object centre x in the frame, px", examples=[380.0]),
+    ] = None,
+    v: Annotated[
+        float | None,
+        Form(allow_inf_nan=False, description="object centre y in the frame, px", examples=[250.0]),
+    ] = None,
+    distance_mm: Annotated[
+        float | None,
+        Form(gt=0, le=100_000, allow_inf_nan=False, description="object distance, mm (optional with depth)"),
+    ] = None,
+    k: Annotated[int, Form(ge=1, description="how many matches", examples=[5])] = 5,
 ) -> RecognizeOut:
     q = Query(
         rgb=await rgb.read() if rgb is not None else None,
