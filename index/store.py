@@ -410,7 +410,8 @@ class Store:
         for oid, m, n in db.execute(
             "SELECT object_id, model, COUNT(*) FROM templates GROUP BY object_id, model"
         ):
-            counts.setdefault(oid, {})[m] = n
+            if m in self.dims:  # templates of a model not loaded now stay in SQLite, unseen
+                counts.setdefault(oid, {})[m] = n
         objects = {
             oid: ObjectRecord(oid, name, sym, faces, created, counts.get(oid, {}), json.loads(extra))
             for oid, name, sym, faces, created, extra in db.execute(
