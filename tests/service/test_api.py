@@ -8,6 +8,7 @@ import sqlite3
 
 import numpy as np
 import pytest
+import trimesh
 from fastapi.testclient import TestClient
 from PIL import Image
 from service_helpers import (
@@ -179,6 +180,7 @@ BAD_MESHES = {
     "no faces": ("x.ply", _ply_points_only(), {}, "mesh:"),
     "degenerate": ("x.stl", _stl_on_a_line(), {}, "degenerate"),
     "unknown format": ("x.docx", b"hello", {}, "unsupported mesh format"),
+    "too small to see": ("x.ply", ply_bytes(trimesh.creation.box(extents=[0.01] * 3)), {}, "invisible"),
     "no extension": ("mesh", b"hello", {}, "extension"),
     "bad units": ("x.ply", b"", {"units": "inch"}, "units"),
     "bad symmetry": ("x.ply", b"", {"symmetry": "90"}, "symmetry"),
