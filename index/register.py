@@ -202,8 +202,11 @@ def reembed(
         mesh = load_mesh(glb, file_type="glb", max_faces=None)
         subset = {m: embedders[m] for m in models}
         sets, _ = make_templates(worker, subset, mesh, template_views(rec.symmetry, cfg), pool)
-        for m, ts in sets.items():
-            store.add_templates(oid, m, ts)
-            done += 1
+        try:
+            for m, ts in sets.items():
+                store.add_templates(oid, m, ts)
+                done += 1
+        except KeyError:  # removed meanwhile
+            continue
         log.info("made %s templates again for %s", "/".join(models), rec.name)
     return done
