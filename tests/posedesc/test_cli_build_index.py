@@ -1,0 +1,55 @@
+"""posedesc build-index: a folder of meshes into a data dir the service then serves."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from index.embed import fingerprint, load_models
+from index.store import Store
+from posedesc.cli import main
+
+
+def test_build_index(tmp_path, posedesc_models, l_shape, capsys):
+    meshes = tmp_path / "meshes"
+    meshes.mkdir()
+    l_shape.export(meshes / "lshape.ply")
+    (meshes / "broken.stl").write_text("not a mesh")
+    (meshes / "notes.txt").write_text("ignored")
+    data = tmp_path / "data"
+    args = ["build-index", "--meshes", str(meshes), "--data-dir", str(data), "--models", str(posedesc_models)]
+    assert main([*args, "--level", "1"]) == 1  # one mesh was unusable
+    out = capsys.readouterr().out
+    assert "skipped broken.stl" in out and "1 objects added" in out
+    (meshes / "broken.stl").unlink()
+    assert main([*args, "--level", "1"]) == 0  # a second run skips what is there
+    assert "0 objects added" in capsys.readouterr().out
+    embedders = load_models(posedesc_models)
+    store = Store(data, {m: (e.dim, fingerprint(e.path)) for m, e in embedders.items()})
+    (rec,) = store.snapshot.objects.values()
+    assert rec.name == "lshape" and rec.templates["rgb"] == len(store.snapshot.models["rgb"].ids) > 10
+    assert np.isfinite(store.snapshot.models["depth"].poses).all()
+
+
+def test_build_index_errors(tmp_path, posedesc_models, capsys):
+    assert main(["build-index", "--meshes", str(tmp_path / "nope"), "--data-dir", str(tmp_path)]) == 2
+    assert "not a folder" in capsys.readouterr().err
+    assert main(["build-index", "--meshes", str(tmp_path), "--data-dir", str(tmp_path / "d")]) == 2
+    assert "no meshes" in capsys.readouterr().err
+    (tmp_path / "m.ply").write_text("x")
+    empty = tmp_path / "no-models"
+    empty.mkdir()
+    assert (
+        main(
+            [
+                "build-index",
+                "--meshes",
+                str(tmp_path),
+                "--data-dir",
+                str(tmp_path / "d"),
+                "--models",
+                str(empty),
+            ]
+        )
+        == 2
+    )
+    assert "no models in" in capsys.readouterr().err
