@@ -31,7 +31,9 @@ def mesh_20k(path: str | None) -> trimesh.Trimesh:
 
 def main() -> None:
     p = argparse.ArgumentParser()
-    p.add_argument("--mesh", help="a mesh (decimated to 20k faces); default: a generated 20,480-face ellipsoid")
+    p.add_argument(
+        "--mesh", help="a mesh (decimated to 20k faces); default: a generated 20,480-face ellipsoid"
+    )
     p.add_argument("--repeats", type=int, default=5)
     args = p.parse_args()
     mesh = mesh_20k(args.mesh)
@@ -48,8 +50,10 @@ def main() -> None:
         r.close()
         results[name] = statistics.median(times)
     print(json.dumps({"faces": len(mesh.faces), "views": len(views), "median_s": results}, indent=1))
-    print(f"301 views of a {len(mesh.faces)}-face mesh: {results['lod']:.2f} s with LOD, {results['full']:.2f} s "
-          f"without ({results['full'] / results['lod']:.1f}x)")
+    print(
+        f"301 views of a {len(mesh.faces)}-face mesh: {results['lod']:.2f} s with LOD, {results['full']:.2f} s "
+        f"without ({results['full'] / results['lod']:.1f}x)"
+    )
 
 
 if __name__ == "__main__":

@@ -1,6 +1,6 @@
 """Pictures for the README: a contact sheet excerpt and real LM-O patches beside their templates.
 
-    .venv/bin/python scripts/docs_pictures.py --lmo ../shared/data/lmo --out docs
+.venv/bin/python scripts/docs_pictures.py --lmo ../shared/data/lmo --out docs
 """
 
 from __future__ import annotations
