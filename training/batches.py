@@ -29,8 +29,41 @@ class Batch:
     pairs: np.ndarray
     sample_rows: np.ndarray
     objects: np.ndarray  # object of every row
+    #: for each sample row: pose distance (deg) to every template of its object, by template index (T,)
+    sample_dists: dict[int, np.ndarray] = field(default_factory=dict)
     #: for each sample row: pose distance (deg) to every template row of its object, by row
     pose_dist: dict[int, dict[int, float]] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if not self.pose_dist:
+            self.pose_dist = _row_dists(self.items, self.sample_dists)
+
+
+def _row_dists(items: list[tuple], sample_dists: dict[int, np.ndarray]) -> dict[int, dict[int, float]]:
+    return {
+        s: {r: float(d[it[2]]) for r, it in enumerate(items) if it[0] == "template" and it[1] == items[s][1]}
+        for s, d in sample_dists.items()
+    }
+
+
+def with_templates(batch: Batch, extra: Sequence[tuple[int, int]]) -> tuple[Batch, list[tuple]]:
+    """The batch with more templates ((object, template index) each) appended as rows, for bootstrapping
+    to choose from; templates already in it are not repeated. Returns the batch and the new items."""
+    have = set(batch.items)
+    new: list[tuple] = []
+    for o, t in extra:
+        it = ("template", int(o), int(t))
+        if it not in have:
+            have.add(it)
+            new.append(it)
+    if not new:
+        return batch, []
+    items = batch.items + new
+    objects = np.concatenate([batch.objects, np.array([it[1] for it in new], np.int64)])
+    return (
+        Batch(items, batch.triplets, batch.pairs, batch.sample_rows, objects, batch.sample_dists),
+        new,
+    )
 
 
 class BatchBuilder:
@@ -101,18 +134,13 @@ class BatchBuilder:
                 t = next(it[2] for it in items if it[0] == "template" and it[1] == o)
                 row(("template", o, int((t + n_t // 2) % n_t)))
         objects = np.array([it[1] for it in items])
-        pose_dist = {}
-        for s, obj, d in zip(sample_rows, objs, dists, strict=True):
-            pose_dist[s] = {
-                r: float(d[it[2]]) for r, it in enumerate(items) if it[0] == "template" and it[1] == obj
-            }
         return Batch(
             items,
             np.array(triplets, np.int64).reshape(-1, 3),
             np.array(pairs, np.int64).reshape(-1, 2),
             np.array(sample_rows, np.int64),
             objects.astype(np.int64),
-            pose_dist,
+            dict(zip(sample_rows, dists, strict=True)),
         )
 
 

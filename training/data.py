@@ -166,7 +166,8 @@ class TrainingData:
             rgb, depth = self._real(i, turn, rng)
         return network_input(modality, rgb, depth, self.cfg.distance, self.cfg.window_mm, fill=True)
 
-    def template_input(self, obj: int, t: int, modality: str) -> np.ndarray:
+    def template_inputs(self, modality: str) -> np.ndarray:
+        """Every template as the network takes it. Shape: (O, T, C, S, S) float16."""
         if modality not in self._template_inputs:  # templates never change: normalise them once
             self._template_inputs[modality] = np.stack(
                 [
@@ -174,7 +175,10 @@ class TrainingData:
                     for o in range(self.n_objects)
                 ]
             ).astype(np.float16)
-        return self._template_inputs[modality][obj, t].astype(np.float32)
+        return self._template_inputs[modality]
+
+    def template_input(self, obj: int, t: int, modality: str) -> np.ndarray:
+        return self.template_inputs(modality)[obj, t].astype(np.float32)
 
     def _template_input(self, obj: int, t: int, modality: str) -> np.ndarray:
         return network_input(

@@ -22,7 +22,9 @@ from tqdm import tqdm
 
 from training.batches import Batch, BatchBuilder, bootstrap_triplets
 from training.data import DataConfig, TrainingData
+from training.export import torch_descriptors
 from training.losses import DescriptorLoss
+from training.mining import TemplateBank, mine
 from training.model import DescriptorNet, NetConfig
 
 log = logging.getLogger(__name__)
@@ -41,6 +43,8 @@ class TrainConfig:
     lr: float = 1e-3  # Adam; cosine decay to lr * lr_end over the budget
     lr_end: float = 0.05
     bootstrap_after: float = 0.3  # fraction of the budget after which in-batch bootstrapping starts
+    mine: bool = True  # bootstrapping also draws hard templates from all templates (training/mining.py)
+    mine_refresh: int = 300  # steps between full refreshes of the mining bank's template descriptors
     pair_weight: float = 1.0
     margin: float = 0.01  # m of the triplet cost
     weight_decay: float = 1e-6  # lambda, on weights only
@@ -123,8 +127,14 @@ def train(
     torch.set_num_threads(cfg.threads)
     out.mkdir(parents=True, exist_ok=True)
     net = DescriptorNet(NetConfig(cfg.modality, cfg.descriptor_dim, data.spec.size))
+    # channels_last: the 57x57x16 max-pool after the first convolution runs ~8x faster on this CPU,
+    # and a whole step ~1.8x (measured on 285-patch batches).
+    net = net.to(memory_format=torch.channels_last)
     loss_fn = DescriptorLoss(cfg.margin, cfg.pair_weight, cfg.weight_decay)
     opt = torch.optim.Adam(net.parameters(), lr=cfg.lr)
+    # normalised once, here, before the producer thread would do it too
+    templates = data.template_inputs(cfg.modality)
+    bank = TemplateBank(templates, cfg.descriptor_dim, cfg.mine_refresh) if cfg.mine else None
     producer = BatchProducer(data, cfg)
     budget = cfg.minutes * 60.0
     t0 = time.monotonic()
@@ -146,11 +156,18 @@ def train(
                 for g in opt.param_groups:
                     g["lr"] = lr_at(cfg, progress)
                 batch, x = producer.get()
+                boot = progress >= cfg.bootstrap_after
+                if boot and bank is not None:
+                    if bank.due(step):
+                        bank.refresh(lambda a: torch_descriptors(net, a), step)
+                    batch, x = mine(bank, net, batch, x, lambda o, t: data.template_input(o, t, cfg.modality))
                 net.train()
-                f = net(x)
+                f = net(x.contiguous(memory_format=torch.channels_last))
                 triplets = batch.triplets
-                if progress >= cfg.bootstrap_after:
+                if boot:
                     triplets = np.concatenate([triplets, bootstrap_triplets(batch, f.detach().numpy())])
+                    if bank is not None:
+                        bank.update(batch, f.detach().numpy())
                 loss, terms = loss_fn(net, f, torch.from_numpy(triplets), torch.from_numpy(batch.pairs))
                 opt.zero_grad()
                 loss.backward()

@@ -1,0 +1,98 @@
+"""Bootstrapping beyond the batch: hard templates mined from every template of every object.
+
+The paper bootstraps over its whole training set: after a first phase it adds what violates the
+constraints most. In-batch bootstrapping (`batches.bootstrap_triplets`) sees only the couple of hundred
+templates a batch happens to hold, while the confusions that cost accuracy (another object's template
+that looks like this view; a far-off view of the same object) usually lie elsewhere. So a bank keeps a
+descriptor of every template (all refreshed every `refresh_every` steps; a batch's own templates after
+each step); before a step the batch's samples are embedded, their nearest templates in the bank -- of
+other objects, and of their own object at a pose over `min_angle` away -- join the batch, and in-batch
+bootstrapping picks its hard triplets among them as among the rest.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+import torch
+
+from training.batches import Batch, with_templates
+
+Embed = Callable[[np.ndarray], np.ndarray]  # network inputs (N, C, S, S) -> descriptors (N, D)
+
+
+class TemplateBank:
+    """Descriptors of all templates: (objects, templates, D), possibly a few hundred steps old."""
+
+    def __init__(self, template_inputs: np.ndarray, dim: int, refresh_every: int = 300):
+        self.inputs = template_inputs  # (O, T, C, S, S), float16 is fine
+        o, t = template_inputs.shape[:2]
+        self.f = np.zeros((o, t, dim), np.float32)
+        self.refresh_every = refresh_every
+        self.refreshed_at: int | None = None
+
+    def refresh(self, embed: Embed, step: int, chunk: int = 1024) -> None:
+        flat = self.inputs.reshape(-1, *self.inputs.shape[2:])
+        out = [embed(flat[i : i + chunk].astype(np.float32)) for i in range(0, len(flat), chunk)]
+        self.f = np.concatenate(out).reshape(self.f.shape)
+        self.refreshed_at = step
+
+    def due(self, step: int) -> bool:
+        return self.refreshed_at is None or step - self.refreshed_at >= self.refresh_every
+
+    def update(self, batch: Batch, f: np.ndarray) -> None:
+        """Fresh descriptors of the batch's templates (rows of f, (B, D))."""
+        for r, it in enumerate(batch.items):
+            if it[0] == "template":
+                self.f[it[1], it[2]] = f[r]
+
+    def hard(
+        self,
+        f: np.ndarray,
+        objects: np.ndarray,
+        pose_dists: list[np.ndarray],
+        n_other: int = 2,
+        min_angle: float = 20.0,
+    ) -> list[tuple[int, int]]:
+        """For samples with descriptors f (S, D), objects (S,) and pose distances (deg) to each template
+        of their object ((T,) each): the `n_other` nearest templates of other objects and the nearest of
+        their own object over `min_angle` away, as (object, template index)."""
+        o_n, t_n, d = self.f.shape
+        flat = self.f.reshape(-1, d)
+        d2 = (f**2).sum(1)[:, None] - 2 * f @ flat.T + (flat**2).sum(1)[None]  # (S, O * T)
+        out: list[tuple[int, int]] = []
+        for i, (o, pd) in enumerate(zip(objects, pose_dists, strict=True)):
+            row = d2[i].reshape(o_n, t_n)
+            other = row.copy()
+            other[o] = np.inf
+            k = min(n_other, other.size - t_n)
+            if k > 0:
+                for j in np.argpartition(other.ravel(), k - 1)[:k]:
+                    out.append((int(j // t_n), int(j % t_n)))
+            same = np.where(pd > min_angle, row[o], np.inf)
+            if np.isfinite(same).any():
+                out.append((int(o), int(np.argmin(same))))
+        return out
+
+
+def mine(
+    bank: TemplateBank,
+    net: torch.nn.Module,
+    batch: Batch,
+    x: torch.Tensor,
+    template_input: Callable[[int, int], np.ndarray],
+) -> tuple[Batch, torch.Tensor]:
+    """The batch and its inputs with the bank's hard templates for its samples appended."""
+    rows = torch.from_numpy(batch.sample_rows)
+    was_training = net.training
+    with torch.no_grad():
+        f = net.eval()(x[rows]).numpy()
+    net.train(was_training)
+    objects = batch.objects[batch.sample_rows]
+    dists = [batch.sample_dists[int(s)] for s in batch.sample_rows]
+    batch, new = with_templates(batch, bank.hard(f, objects, dists))
+    if not new:
+        return batch, x
+    extra = torch.from_numpy(np.stack([template_input(it[1], it[2]) for it in new]))
+    return batch, torch.cat([x, extra.to(x.dtype)])
