@@ -8,6 +8,11 @@ Layout of a data directory:
 - `<model>.faiss` + `<model>.faiss.json`: a snapshot of that model's index, tagged with the generation
   and the file's sha256. On open a snapshot is used only when both match SQLite; otherwise (missing,
   stale, corrupt) the index is rebuilt from SQLite's descriptors. It can never be silently wrong.
+  A damaged `store.sqlite` (SQLite's own `quick_check` fails) is refused with a one-line `StoreError`.
+
+A full disk: a write that SQLite cannot commit is rolled back and raises `OSError(ENOSPC)`; the store keeps
+its previous state. A snapshot that cannot be written after a commit is only a warning (its tag is
+removed, so it is rebuilt at the next start).
 
 Readers never see a half-added object: the live state is an immutable `Snapshot` (indexes + metadata).
 A write builds the next one on copies (copy-on-write) and swaps the reference under a lock; a search
@@ -20,6 +25,7 @@ templates to train it (39 per list). HNSW is not offered: it cannot remove ids.
 
 from __future__ import annotations
 
+import errno
 import hashlib
 import json
 import logging
@@ -27,7 +33,8 @@ import os
 import sqlite3
 import threading
 import time
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
+from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -156,6 +163,37 @@ class StoreError(RuntimeError):
     """The data directory cannot be used (a one-line reason)."""
 
 
+def check_store(data_dir: str | Path) -> None:
+    """Raises StoreError (one line) when `data_dir/store.sqlite` exists and SQLite finds it damaged;
+    `posedesc serve` calls it before starting, so a damaged store stops it with a message, not a traceback."""
+    path = Path(data_dir) / "store.sqlite"
+    if not path.is_file():
+        return
+    try:
+        db = sqlite3.connect(path)
+    except sqlite3.Error as e:
+        raise StoreError(f"{path} is not a usable store: {e}") from None
+    try:
+        _check(db, path)
+    finally:
+        db.close()
+
+
+def _check(db: sqlite3.Connection, path: Path) -> None:
+    try:
+        problems = [row[0] for row in db.execute("PRAGMA quick_check(3)")]
+    except sqlite3.DatabaseError as e:
+        raise StoreError(f"{path} is not a usable store: {e}") from None
+    if problems != ["ok"]:
+        raise StoreError(
+            f"{path} is damaged ({problems[0]}); restore it from a backup, or move it away to start empty"
+        )
+
+
+def _disk_full(e: BaseException) -> bool:
+    return isinstance(e, sqlite3.Error) and getattr(e, "sqlite_errorcode", None) == sqlite3.SQLITE_FULL
+
+
 class Store:
     """Templates of all objects for a fixed set of models, persisted in `data_dir`.
 
@@ -181,18 +219,21 @@ class Store:
         self.kind, self.nlist, self.nprobe = kind, nlist, nprobe
         self._write = threading.Lock()
         self._tags: dict[str, dict] = {}  # the snapshot files' tags, as last written
+        path = self.dir / "store.sqlite"
         try:
-            self._db = sqlite3.connect(
-                self.dir / "store.sqlite", check_same_thread=False, isolation_level=None
-            )
+            self._db = sqlite3.connect(path, check_same_thread=False, isolation_level=None)
             self._db.execute("PRAGMA journal_mode=WAL")
             self._db.execute("PRAGMA synchronous=FULL")  # a committed registration survives a power cut
             self._db.execute("PRAGMA foreign_keys=ON")
+            _check(self._db, path)
             self._db.executescript(SCHEMA)
-        except sqlite3.DatabaseError as e:
-            raise StoreError(f"{self.dir / 'store.sqlite'} is not a usable store: {e}") from None
-        self._forget_changed_models(models)
-        self._snap = self._load()
+            self._forget_changed_models(models)
+            self._snap = self._load()
+        except sqlite3.DatabaseError as e:  # damage quick_check cannot see: a bad row, a bad descriptor
+            raise StoreError(f"{path} is not a usable store: {e}") from None
+        except StoreError:
+            self._db.close()
+            raise
 
     # -- reading -----------------------------------------------------------------------------------
 
@@ -223,8 +264,8 @@ class Store:
         return None if row is None else row[0]
 
     def set_meta(self, key: str, value: str) -> None:
-        with self._write:
-            self._db.execute("INSERT OR REPLACE INTO meta VALUES (?, ?)", (key, value))
+        with self._write, self._transaction() as cur:
+            cur.execute("INSERT OR REPLACE INTO meta VALUES (?, ?)", (key, value))
 
     # -- writing -----------------------------------------------------------------------------------
 
@@ -241,9 +282,7 @@ class Store:
         for m, ts in templates.items():
             self._check_set(m, ts)
         with self._write:
-            cur = self._db.cursor()
-            cur.execute("BEGIN IMMEDIATE")
-            try:
+            with self._transaction() as cur:
                 created = time.time()
                 cur.execute(
                     "INSERT INTO objects (name, symmetry, faces, created, extra, mesh) VALUES (?, ?, ?, ?, ?, ?)",
@@ -263,10 +302,6 @@ class Store:
                 snap = self._next(
                     cur, add={m: (oid, ids, templates[m]) for m, ids in new_ids.items()}, put=rec
                 )
-                cur.execute("COMMIT")
-            except BaseException:
-                cur.execute("ROLLBACK")
-                raise
             self._swap(snap)
         return rec
 
@@ -277,17 +312,11 @@ class Store:
             old = self._snap.objects.get(object_id)
             if old is None:
                 raise KeyError(object_id)
-            cur = self._db.cursor()
-            cur.execute("BEGIN IMMEDIATE")
-            try:
+            with self._transaction() as cur:
                 ids = self._insert_templates(cur, object_id, model, ts)
                 counts = {**old.templates, model: old.templates.get(model, 0) + len(ids)}
                 rec = replace(old, templates=counts)
                 snap = self._next(cur, add={model: (object_id, ids, ts)}, put=rec)
-                cur.execute("COMMIT")
-            except BaseException:
-                cur.execute("ROLLBACK")
-                raise
             self._swap(snap)
 
     def remove_object(self, object_id: int) -> bool:
@@ -295,16 +324,10 @@ class Store:
         with self._write:
             if object_id not in self._snap.objects:
                 return False
-            cur = self._db.cursor()
-            cur.execute("BEGIN IMMEDIATE")
-            try:
+            with self._transaction() as cur:
                 cur.execute("DELETE FROM templates WHERE object_id = ?", (object_id,))
                 cur.execute("DELETE FROM objects WHERE id = ?", (object_id,))
                 snap = self._next(cur, remove=object_id)
-                cur.execute("COMMIT")
-            except BaseException:
-                cur.execute("ROLLBACK")
-                raise
             self._swap(snap)
         return True
 
@@ -313,6 +336,27 @@ class Store:
             self._db.close()
 
     # -- internals ---------------------------------------------------------------------------------
+
+    @contextmanager
+    def _transaction(self) -> Iterator[sqlite3.Cursor]:
+        """One SQLite transaction (the caller holds the write lock): committed, or rolled back and
+        re-raised; SQLite's "database or disk is full" comes out as OSError(ENOSPC)."""
+        cur = self._db.cursor()
+        try:
+            cur.execute("BEGIN IMMEDIATE")
+            yield cur
+            cur.execute("COMMIT")
+        except BaseException as e:
+            # SQLite may have rolled back already (it does on some SQLITE_FULL errors): a second
+            # ROLLBACK would fail and hide the real error.
+            if self._db.in_transaction:
+                try:
+                    self._db.execute("ROLLBACK")
+                except sqlite3.Error as rollback:
+                    log.error("rollback failed after %s: %s", e, rollback)
+            if _disk_full(e):
+                raise OSError(errno.ENOSPC, f"disk full: could not write {self.dir / 'store.sqlite'}") from e
+            raise
 
     def _check_set(self, model: str, ts: TemplateSet) -> None:
         if model not in self.dims:
@@ -378,15 +422,20 @@ class Store:
     def _swap(self, snap: Snapshot) -> None:
         old = self._snap
         self._snap = snap  # one reference assignment: readers get the old or the new state, never a mix
-        try:
-            for m, mi in snap.models.items():
+        for m, mi in snap.models.items():
+            try:
                 if old.models.get(m) is not mi:
                     self._save_index(m, mi, snap.generation)
                 elif m in self._tags:  # unchanged index: only its tag moves to the new generation
-                    self._tags[m]["generation"] = snap.generation
-                    _write_atomic(self._paths(m)[1], json.dumps(self._tags[m]).encode())
-        except OSError as e:  # the write is committed; a stale snapshot is rebuilt at the next start
-            log.warning("could not write index snapshots to %s: %s", self.dir, e)
+                    tag = {**self._tags[m], "generation": snap.generation}
+                    _write_atomic(self._paths(m)[1], json.dumps(tag).encode())
+                    self._tags[m] = tag
+            except OSError as e:  # the write is committed; a stale snapshot is rebuilt at the next start
+                log.warning("could not write the %s index snapshot to %s: %s", m, self.dir, e)
+                # Forget the tag and remove its file: a later write must not re-tag a file that lacks
+                # this write as current (ntotal would catch most such files, not all).
+                self._tags.pop(m, None)
+                self._paths(m)[1].unlink(missing_ok=True)
 
     def _forget_changed_models(self, models: Mapping[str, tuple[int, str]]) -> None:
         known = {n: (f, d) for n, f, d in self._db.execute("SELECT name, fingerprint, dim FROM models")}
@@ -499,8 +548,12 @@ class Store:
 
 def _write_atomic(path: Path, content: bytes) -> None:
     tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "wb") as f:
-        f.write(content)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
+    try:
+        with open(tmp, "wb") as f:
+            f.write(content)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except OSError:
+        tmp.unlink(missing_ok=True)  # a half-written file only takes the space a full disk lacks
+        raise
