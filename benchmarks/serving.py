@@ -1,6 +1,6 @@
 """What the service costs: registering a 20k-face mesh (render / embed / store, per in-plane step) and
 recognising a full frame in-process (TestClient, every modality), medians of repeats. Prints numbers;
-never fails on time.
+never fails on time. `posedesc bench` measures the same over HTTP (and imports `mesh_20k`, `demo_frame`).
 
     .venv/bin/python benchmarks/serving.py [--models models] [--repeats 3] [--queries 50]
 """
@@ -44,6 +44,18 @@ def png(a: np.ndarray) -> bytes:
     return buf.getvalue()
 
 
+def demo_frame(worker: RenderWorker) -> tuple[np.ndarray, np.ndarray, dict[str, float]]:
+    """The demo robot at azimuth 40, elevation 30, 600 mm, before a wall, in a 640x480 frame: rgb, depth
+    (mm) and the camera fields of a `/recognize` request for it."""
+    view, uv = View(40.0, 30.0, 0.0, 600.0), (380.0, 250.0)
+    R, t = view_to_pose(view, ray=np.linalg.inv(K) @ np.array([*uv, 1.0]))
+    wall = trimesh.creation.box(extents=[8000, 8000, 10])
+    scene = [(demo_shapes()["robot"], R, t), (wall, np.eye(3), np.array([0.0, 0.0, 1500.0]))]
+    rgb, depth = worker.submit(lambda r: r.render_frame(scene, K, 640, 480)).result()
+    fields = {"fx": K[0, 0], "fy": K[1, 1], "cx": K[0, 2], "cy": K[1, 2], "u": uv[0], "v": uv[1]}
+    return rgb, depth, {k: float(v) for k, v in fields.items()}
+
+
 def bench_registration(models: Path, repeats: int) -> None:
     embedders = load_models(models)
     worker = RenderWorker()
@@ -80,13 +92,8 @@ def bench_recognition(models: Path, queries: int) -> None:
             while c.get("/readyz").status_code != 200:  # the four demo objects, registered at start-up
                 time.sleep(0.2)
             worker = RenderWorker()
-            view, uv = View(40.0, 30.0, 0.0, 600.0), (380.0, 250.0)
-            R, t = view_to_pose(view, ray=np.linalg.inv(K) @ np.array([*uv, 1.0]))
-            wall = trimesh.creation.box(extents=[8000, 8000, 10])
-            scene = [(demo_shapes()["robot"], R, t), (wall, np.eye(3), np.array([0.0, 0.0, 1500.0]))]
-            rgb, depth = worker.submit(lambda r: r.render_frame(scene, K, 640, 480)).result()
+            rgb, depth, fields = demo_frame(worker)
             worker.close()
-            fields = {"fx": K[0, 0], "fy": K[1, 1], "cx": K[0, 2], "cy": K[1, 2], "u": uv[0], "v": uv[1]}
             sent = {
                 "rgb": ({"rgb": png(rgb)}, {**fields, "distance_mm": 600}),
                 "depth": ({"depth": png(np.round(depth).astype(np.uint16))}, fields),

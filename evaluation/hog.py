@@ -26,6 +26,16 @@ def _to_u8(x: np.ndarray) -> np.ndarray:
     return np.clip(x * 64.0 + 128.0, 0, 255).astype(np.uint8)
 
 
+def describe_inputs(x: np.ndarray, hog: cv2.HOGDescriptor | None = None) -> np.ndarray:
+    """Network inputs (N, C, 64, 64) -> (N, 1764 x C) float16, unit L2: HOG of every channel, stacked."""
+    hog = hog if hog is not None else hog_descriptor()
+    out = np.zeros((len(x), HOG_DIM_PER_CHANNEL * x.shape[1]), np.float16)
+    for i, patch in enumerate(x):
+        d = np.concatenate([hog.compute(_to_u8(ch)).ravel() for ch in patch])
+        out[i] = d / max(float(np.linalg.norm(d)), 1e-12)
+    return out
+
+
 def hog_descriptors(
     modality: str,
     rgb: np.ndarray | None,
@@ -55,9 +65,7 @@ def hog_descriptors(
         )
         if out is None:
             out = np.zeros((n, HOG_DIM_PER_CHANNEL * x.shape[1]), np.float16)
-        for i, patch in enumerate(x):
-            d = np.concatenate([hog.compute(_to_u8(ch)).ravel() for ch in patch])
-            out[lo + i] = d / max(float(np.linalg.norm(d)), 1e-12)
+        out[lo:hi] = describe_inputs(x, hog)
         if progress:
             progress(hi - lo)
     return out if out is not None else np.zeros((0, HOG_DIM_PER_CHANNEL), np.float16)

@@ -54,6 +54,7 @@ class LineModIndex:
         # for templates (400 mm) and test patches (any distance).
         self.depth_ref_mm = LINEMOD_FOCAL_PX * window_mm / size
         self._index: dict[tuple[str, int], int] = {}  # (class id, LineMOD template id) -> our index
+        self._count = 0  # templates offered so far: indices continue across calls to `add`
         self.skipped = 0
 
     def _sources(
@@ -76,8 +77,8 @@ class LineModIndex:
         nominal_mm: float | np.ndarray,
         progress: Callable[[int], None] | None = None,
     ) -> None:
-        """Adds templates 0..T-1 (our indices): rgb (T, S, S, 3), depth (T, S, S) mm, mask (T, S, S);
-        `nominal_mm`: their render distance."""
+        """Adds T templates: rgb (T, S, S, 3), depth (T, S, S) mm, mask (T, S, S); `nominal_mm`: their
+        render distance. Our indices are 0..T-1 on the first call and continue from there on later ones."""
         nominal = np.broadcast_to(np.asarray(nominal_mm, dtype=float), (len(obj_ids),))
         for i in range(len(obj_ids)):
             class_id = f"obj_{int(obj_ids[i])}"
@@ -88,9 +89,10 @@ class LineModIndex:
             if tid < 0:
                 self.skipped += 1
             else:
-                self._index[(class_id, tid)] = i
+                self._index[(class_id, tid)] = self._count + i
             if progress and (i + 1) % 100 == 0:
                 progress(100)
+        self._count += len(obj_ids)
         if progress:
             progress(len(obj_ids) % 100)
 

@@ -1,0 +1,179 @@
+"""The objects the benchmarks measure on: a few procedural shapes rendered once, turned into as many
+distinct objects as a section needs, and real-looking query patches.
+
+Rendering 1,000 meshes would take most of an hour here, so `distinct` shapes (`index.shapes.random_shape`)
+are rendered from the service's template views once, and object j is shape j % distinct seen through one
+of 48 exact image transforms (4 quarter turns x mirror x 6 orders of the colour channels; depth follows
+the geometric part). Every object then has templates of its own, as a new mesh would: the network sees
+different patches, LineMOD extracts different features, and neither method's cost depends on where the
+templates came from. A template's pose label is the view it was rendered from (poses do not enter
+the timing)."""
+
+from __future__ import annotations
+
+import itertools
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from index.embed import Embedder
+from index.patches import batch_inputs
+from index.pose import View
+from index.register import TemplateConfig, embed_templates, template_views
+from index.render import Renderer, Templates
+from index.sensor import SensorModel, random_background
+from index.shapes import random_shape
+from index.store import TemplateSet
+
+PERMUTATIONS = list(itertools.permutations(range(3)))
+VARIANTS = 8 * len(PERMUTATIONS)  # dihedral group of the square x channel orders
+QUERY_VIEW = View(azimuth=37.0, elevation=33.0, inplane=0.0, distance=400.0)  # between template views
+
+
+def variant(
+    rgb: np.ndarray, depth: np.ndarray, k: int
+) -> tuple[np.ndarray, np.ndarray]:  # (T, S, S, 3), (T, S, S)
+    """The k-th of `VARIANTS` exact transforms of a stack of patches; k = 0 is the identity."""
+    turns, mirror, perm = k % 4, (k // 4) % 2, PERMUTATIONS[k // 8]
+    rgb, depth = np.rot90(rgb, turns, axes=(1, 2)), np.rot90(depth, turns, axes=(1, 2))
+    if mirror:
+        rgb, depth = rgb[:, :, ::-1], depth[:, :, ::-1]
+    return np.ascontiguousarray(rgb[..., list(perm)]), np.ascontiguousarray(depth)
+
+
+def variant_inputs(x: np.ndarray, k: int, colour: bool) -> np.ndarray:
+    """The network inputs (T, C, S, S) of variant k's templates from those of the identity's: a patch's
+    normalisation (`index.patches`: per-channel mean and spread, depth relative to the central square)
+    does not see quarter turns or mirroring and follows the channels' order, so the inputs transform as
+    the images do. `colour`: the first three channels are RGB."""
+    turns, mirror, perm = k % 4, (k // 4) % 2, PERMUTATIONS[k // 8]
+    x = np.rot90(x, turns, axes=(2, 3))
+    if mirror:
+        x = x[:, :, :, ::-1]
+    if colour:
+        x = x[:, [*perm, *range(3, x.shape[1])]]
+    return np.ascontiguousarray(x)
+
+
+@dataclass
+class ObjectSet:
+    """Renders of `distinct` shapes at the template views and a query patch of shape 0 at `QUERY_VIEW`.
+
+    rgb: (M, T, S, S, 3) uint8; depth: (M, T, S, S) mm; query_rgb (S, S, 3), query_depth (S, S): a
+    render through the sensor model on a random background, as a camera would see it."""
+
+    views: list[View]
+    rgb: np.ndarray
+    depth: np.ndarray
+    window_mm: float
+    query_rgb: np.ndarray
+    query_depth: np.ndarray
+    seed: int = 0
+    _sets: dict[tuple[str, int], TemplateSet] = field(default_factory=dict, repr=False)
+
+    @property
+    def capacity(self) -> int:
+        """How many distinct objects can be made."""
+        return len(self.rgb) * VARIANTS
+
+    @property
+    def templates_per_object(self) -> int:
+        return len(self.views)
+
+    def templates(self, j: int) -> Templates:
+        """Object j's templates, as the renderer would give them."""
+        if not 0 <= j < self.capacity:
+            raise ValueError(f"object {j}: only {self.capacity} can be made from {len(self.rgb)} shapes")
+        m = len(self.rgb)
+        rgb, depth = variant(self.rgb[j % m], self.depth[j % m], j // m)
+        return Templates(self.views, rgb, depth, self.window_mm)
+
+    def template_set(self, embedder: Embedder, j: int) -> TemplateSet:
+        """Object j's descriptors with one model, as `index.register` makes them (cached)."""
+        key = (str(embedder.path), j)
+        if key not in self._sets:
+            self._sets[key] = embed_templates(embedder, {self.window_mm: self.templates(j)})
+        return self._sets[key]
+
+    def embed_all(self, embedder: Embedder, n: int, progress: Callable[[int], None] | None = None) -> None:
+        """Descriptors of objects 0..n-1 into the cache, shape by shape: each shape's network inputs are
+        made once and transformed for its variants (`variant_inputs`), as `template_set` would make them."""
+        m, colour = len(self.rgb), embedder.modality in ("rgb", "rgbd")
+        depth = embedder.modality in ("depth", "rgbd")
+        poses = np.array([(v.azimuth, v.elevation, v.inplane) for v in self.views], np.float32)
+        nominal = np.array([v.distance for v in self.views])
+        for a in range(min(m, n)):
+            todo = [
+                k
+                for k in range(VARIANTS)
+                if a + m * k < n and (str(embedder.path), a + m * k) not in self._sets
+            ]
+            if not todo:
+                continue
+            base = batch_inputs(
+                embedder.modality,
+                self.rgb[a] if colour else None,
+                self.depth[a] if depth else None,
+                nominal,
+                self.window_mm,
+                fill=False,  # a render's zeros are background, as in `index.register.embed_templates`
+            )
+            for k in todo:
+                desc = embedder(variant_inputs(base, k, colour), batch=128)
+                self._sets[(str(embedder.path), a + m * k)] = TemplateSet(poses, desc)
+                if progress:
+                    progress(1)
+
+    def patches(self, n: int) -> tuple[np.ndarray, np.ndarray]:
+        """n real-looking patches: templates of the shapes through the sensor model on random
+        backgrounds. Shapes: (n, S, S, 3) uint8, (n, S, S) mm."""
+        rng = np.random.default_rng(self.seed + 1)
+        sensor = SensorModel()
+        m, t = self.rgb.shape[:2]
+        rgb, depth = (
+            np.zeros((n, *self.rgb.shape[2:]), np.uint8),
+            np.zeros((n, *self.depth.shape[2:]), np.float32),
+        )
+        for i in range(n):
+            a, b = int(rng.integers(m)), int(rng.integers(t))
+            rgb[i], depth[i] = _through_sensor(self.rgb[a, b], self.depth[a, b], rng, sensor)
+        return rgb, depth
+
+
+def _through_sensor(
+    rgb: np.ndarray, depth: np.ndarray, rng: np.random.Generator, sensor: SensorModel
+) -> tuple[np.ndarray, np.ndarray]:
+    bg_rgb, bg_depth = random_background(depth.shape, rng, QUERY_VIEW.distance)
+    out_rgb, out_depth = sensor.apply(rgb, depth, rng, bg_rgb, bg_depth)
+    return out_rgb, out_depth  # type: ignore[return-value]
+
+
+def render_objects(
+    distinct: int,
+    size: int = 64,
+    window_mm: float = 200.0,
+    level: int = 3,
+    seed: int = 0,
+    progress: Callable[[int], None] | None = None,
+) -> ObjectSet:
+    """Renders `distinct` random shapes from the service's template views (icosphere `level`)."""
+    rng = np.random.default_rng(seed)
+    meshes = [random_shape(rng) for _ in range(distinct)]
+    views = template_views("none", TemplateConfig(level=level))
+    renderer = Renderer(size=size, window_mm=window_mm)
+    try:
+        rendered = [renderer.render(m, views, progress=progress) for m in meshes]
+        query = renderer.render(meshes[0], [QUERY_VIEW])
+    finally:
+        renderer.close()
+    q_rgb, q_depth = _through_sensor(query.rgb[0], query.depth[0], rng, SensorModel())
+    return ObjectSet(
+        views=views,
+        rgb=np.stack([t.rgb for t in rendered]),
+        depth=np.stack([t.depth for t in rendered]),
+        window_mm=window_mm,
+        query_rgb=q_rgb,
+        query_depth=q_depth,
+        seed=seed,
+    )

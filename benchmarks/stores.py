@@ -1,0 +1,59 @@
+"""Template stores of many objects for the benchmarks, searched by the service's own code.
+
+`flat_snapshot` builds in one go what `index.store.Store` would hold after registering the objects one by
+one with the default index kind (`IndexIDMap2(IndexFlatL2)`), as an `index.store.Snapshot`, whose
+`search` is the very call a recognition makes. Registering 1,000 objects through `Store.add_object`
+instead would rewrite every model's index snapshot file once per object (quadratic in the store size).
+`fill_data_dir` does go through `Store.add_object`, for a data dir the real service then serves."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Mapping
+from pathlib import Path
+
+import faiss
+import numpy as np
+
+from benchmarks.objects import ObjectSet
+from index.embed import Embedder, fingerprint
+from index.store import ModelIndex, ObjectRecord, Snapshot, Store, TemplateSet
+
+
+def flat_snapshot(model: str, sets: list[TemplateSet]) -> Snapshot:
+    """Objects 1..N with these templates (one set per object) in one model's exact index."""
+    desc = np.ascontiguousarray(np.concatenate([s.descriptors for s in sets]), np.float32)
+    poses = np.concatenate([s.poses for s in sets]).astype(np.float32)
+    object_ids = np.concatenate([np.full(len(s.poses), j + 1, np.int64) for j, s in enumerate(sets)])
+    ids = np.arange(1, len(desc) + 1, dtype=np.int64)
+    index = faiss.IndexIDMap2(faiss.IndexFlatL2(desc.shape[1]))
+    index.add_with_ids(desc, ids)
+    now = time.time()
+    objects = {
+        j + 1: ObjectRecord(j + 1, f"object-{j + 1}", "none", 0, now, {model: len(s.poses)})
+        for j, s in enumerate(sets)
+    }
+    return Snapshot(1, objects, {model: ModelIndex(index, ids, object_ids, poses)})
+
+
+def fill_data_dir(
+    data_dir: Path,
+    embedders: Mapping[str, Embedder],
+    objects: ObjectSet,
+    n: int,
+    progress: Callable[[int], None] | None = None,
+) -> None:
+    """Registers objects 0..n-1 of `objects` into a new data dir for every model, as the service would
+    (one transaction per object); no mesh is kept, so they cannot be re-embedded. `progress` counts
+    n x (models + 1) steps: embedding per model, then storing."""
+    for e in embedders.values():
+        objects.embed_all(e, n, progress)
+    store = Store(data_dir, {m: (e.dim, fingerprint(e.path)) for m, e in embedders.items()})
+    try:
+        for j in range(n):
+            sets = {m: objects.template_set(e, j) for m, e in embedders.items()}
+            store.add_object(f"object-{j + 1}", "none", sets, extra={"benchmark": True})
+            if progress:
+                progress(1)
+    finally:
+        store.close()

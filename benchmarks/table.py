@@ -1,0 +1,143 @@
+"""The human-readable form of a `posedesc bench` result: one small table per section, then the targets."""
+
+from __future__ import annotations
+
+
+def _num(x: float | None, digits: int = 1) -> str:
+    if x is None:
+        return "-"
+    if abs(x) >= 1000:
+        return f"{x:,.0f}"
+    return f"{x:.{digits}f}"
+
+
+def _mb(x: float | None) -> str:
+    return "-" if x is None else f"{x / 2**20:,.0f}"
+
+
+def _table(title: str, header: list[str], rows: list[list[str]]) -> list[str]:
+    widths = [max(len(r[i]) for r in [header, *rows]) for i in range(len(header))]
+    fmt = "  ".join(f"{{:{'<' if i == 0 else '>'}{w}}}" for i, w in enumerate(widths))
+    return ["", title, fmt.format(*header), *(fmt.format(*r) for r in rows)]
+
+
+def render(result: dict) -> str:
+    m, th, sec = result["machine"], result["threads"], result["sections"]
+    lines = [
+        f"posedesc bench: {m['cores_usable']} cores ({m['cpu']}), load {m['load_average_at_start'][0]:.1f} at start, "
+        f"{m['load_average_at_end'][0]:.1f} at end; threads: onnxruntime {th['onnxruntime_intra_op']}, "
+        f"FAISS {th['faiss_omp']}, OpenCV {th['opencv']}; {result['seconds']['total']:.0f} s",
+    ]
+    if d := sec.get("descriptor"):
+        lines += _table(
+            f"descriptor throughput, {d['modality']}, {d['patches']} patches, median of {d['repeats']} "
+            f"(a descriptor is {d['descriptor_bytes']['ours']:,} B, HOG's {d['descriptor_bytes']['hog']:,} B)",
+            ["method", "patches/s", "vs HOG"],
+            [
+                ["descriptor only: ours (onnxruntime), batch 1", _num(d["onnx_b1_patches_per_s"]), _num(d["onnx_vs_hog_ratio_b1"], 2) + "x"],
+                ["descriptor only: ours (onnxruntime), batch 256", _num(d["onnx_b256_patches_per_s"]), _num(d["onnx_vs_hog_ratio_b256"], 2) + "x"],
+                ["descriptor only: HOG", _num(d["hog_only_patches_per_s"]), "1x"],
+                ["from the patch: ours, batch 1", _num(d["ours_b1_patches_per_s"]), _num(d["ours_vs_hog_throughput_ratio_b1"], 2) + "x"],
+                ["from the patch: ours, batch 256", _num(d["ours_b256_patches_per_s"]), _num(d["ours_vs_hog_throughput_ratio_b256"], 2) + "x"],
+                ["from the patch: HOG", _num(d["hog_patches_per_s"]), "1x"],
+            ],
+        )  # fmt: skip
+    if r := sec.get("recognition"):
+        rows = []
+        for n, row in r["by_objects"].items():
+            lm = row.get("linemod")
+            rows.append(
+                [
+                    n,
+                    f"{row['templates']:,}",
+                    _num(row["ours"]["p50_ms"], 2),
+                    _num(row["ours"]["embed_median_ms"], 2),
+                    _num(row["ours"]["search_median_ms"], 2),
+                    _num(lm["median_ms"] if lm else None),
+                    _num(row.get("speedup")) + ("x" if row.get("speedup") else ""),
+                ]
+            )
+        runs = [row["ours"]["runs"] for row in r["by_objects"].values()][:1]
+        runs_lm = [row["linemod"]["runs"] for row in r["by_objects"].values() if "linemod" in row][:1]
+        lines += _table(
+            f"one recognition in-process, {r['modality']}, k = {r['k']} (ours: p50 of {runs[0] if runs else 0}, "
+            f"embed and k-NN apart; LineMOD: median of {runs_lm[0] if runs_lm else 0})",
+            ["objects", "templates", "ours ms", "embed", "k-NN", "LineMOD ms", "speedup"],
+            rows,
+        )
+    if k := sec.get("knn"):
+        rows = []
+        for n, row in k["by_size"].items():
+            ivf = row.get("ivf") or {}
+            rows.append(
+                [
+                    f"{int(n):,}",
+                    _num(row["flat"]["median_ms"], 3),
+                    _mb(row["flat"]["memory_bytes"]),
+                    _num(ivf.get("median_ms"), 3),
+                    _mb(ivf.get("memory_bytes")),
+                    _num(ivf.get("recall_at_k"), 3),
+                ]
+            )
+        lines += _table(
+            f"k-NN, {k['dim']}-d, k = {k['k']}, one query, {k['threads']['search']} thread "
+            f"(IVF nlist {k['ivf']['nlist']}, nprobe {k['ivf']['nprobe']})",
+            ["templates", "exact ms", "exact MB", "IVF ms", "IVF MB", f"IVF recall@{k['k']}"],
+            rows,
+        )
+    if h := sec.get("http"):
+        rows = [
+            [
+                c,
+                _num(row["p50_ms"]),
+                _num(row["p99_ms"]),
+                _num(row["requests_per_s"]),
+                _num(row["server_total_median_ms"]),
+            ]
+            for c, row in h["by_concurrency"].items()
+        ]
+        f = h["frame_640x480"]
+        rows.append(
+            [
+                "1, 640x480 frame",
+                _num(f["p50_ms"]),
+                _num(f["p99_ms"]),
+                _num(f["requests_per_s"]),
+                _num(f["server_total_median_ms"]),
+            ]
+        )
+        lines += _table(
+            f"POST /recognize over HTTP, loopback, {h['objects']} objects, {h['modality']} patch "
+            f"({h['requests_per_level']} requests x {h['rounds']} rounds per level)",
+            ["clients", "p50 ms", "p99 ms", "req/s", "in service ms"],
+            rows,
+        )  # fmt: skip
+    if g := sec.get("register"):
+        lines += _table(
+            f"POST /objects, {g['faces']:,}-face mesh, models {', '.join(g['models'])}, store of "
+            f"{g['store_objects_before']} objects (median of {g['repeats']}; first one {g['cold_s']:.2f} s)",
+            ["request s", "render s", "embed s", "store s", "in service s"],
+            [
+                [
+                    _num(g["wall_s"], 2),
+                    *(_num(g.get(k), 2) for k in ("render_s", "embed_s", "store_s", "total_s")),
+                ]
+            ],
+        )
+    if t := sec.get("train"):
+        lines += _table(
+            f"training step, {t['modality']}, {t['torch_threads']} torch threads, batch of "
+            f"{t['samples_per_batch']} samples = {t['patches_per_batch']} patches (median of {t['steps']})",
+            ["patches/s", "samples/s", "step ms"],
+            [[_num(t["train_patches_per_s"]), _num(t["train_samples_per_s"]), _num(t["step_median_ms"])]],
+        )
+    if result.get("targets"):
+        rows = []
+        for v in result["targets"].values():
+            val = v["value"]
+            shown = ", ".join(_num(x) for x in val) if isinstance(val, list) else _num(val, 2)
+            rows.append([v["what"], v["target"], shown, {True: "yes", False: "NO", None: "-"}[v["met"]]])
+        lines += _table("targets", ["", "target", "measured", "met"], rows)
+    for note in result.get("notes", []) + [f"capped: {c}" for c in result.get("capped", [])]:
+        lines.append(f"note: {note}")
+    return "\n".join(lines)

@@ -1,0 +1,94 @@
+"""Measure speed beside the baselines (HOG, LineMOD, exact k-NN): a table, and JSON for the README."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from dataclasses import replace
+from pathlib import Path
+
+from posedesc.cli import UserError
+
+
+def _ints(text: str) -> tuple[int, ...]:
+    try:
+        out = tuple(int(float(x)) for x in text.split(",") if x.strip())
+    except ValueError:
+        raise UserError(f"not a list of numbers: {text!r} (e.g. 8,100,1000)") from None
+    if not out or min(out) <= 0:
+        raise UserError(f"not a list of positive numbers: {text!r}")
+    return out
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--json", type=Path, required=True, help="where to write the results")
+    p.add_argument("--quick", action="store_true", help="every section at tiny sizes (seconds; for tests)")
+    p.add_argument(
+        "--only",
+        default=None,
+        help="comma-separated sections: descriptor,recognition,knn,http,register,train",
+    )
+    p.add_argument("--models", type=Path, default=Path("models"), help="folder of posedesc-*.onnx models")
+    p.add_argument("--modality", choices=("rgb", "depth", "rgbd"), default="rgb", help="the model measured")
+    p.add_argument("--objects", default=None, help="object counts for the LineMOD comparison (8,100,1000)")
+    p.add_argument(
+        "--linemod-max-objects",
+        type=int,
+        default=None,
+        help="measure LineMOD only up to this many objects (its build takes ~0.6 ms a template)",
+    )
+    p.add_argument("--max-templates", type=float, default=None, help="largest k-NN store (1e7)")
+    p.add_argument("--concurrency", default=None, help="HTTP clients at once, e.g. 1,4,8")
+    p.add_argument("--requests", type=int, default=None, help="HTTP requests per concurrency level and round")
+    p.add_argument(
+        "--repeats",
+        type=int,
+        default=None,
+        help="timed repetitions of slow measurements (throughput passes, LineMOD, registrations)",
+    )
+    p.add_argument("--seed", type=int, default=0)  # fmt: skip
+
+
+def run(args: argparse.Namespace) -> int:
+    from benchmarks.objects import VARIANTS
+    from benchmarks.suite import SECTIONS, BenchConfig
+    from benchmarks.suite import run as run_bench
+    from benchmarks.table import render
+
+    cfg = BenchConfig(models=args.models, modality=args.modality, seed=args.seed)
+    if args.quick:
+        cfg = cfg.tiny()
+    if args.only:
+        only = tuple(s.strip() for s in args.only.split(",") if s.strip())
+        unknown = [s for s in only if s not in SECTIONS]
+        if unknown or not only:
+            raise UserError(f"--only {args.only}: sections are {', '.join(SECTIONS)}")
+        cfg = replace(cfg, sections=tuple(s for s in SECTIONS if s in only))
+    if args.objects:
+        cfg = replace(cfg, recognition=replace(cfg.recognition, counts=_ints(args.objects)))
+    if args.linemod_max_objects is not None:
+        cfg = replace(cfg, recognition=replace(cfg.recognition, linemod_max_objects=args.linemod_max_objects))
+    if args.max_templates is not None:
+        sizes = tuple(n for n in cfg.knn.sizes if n <= args.max_templates) or (int(args.max_templates),)
+        cfg = replace(cfg, knn=replace(cfg.knn, sizes=sizes))
+    if args.concurrency:
+        cfg = replace(cfg, http=replace(cfg.http, concurrency=_ints(args.concurrency)))
+    if args.requests is not None:
+        cfg = replace(cfg, http=replace(cfg.http, requests=max(1, args.requests)))
+    if args.repeats is not None:
+        n = max(1, args.repeats)
+        cfg = replace(
+            cfg,
+            register_repeats=n,
+            descriptor=replace(cfg.descriptor, repeats=n),
+            recognition=replace(cfg.recognition, linemod_repeats=n),
+        )
+    if cfg.distinct is not None:  # --quick: few shapes, but enough for the largest count
+        needed = max(cfg.recognition.counts) if "recognition" in cfg.sections else 0
+        cfg = replace(cfg, distinct=max(cfg.distinct, -(-needed // VARIANTS)))
+    args.json.parent.mkdir(parents=True, exist_ok=True)
+    result = run_bench(cfg)
+    print(render(result))
+    args.json.write_text(json.dumps(result, indent=1) + "\n")
+    print(f"\nwrote {args.json}")
+    return 0

@@ -1,0 +1,43 @@
+"""The benchmark's many objects: image variants are distinct, and their descriptors made from transformed
+network inputs equal those the service's own path makes from the transformed images."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from benchmarks.objects import VARIANTS, ObjectSet, variant
+from index.embed import load_models
+from index.pose import View
+
+
+def tiny_set(shapes: int = 2) -> ObjectSet:
+    rng = np.random.default_rng(0)
+    views = [View(float(a), 30.0, 0.0, 400.0) for a in (0, 90, 200)]
+    rgb = rng.integers(0, 255, (shapes, len(views), 64, 64, 3), dtype=np.uint8)
+    depth = np.zeros((shapes, len(views), 64, 64), np.float32)
+    depth[:, :, 10:50, 20:60] = rng.uniform(350, 420, (shapes, len(views), 40, 40))  # off-centre on purpose
+    return ObjectSet(views, rgb, depth, 200.0, rgb[0, 0], depth[0, 0])
+
+
+def test_variants_are_distinct_transforms():
+    s = tiny_set()
+    assert s.capacity == 2 * VARIANTS == 96
+    firsts = {s.templates(j).rgb[0].tobytes() for j in range(0, s.capacity, 2)}  # every variant of shape 0
+    assert len(firsts) == VARIANTS
+    rgb, depth = variant(s.rgb[0], s.depth[0], 0)
+    np.testing.assert_array_equal(rgb, s.rgb[0])
+    assert np.array_equal(np.sort(s.templates(2 * 13).depth.ravel()), np.sort(s.depth[0].ravel()))
+
+
+def test_embed_all_equals_the_service_path(posedesc_models):
+    s = tiny_set()
+    for modality, e in load_models(posedesc_models).items():
+        fast = ObjectSet(s.views, s.rgb, s.depth, s.window_mm, s.query_rgb, s.query_depth)
+        fast.embed_all(e, 40)
+        for j in (0, 1, 5, 9, 18, 27, 39):  # identity, other shape, turns, mirrors, channel orders
+            slow = s.template_set(e, j)  # index.register.embed_templates on the variant's images
+            got = fast.template_set(e, j)
+            np.testing.assert_allclose(
+                got.descriptors, slow.descriptors, rtol=1e-4, atol=1e-4, err_msg=modality
+            )
+            np.testing.assert_array_equal(got.poses, slow.poses)

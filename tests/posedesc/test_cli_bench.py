@@ -1,0 +1,60 @@
+"""posedesc bench: every section at tiny sizes into one JSON with the issue's keys (numbers, not timings)."""
+
+from __future__ import annotations
+
+import json
+import math
+
+from posedesc.cli import main
+
+
+def positive(x: object) -> bool:
+    return isinstance(x, int | float) and math.isfinite(x) and x > 0
+
+
+def test_bench_quick(tmp_path, posedesc_models, capsys):
+    out = tmp_path / "bench.json"
+    assert main(["bench", "--quick", "--models", str(posedesc_models), "--json", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "POST /recognize over HTTP" in printed and "LineMOD" in printed and "targets" in printed
+    result = json.loads(out.read_text())
+    assert positive(result["recognize_vs_linemod_speedup_100"])
+    assert positive(result["register_20k_faces_s"])
+    s = result["summary"]
+    for key in (
+        "onnx_b1_patches_per_s",
+        "onnx_b256_patches_per_s",
+        "hog_patches_per_s",
+        "ours_vs_hog_throughput_ratio",
+        "recognize_p50_ms_8",
+        "recognize_p50_ms_100",
+        "linemod_median_ms_100",
+        "knn_flat_ms_10000",
+        "knn_ivf_ms_20000",
+        "http_p50_ms_c1",
+        "http_p99_ms_c2",
+        "http_requests_per_s_c2",
+        "register_render_s",
+        "register_embed_s",
+        "register_store_s",
+        "train_patches_per_s",
+    ):
+        assert positive(s.get(key)), (key, s.get(key))
+    assert 0.0 <= s["knn_ivf_recall_at_5_20000"] <= 1.0
+    assert result["sections"]["register"]["faces"] > 20_000
+    assert result["sections"]["http"]["by_concurrency"]["2"]["failed"] == 0
+    assert result["threads"]["onnxruntime_intra_op"] == 1 and result["machine"]["cores"] >= 1
+    assert result["config"]["quick"] is True
+    assert result["sections"]["recognition"]["by_objects"]["100"]["templates"] == 100 * 16
+
+
+def test_bench_errors(tmp_path, capsys):
+    assert main(["bench", "--quick", "--only", "knn,nope", "--json", str(tmp_path / "b.json")]) == 2
+    assert "sections are descriptor" in capsys.readouterr().err
+    assert main(["bench", "--objects", "8,x", "--json", str(tmp_path / "b.json")]) == 2
+    assert "not a list of numbers" in capsys.readouterr().err
+    empty = tmp_path / "models"
+    empty.mkdir()
+    assert main(["bench", "--quick", "--models", str(empty), "--json", str(tmp_path / "b.json")]) == 2
+    assert "no rgb model" in capsys.readouterr().err
+    assert not (tmp_path / "b.json").exists()
