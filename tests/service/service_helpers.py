@@ -1,17 +1,26 @@
 """Helpers of the service tests (imported by path): settings for a temporary data dir, frames of a test
-mesh, PNG bytes, registration that follows a 202 job."""
+mesh, PNG bytes, registration that follows a 202 job, `posedesc serve` as a subprocess on a loopback port."""
 
 from __future__ import annotations
 
 import io
+import os
+import signal
+import socket
+import subprocess
+import sys
 import time
 from pathlib import Path
 
+import httpx
 import numpy as np
+import pytest
 import trimesh
 from PIL import Image
 
 from index.pose import View, view_to_pose
+
+ROOT = Path(__file__).resolve().parents[2]
 
 # Kinect-like intrinsics (LineMOD's), 640 x 480.
 K = np.array([[572.4, 0.0, 325.3], [0.0, 573.6, 242.0], [0.0, 0.0, 1.0]])
@@ -103,3 +112,68 @@ def register(client, mesh: trimesh.Trimesh, name: str, headers=None, timeout: fl
             return job["result"]
         time.sleep(0.1)
     raise AssertionError("registration did not finish")
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+class Server:
+    """`posedesc serve` in a subprocess on a free loopback port; `env` adds POSEDESC_* settings."""
+
+    def __init__(self, data_dir: Path, models: Path, env: dict[str, str] | None = None):
+        self.port = free_port()
+        self.url = f"http://127.0.0.1:{self.port}"
+        env = {
+            **os.environ,
+            "POSEDESC_DEMO_OBJECTS": "false",
+            "POSEDESC_LEVEL": "2",
+            "POSEDESC_SYNC_SECONDS": "30",
+            **(env or {}),
+        }
+        cmd = [sys.executable, "-m", "posedesc.cli", "serve", "--host", "127.0.0.1", "--port", str(self.port)]
+        cmd += ["--data-dir", str(data_dir), "--models", str(models), "--log-level", "warning"]
+        self.log = data_dir.parent / f"server-{self.port}.log"
+        with open(self.log, "wb") as out:  # the child keeps its own copy of the descriptor
+            self.proc = subprocess.Popen(cmd, cwd=ROOT, env=env, stdout=out, stderr=subprocess.STDOUT)
+
+    def wait_ready(self, timeout: float = 120.0) -> None:
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            if self.proc.poll() is not None:
+                pytest.fail(f"server exited with {self.proc.returncode}:\n{self.log.read_text()[-3000:]}")
+            try:
+                if httpx.get(f"{self.url}/readyz", timeout=2).status_code == 200:
+                    return
+            except httpx.HTTPError:
+                pass
+            time.sleep(0.2)
+        pytest.fail(f"server not ready:\n{self.log.read_text()[-3000:]}")
+
+    def stop(self) -> int:
+        """SIGTERM: uvicorn shuts down gracefully (the lifespan closes the store); the exit status."""
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGTERM)
+        return self.proc.wait(timeout=60)
+
+    def kill(self) -> None:
+        """SIGKILL: no shutdown at all, as in a crash or the OOM killer."""
+        self.proc.kill()
+        self.proc.wait(timeout=60)
+
+    def memory_mb(self) -> tuple[float, float]:
+        """The server's resident memory now and at its peak (VmRSS, VmHWM), MB."""
+        fields = dict(
+            line.split(":", 1) for line in Path(f"/proc/{self.proc.pid}/status").read_text().splitlines()
+        )
+        return tuple(int(fields[k].split()[0]) / 1024 for k in ("VmRSS", "VmHWM"))  # type: ignore[return-value]
+
+    def __enter__(self) -> Server:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self.proc.poll() is None:
+            self.proc.kill()
+            self.proc.wait(timeout=60)

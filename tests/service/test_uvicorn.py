@@ -2,65 +2,17 @@
 
 from __future__ import annotations
 
-import os
 import signal
-import socket
-import subprocess
-import sys
 import threading
-import time
-from pathlib import Path
 
 import httpx
-import pytest
-from service_helpers import frame, frame_fields, png, register
+from service_helpers import Server, frame, frame_fields, png, register
 
 from index.pose import View
 from index.symmetry import view_error
 
-ROOT = Path(__file__).resolve().parents[2]
 TRUE_VIEW = View(azimuth=250.0, elevation=55.0, inplane=0.0, distance=700.0)
 UV = (260.0, 300.0)
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-class Server:
-    def __init__(self, data_dir: Path, models: Path):
-        self.port = free_port()
-        self.url = f"http://127.0.0.1:{self.port}"
-        env = {
-            **os.environ,
-            "POSEDESC_DEMO_OBJECTS": "false",
-            "POSEDESC_LEVEL": "2",
-            "POSEDESC_SYNC_SECONDS": "30",
-        }
-        cmd = [sys.executable, "-m", "posedesc.cli", "serve", "--host", "127.0.0.1", "--port", str(self.port)]
-        cmd += ["--data-dir", str(data_dir), "--models", str(models), "--log-level", "warning"]
-        self.log = data_dir.parent / f"server-{self.port}.log"
-        with open(self.log, "wb") as out:  # the child keeps its own copy of the descriptor
-            self.proc = subprocess.Popen(cmd, cwd=ROOT, env=env, stdout=out, stderr=subprocess.STDOUT)
-
-    def wait_ready(self, timeout: float = 120.0) -> None:
-        end = time.monotonic() + timeout
-        while time.monotonic() < end:
-            if self.proc.poll() is not None:
-                pytest.fail(f"server exited with {self.proc.returncode}:\n{self.log.read_text()[-3000:]}")
-            try:
-                if httpx.get(f"{self.url}/readyz", timeout=2).status_code == 200:
-                    return
-            except httpx.HTTPError:
-                pass
-            time.sleep(0.2)
-        pytest.fail(f"server not ready:\n{self.log.read_text()[-3000:]}")
-
-    def stop(self) -> int:
-        self.proc.send_signal(signal.SIGTERM)
-        return self.proc.wait(timeout=60)
 
 
 def test_serve_register_recognise_parallel_delete_restart(
