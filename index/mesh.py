@@ -1,4 +1,5 @@
-"""Loading a user's mesh: any format trimesh reads, in mm, checked, and simplified when too heavy."""
+"""Loading a user's mesh: any format trimesh reads, in mm, checked, and simplified when too heavy;
+refused when too large to load safely (`max_input_faces`, see `index/mesh_limits.py`)."""
 
 from __future__ import annotations
 
@@ -10,6 +11,8 @@ import numpy as np
 import trimesh
 from scipy.spatial import cKDTree
 
+from index import mesh_limits
+
 log = logging.getLogger(__name__)
 
 MESH_FORMATS = ("ply", "obj", "stl", "glb", "gltf", "off")
@@ -20,16 +23,22 @@ class MeshError(ValueError):
     """A mesh that cannot be used; the message says why, in one line."""
 
 
+class MeshTooLarge(MeshError):
+    """A mesh with more triangles (or parts) than the caller accepts."""
+
+
 def load_mesh(
     source: str | Path | bytes,
     units: str = "mm",
     file_type: str | None = None,
     max_faces: int | None = 200_000,
+    max_input_faces: int | None = None,
 ) -> trimesh.Trimesh:
     """One triangle mesh in millimetres from a path or bytes (`file_type` needed for bytes).
 
     Multi-part files (OBJ groups, GLB scenes) are merged with their colours and textures baked to
-    vertex colours where the parts differ. A mesh over `max_faces` is simplified to it."""
+    vertex colours where the parts differ. A mesh over `max_faces` is simplified to it; one over
+    `max_input_faces` (or `mesh_limits.MAX_PARTS`) raises MeshTooLarge, before parsing when it can."""
     if units not in UNIT_SCALE:
         raise MeshError(f"units must be one of {sorted(UNIT_SCALE)}, got {units!r}")
     if isinstance(source, (str, Path)):
@@ -43,16 +52,25 @@ def load_mesh(
     file_type = (file_type or "").lower()
     if file_type not in MESH_FORMATS:
         raise MeshError(f"unsupported mesh format {file_type!r}; use one of {', '.join(MESH_FORMATS)}")
+    if max_input_faces is not None:
+        _refuse(mesh_limits.declared(data, file_type), max_input_faces, "declares")
     try:
         loaded = trimesh.load(io.BytesIO(data), file_type=file_type, process=False)
     except Exception as e:  # trimesh raises anything from KeyError to struct.error on garbage
         raise MeshError(f"not a readable {file_type.upper()} mesh ({type(e).__name__}: {e})") from None
+    if max_input_faces is not None:
+        _refuse(mesh_limits.parsed(loaded), max_input_faces, "holds")
     mesh = _as_single_mesh(loaded)
     _check(mesh)
     mesh.apply_scale(UNIT_SCALE[units])
     if max_faces is not None and len(mesh.faces) > max_faces:
         mesh = simplify(mesh, max_faces)
     return mesh
+
+
+def _refuse(size: mesh_limits.Size, max_faces: int, verb: str) -> None:
+    if (why := mesh_limits.too_large(size, max_faces, verb)) is not None:
+        raise MeshTooLarge(why)
 
 
 def _as_single_mesh(loaded: object) -> trimesh.Trimesh:
