@@ -52,11 +52,14 @@ class DataConfig:
     min_visib_test: float = 0.5  # the issue's protocol
     real_paste: float = 0.7  # chance a real patch is cut out by its mask and pasted on a random background
     occlude: float = 0.3  # chance a synthetic sample is partly hidden behind another object
+    colour_jitter: float = 1.0  # strength of random gamma / saturation / contrast / hue changes (0: none)
+    exclude: tuple[int, ...] = ()  # BOP object ids left out of training, to measure unseen objects
     seed: int = 0
 
     def key(self, roots: list[str]) -> str:
         d = asdict(self)
-        for k in ("real_paste", "occlude", "min_visib_train", "min_visib_test", "centre_jitter_px"):
+        batch_time = ("real_paste", "occlude", "min_visib_train", "min_visib_test", "centre_jitter_px")
+        for k in (*batch_time, "colour_jitter"):
             d.pop(k)  # batch-time choices: not part of the cache
         return hashlib.sha1(json.dumps([d, roots], sort_keys=True).encode()).hexdigest()[:12]
 
@@ -71,6 +74,22 @@ class RealInstance:
     visib: float
     frame_id: int
     scene: str
+
+
+def colour_jitter(rgb: np.ndarray, rng: np.random.Generator, strength: float) -> np.ndarray:
+    """Random gamma, saturation, contrast and a small hue turn: a mesh's colours, baked under the scanner's
+    light, never match what a camera makes of the object. Shape: (S, S, 3) uint8 -> same."""
+    if strength <= 0:
+        return rgb
+    s = strength
+    x = (rgb.astype(np.float32) / 255.0) ** rng.uniform(1 - 0.35 * s, 1 + 0.5 * s)
+    grey = x.mean(axis=2, keepdims=True)
+    x = grey + (x - grey) * rng.uniform(1 - 0.4 * s, 1 + 0.4 * s)
+    x = x.mean() + (x - x.mean()) * rng.uniform(1 - 0.25 * s, 1 + 0.25 * s)
+    out = np.clip(x * 255.0, 0, 255).astype(np.uint8)
+    hsv = cv2.cvtColor(out, cv2.COLOR_RGB2HSV)  # OpenCV's hue is 0-179 (2 degrees a step)
+    hsv[..., 0] = ((hsv[..., 0].astype(np.int16) + int(round(rng.uniform(-4, 4) * s))) % 180).astype(np.uint8)
+    return cv2.cvtColor(hsv, cv2.COLOR_HSV2RGB)
 
 
 def _random_lighting(rng: np.random.Generator) -> Lighting:
@@ -208,6 +227,7 @@ class TrainingData:
                 near = depth[depth > 0].min() if (depth > 0).any() else self.cfg.distance
                 o_depth = o_depth - o_depth[front].max() + near - 10.0
                 rgb[front], depth[front] = o_rgb[front], o_depth[front]
+        rgb = colour_jitter(rgb, rng, self.cfg.colour_jitter)  # the background replaces what is not object
         bg_rgb, bg_depth = self._background(rng)
         return self.sensor.apply(rgb, depth, rng, bg_rgb, bg_depth)  # type: ignore[return-value]
 
@@ -226,7 +246,7 @@ class TrainingData:
             m = crop(mask3, None, r.K, uv, d, self.spec, r.view.inplane + turn)[0][..., :1] / 255.0
             rgb = (m * rgb + (1 - m) * bg_rgb).astype(np.uint8)
             depth = np.where(m[..., 0] > 0.5, depth, 0.0).astype(np.float32)
-        rgb, _ = self.sensor.apply(rgb, None, rng)
+        rgb, _ = self.sensor.apply(colour_jitter(rgb, rng, 0.5 * self.cfg.colour_jitter), None, rng)
         _, depth = self.sensor.apply(None, depth, rng, None, bg_depth)
         return rgb, depth  # type: ignore[return-value]
 
@@ -268,8 +288,12 @@ def _render_all(roots: list[Path], cfg: DataConfig) -> tuple[dict[str, np.ndarra
     renderer = Renderer(window_mm=cfg.window_mm)
     meshes, names, symmetries = [], [], []
     datasets = [BopDataset(r) for r in roots]
+    left_out = {}  # rendered into the frames' masks and depth (they occlude), never a training object
     for ds in datasets:
         for o in ds.obj_ids:
+            if o in cfg.exclude:
+                left_out[(ds.root, o)] = ds.mesh(o, max_faces=20000)
+                continue
             meshes.append(ds.mesh(o, max_faces=20000))
             names.append(f"{ds.root.name}/obj_{o:06d}")
             sym = ds.symmetry(o)
@@ -305,7 +329,9 @@ def _render_all(roots: list[Path], cfg: DataConfig) -> tuple[dict[str, np.ndarra
             s_R.append(rotations(chunk))
     frames, labels, frame_depth, real, real_split, heldout = [], [], [], [], [], {}
     for ds in datasets:
-        obj_index = {oid: names.index(f"{ds.root.name}/obj_{oid:06d}") for oid in ds.obj_ids}
+        obj_index = {
+            oid: names.index(f"{ds.root.name}/obj_{oid:06d}") for oid in ds.obj_ids if oid not in cfg.exclude
+        }
         for scene in ds.scene_dirs("test") + ds.scene_dirs("train"):
             insts = list(ds.instances(scene))
             frame_ids = sorted({i.frame_id for i in insts})
@@ -320,7 +346,8 @@ def _render_all(roots: list[Path], cfg: DataConfig) -> tuple[dict[str, np.ndarra
                 h, w = rgb.shape[:2]
                 depths = []
                 for inst in group:
-                    mesh = meshes[obj_index[inst.obj_id]]
+                    oid = inst.obj_id
+                    mesh = meshes[obj_index[oid]] if oid in obj_index else left_out[(ds.root, oid)]
                     _, d = renderer.render_frame([(mesh, inst.R, inst.t)], inst.K, w, h)
                     depths.append(np.where(d > 0, d, np.inf))
                 stack = np.stack(depths)
@@ -328,6 +355,8 @@ def _render_all(roots: list[Path], cfg: DataConfig) -> tuple[dict[str, np.ndarra
                 label = np.zeros((h, w), np.uint8)
                 seen = np.isfinite(stack.min(axis=0))
                 for k, inst in enumerate(group):
+                    if inst.obj_id not in obj_index:
+                        continue
                     label[seen & (nearest == k)] = obj_index[inst.obj_id] + 1
                     v = pose_to_view(inst.R, inst.t)
                     real.append(

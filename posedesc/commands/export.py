@@ -30,6 +30,8 @@ def run(args: argparse.Namespace) -> int:
         r = json.loads(report.read_text())
         extra["heldout_frames"] = json.dumps(r.get("heldout_frames", {}))
         extra["train_minutes"] = str(r.get("train_minutes", ""))
+        extra["objects"] = json.dumps(r.get("objects", []))
+        extra["excluded_objects"] = json.dumps(r.get("excluded_objects", []))
         for k in ("real_heldout", "synthetic_unseen_demo_shapes", "synthetic_bop_objects"):
             if k in r:
                 extra[k] = json.dumps({a: b for a, b in r[k].items() if a != "bands"})

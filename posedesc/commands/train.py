@@ -43,6 +43,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default=((0.25, 0.40), (0.70, 0.85)),
         help="held-out blocks of each scene's frame order, as fractions: A:B,C:D",
     )
+    p.add_argument(
+        "--exclude-objects",
+        default="",
+        help="BOP object ids to leave out of training (comma-separated), to measure objects never seen",
+    )
     p.add_argument("--cache", type=Path, default=Path("runs/cache"), help="rendered training data cache")
     p.add_argument("--no-validate", action="store_true", help="skip the per-epoch and final validation")
 
@@ -55,7 +60,13 @@ def run(args: argparse.Namespace) -> int:
     from training.train import TrainConfig, train
     from training.validate import validate_real, validate_synthetic
 
-    data_cfg = DataConfig(shapes=args.shapes, holdout=args.holdout, seed=args.seed)
+    try:
+        exclude = tuple(int(x) for x in args.exclude_objects.split(",") if x.strip())
+    except ValueError:
+        raise UserError(
+            f"--exclude-objects takes comma-separated object ids, not {args.exclude_objects!r}"
+        ) from None
+    data_cfg = DataConfig(shapes=args.shapes, holdout=args.holdout, seed=args.seed, exclude=exclude)
     cfg = TrainConfig(
         modality=args.modality,
         descriptor_dim=args.dim,
@@ -92,6 +103,8 @@ def run(args: argparse.Namespace) -> int:
         "command": command,
         "data": [str(d) for d in args.data],
         "heldout_frames": data.heldout_frames,
+        "objects": data.names[: data.real_objects],
+        "excluded_objects": list(exclude),
         "data_minutes": round(data_minutes, 1),
         "train_minutes": round(train_minutes, 1),
     }
