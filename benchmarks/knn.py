@@ -22,7 +22,7 @@ import faiss
 import numpy as np
 from tqdm import tqdm
 
-from benchmarks.timing import Timing, measure, return_freed_memory, rss_bytes
+from benchmarks.timing import Timing, live_bytes, measure, return_freed_memory
 from index.store import Store, set_threads
 
 _STORE = inspect.signature(Store).parameters
@@ -82,8 +82,7 @@ def _build(kind: str, data: Synthetic, cfg: KnnConfig, rng: np.random.Generator)
     sample = (
         data.rows(rng.choice(data.n, min(data.n, cfg.train_sample), replace=False)) if kind == "ivf" else None
     )
-    gc.collect()
-    before = rss_bytes()
+    before = live_bytes()
     if sample is not None:
         index: faiss.Index = faiss.IndexIVFFlat(faiss.IndexFlatL2(data.dim), data.dim, NLIST)
         index.train(sample)
@@ -93,7 +92,7 @@ def _build(kind: str, data: Synthetic, cfg: KnnConfig, rng: np.random.Generator)
     for lo, chunk in data.chunks():
         index.add_with_ids(chunk, np.arange(lo + 1, lo + 1 + len(chunk), dtype=np.int64))
     del chunk, sample
-    return index, max(0, rss_bytes() - before)
+    return index, max(0, live_bytes() - before)
 
 
 def run(cfg: KnnConfig) -> dict:

@@ -81,7 +81,7 @@ class BenchConfig:
 
 
 def run(cfg: BenchConfig) -> dict:
-    from index.embed import MODEL_FILES, Embedder, load_models
+    from index.embed import MODEL_FILES, Embedder, fingerprint, load_models
 
     t_start = time.perf_counter()
     cfg = replace(cfg, distinct=cfg.shapes_needed())
@@ -95,6 +95,10 @@ def run(cfg: BenchConfig) -> dict:
         raise FileNotFoundError(f"no {cfg.modality} model: {path} is missing")
     embedder = Embedder(path, threads=1)  # timed: one intra-op thread, as the service
     setup = load_models(cfg.models, threads=cfg.setup_threads)
+    out["models"] = {
+        m: {"file": str(e.path), "fingerprint": fingerprint(e.path), "descriptor_dim": e.dim}
+        for m, e in setup.items()
+    }
     objects = None
     if {"descriptor", "recognition", "http"} & set(cfg.sections):
         from benchmarks.objects import VARIANTS, render_objects

@@ -6,6 +6,7 @@ with the machine's cores and load, since a benchmark on a shared 2-core machine 
 
 from __future__ import annotations
 
+import gc
 import os
 import platform
 import statistics
@@ -82,17 +83,32 @@ def rss_bytes() -> int:
         return 0
 
 
+def _libc():
+    import ctypes
+
+    try:
+        return ctypes.CDLL("libc.so.6")
+    except OSError:
+        return None
+
+
 def return_freed_memory() -> None:
     """Makes glibc hand every allocation over 1 MB straight back to the system when freed (a fixed mmap
     threshold instead of its adaptive one), so that the resident size measures what is alive."""
-    try:
-        import ctypes
-
-        libc = ctypes.CDLL("libc.so.6")
+    libc = _libc()
+    if libc is not None:
         libc.mallopt(-3, 1 << 20)  # M_MMAP_THRESHOLD
         libc.mallopt(-1, 1 << 20)  # M_TRIM_THRESHOLD
-    except (OSError, AttributeError):
-        pass
+
+
+def live_bytes() -> int:
+    """Resident memory after giving freed heap pages back (glibc `malloc_trim`): what new allocations will
+    add to, even after earlier sections freed a lot."""
+    gc.collect()
+    libc = _libc()
+    if libc is not None:
+        libc.malloc_trim(0)
+    return rss_bytes()
 
 
 def _cpu_model() -> str:
