@@ -17,6 +17,7 @@ log = logging.getLogger(__name__)
 
 MESH_FORMATS = ("ply", "obj", "stl", "glb", "gltf", "off")
 UNIT_SCALE = {"mm": 1.0, "m": 1000.0}
+MAX_SIZE_MM = 1e6  # a kilometre: larger is a units mistake, or coordinates that overflow the renderer
 
 
 class MeshError(ValueError):
@@ -63,8 +64,13 @@ def load_mesh(
     mesh = _as_single_mesh(loaded)
     _check(mesh)
     mesh.apply_scale(UNIT_SCALE[units])
+    size = float(np.ptp(mesh.vertices, axis=0).max())
+    if not size <= MAX_SIZE_MM:
+        raise MeshError(f"the mesh is {size:.3g} mm across, over {MAX_SIZE_MM:g}: check its units")
     if max_faces is not None and len(mesh.faces) > max_faces:
         mesh = simplify(mesh, max_faces)
+        if len(mesh.faces) == 0:  # e.g. a million copies of one triangle
+            raise MeshError(f"simplifying it to {max_faces:,} faces left none: its faces are degenerate")
     return mesh
 
 

@@ -1,7 +1,10 @@
-"""Every error the API returns is JSON `{"detail": "<one line>"}` with a 4xx code; a 500 only as a last resort."""
+"""Every error the API returns is JSON `{"detail": "<one line>"}` with a 4xx code; 507 when the disk is full
+(nothing was changed), 503 while starting or overloaded, a 500 only as a last resort. The OpenAPI schema
+documents exactly these (`responses`), so a client can rely on the shape of every answer."""
 
 from __future__ import annotations
 
+import errno
 import logging
 
 from fastapi import FastAPI, Request
@@ -9,7 +12,29 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
+from service.schemas import ErrorOut
+
 log = logging.getLogger("service")
+
+# What a write that hit a full disk answers: the store rolled it back (index/store.py).
+DISK_FULL = "the server's disk is full: nothing was changed; retry once space is freed"
+
+MEANING = {
+    400: "a malformed request body (not multipart form data)",
+    401: "missing or wrong API key",
+    404: "unknown id",
+    413: "request body or image over the limit",
+    422: "bad input: what is wrong is in `detail`",
+    500: "internal error (a bug)",
+    503: "the service is starting or too busy; retry later",
+    507: "the server's disk is full; nothing was changed",
+}
+
+
+def responses(*codes: int) -> dict[int | str, dict]:
+    """OpenAPI entries for these error codes, all `{"detail": "..."}`. Naming 422 here also replaces
+    FastAPI's default 422 schema (a list of field errors), which is not what the handler below sends."""
+    return {code: {"model": ErrorOut, "description": MEANING[code]} for code in codes}
 
 
 class ApiError(Exception):
@@ -44,5 +69,8 @@ def install(app: FastAPI) -> None:
 
     @app.exception_handler(Exception)
     async def unexpected(request: Request, exc: Exception) -> JSONResponse:
+        if isinstance(exc, OSError) and exc.errno == errno.ENOSPC:
+            log.error("%s %s: %s", request.method, request.url.path, exc)
+            return JSONResponse({"detail": DISK_FULL}, status_code=507)
         log.exception("unhandled error on %s %s", request.method, request.url.path)
         return JSONResponse({"detail": f"internal error ({type(exc).__name__})"}, status_code=500)

@@ -19,6 +19,10 @@ class Job:
     created: float = field(default_factory=time.time)
     result: dict[str, Any] | None = None
     error: str | None = None
+    code: int | None = None  # the HTTP status a failure answers with: 422 bad mesh, 507 disk full, 500
+
+    def fail(self, code: int, error: str) -> None:
+        self.code, self.error, self.status = code, error, "failed"
 
 
 class Jobs:

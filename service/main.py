@@ -9,7 +9,7 @@ from contextlib import asynccontextmanager
 from fastapi import FastAPI, Request
 from fastapi.concurrency import run_in_threadpool
 
-from service import errors
+from service import errors, openapi
 from service.demo import startup
 from service.limits import BodyLimit
 from service.routes import health, jobs, objects, recognize
@@ -20,6 +20,9 @@ DESCRIPTION = """Recognises known 3-D objects in images and tells from which vie
 (Wohlhart & Lepetit, CVPR 2015: learnt descriptors, nearest templates). Register a mesh with
 `POST /objects`, then `POST /recognize` a patch or a frame. Angles are degrees: azimuth about the
 object's +z from +x towards +y, elevation above its xy plane, in-plane counter-clockwise in the image."""
+
+
+METHODS = frozenset({"GET", "HEAD", "POST", "PUT", "PATCH", "DELETE", "OPTIONS"})
 
 
 def create_app(settings: Settings | None = None) -> FastAPI:
@@ -36,9 +39,16 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             app.state.posedesc = None
             await run_in_threadpool(close_state, state)
 
-    app = FastAPI(title="posedesc", version="0.1.0", description=DESCRIPTION, lifespan=lifespan)
+    app = FastAPI(
+        title="posedesc",
+        version="0.1.0",
+        description=DESCRIPTION,
+        lifespan=lifespan,
+        responses=errors.responses(500, 503),  # any route: a bug; while starting or stopping
+    )
     app.state.settings = settings
     errors.install(app)
+    openapi.install(app)
     for r in (recognize.router, objects.router, jobs.router, health.router):
         app.include_router(r)
 
@@ -50,7 +60,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         if state is not None:
             route = request.scope.get("route")
             path = getattr(route, "path", "unmatched")  # the template, so ids do not blow up the labels
-            state.metrics.requests.labels(request.method, path, str(response.status_code)).inc()
+            # any token is a method to HTTP: unknown ones share a label, or each would add a series
+            method = request.method if request.method in METHODS else "other"
+            state.metrics.requests.labels(method, path, str(response.status_code)).inc()
             state.metrics.latency.labels(path).observe(time.perf_counter() - t0)
         return response
 

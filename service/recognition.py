@@ -18,6 +18,8 @@ from service.images import read_depth, read_rgb
 from service.state import AppState
 
 FRAME_FIELDS = ("fx", "fy", "cx", "cy", "u", "v")
+MAX_PX = 1e6  # focal lengths and image coordinates beyond this are no camera's
+MIN_DISTANCE_MM, MAX_DISTANCE_MM = 1.0, 100_000.0  # the object's distance, given or measured
 
 
 @dataclass(frozen=True)
@@ -99,7 +101,7 @@ def _from_frame(q: Query, rgb, depth, spec):
     if distance is None:
         if depth is None:
             raise ApiError(422, "a colour-only frame needs distance_mm (the object's distance, mm)")
-        distance = _depth_at(depth, K, u, v)
+        distance = _measured(_depth_at(depth, K, u, v))
     rgb_p, depth_p = crop(rgb, depth, K, (u, v), distance, spec)
     return rgb_p, depth_p, distance
 
@@ -127,5 +129,15 @@ def _from_patch(q: Query, rgb, depth, size: int):
     distance = q.distance_mm
     if distance is None and depth_p is not None:
         c = depth_p[size * 3 // 8 : size * 5 // 8, size * 3 // 8 : size * 5 // 8]
-        distance = float(np.median(c[c > 0])) if (c > 0).any() else None
+        distance = _measured(float(np.median(c[c > 0]))) if (c > 0).any() else None
     return rgb_p, depth_p, distance or 400.0
+
+
+def _measured(distance: float) -> float:
+    if not MIN_DISTANCE_MM <= distance <= MAX_DISTANCE_MM:
+        raise ApiError(
+            422,
+            f"the depth at the centre says {distance:.3g} mm, outside {MIN_DISTANCE_MM:g} to "
+            f"{MAX_DISTANCE_MM:g} mm: is depth_scale right?",
+        )
+    return distance

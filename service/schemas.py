@@ -93,6 +93,14 @@ class JobOut(BaseModel):
     error: str | None = None
 
 
+class ErrorOut(BaseModel):
+    """Every error: one line saying what is wrong."""
+
+    model_config = ConfigDict(json_schema_extra={"examples": [{"detail": "no object 7"}]})
+
+    detail: str
+
+
 class Health(BaseModel):
     status: str
 

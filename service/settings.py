@@ -21,6 +21,8 @@ class Settings(BaseSettings):
     # Checked in the image header before decoding: a 20 kB PNG can claim to be 50000 x 50000 pixels.
     max_image_pixels: int = Field(4096 * 4096, gt=0, description="largest width x height accepted")
     max_faces: int = Field(200_000, gt=0, description="meshes above this are simplified to it")
+    # A parse takes memory far beyond the file's size (6 M faces of OBJ fit in 48 MB and take 2 GB):
+    max_upload_faces: int = Field(500_000, gt=0, description="meshes above this are refused (413)")
     max_k: int = Field(100, gt=0, description="largest k of /recognize")
 
     threads: int = Field(1, ge=1, description="onnxruntime intra-op and FAISS OpenMP threads per call")

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import asyncio
 import logging
 import threading
 import time
@@ -30,6 +31,12 @@ class AppState:
     registrar: ThreadPoolExecutor = field(default_factory=lambda: ThreadPoolExecutor(1, "register"))
     #: the models of a registration embed side by side (onnxruntime releases the GIL)
     embed_pool: ThreadPoolExecutor = field(default_factory=lambda: ThreadPoolExecutor(2, "embed"))
+    #: one uploaded mesh in memory and parsed at a time: a hostile one may take ~1 GB until it is refused.
+    #: Always on the same thread, so the allocator reuses that memory rather than growing another arena.
+    mesh_gate: asyncio.Semaphore = field(default_factory=lambda: asyncio.Semaphore(1))
+    mesh_loader: ThreadPoolExecutor = field(default_factory=lambda: ThreadPoolExecutor(1, "mesh"))
+    #: recognitions decoding at once (a 4096 x 4096 depth image takes ~250 MB); 2 cores serve 2 anyway
+    recognition_gate: asyncio.Semaphore = field(default_factory=lambda: asyncio.Semaphore(2))
     jobs: Jobs = field(default_factory=Jobs)
     metrics: Metrics = field(default_factory=Metrics)
     ready: threading.Event = field(default_factory=threading.Event)
@@ -64,6 +71,7 @@ def load_state(settings: Settings) -> AppState:
 def close_state(state: AppState) -> None:
     state.stopping.set()
     state.registrar.shutdown(wait=True, cancel_futures=True)  # a registration in flight finishes (atomic)
+    state.mesh_loader.shutdown(wait=True, cancel_futures=True)
     state.embed_pool.shutdown(wait=True)
     state.worker.close()
     state.store.close()

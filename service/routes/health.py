@@ -9,6 +9,8 @@ from prometheus_client import CONTENT_TYPE_LATEST
 from service.deps import StateDep
 from service.schemas import Health, Ready
 
+PROMETHEUS = {"content": {"text/plain": {"schema": {"type": "string"}}}, "description": "Prometheus text"}
+
 router = APIRouter(tags=["health"])
 
 
@@ -36,6 +38,11 @@ def readyz(state: StateDep) -> Response:
     return JSONResponse(body.model_dump(), status_code=200 if ready else 503)
 
 
-@router.get("/metrics", summary="Prometheus metrics: requests, latency, store sizes", response_class=Response)
+@router.get(
+    "/metrics",
+    summary="Prometheus metrics: requests, latency, store sizes",
+    response_class=Response,
+    responses={200: PROMETHEUS},
+)
 def metrics(state: StateDep) -> Response:
     return Response(state.metrics.render(state.store.snapshot), media_type=CONTENT_TYPE_LATEST)

@@ -5,13 +5,13 @@ from __future__ import annotations
 from fastapi import APIRouter
 
 from service.deps import StateDep
-from service.errors import ApiError
+from service.errors import ApiError, responses
 from service.schemas import JobOut, ObjectCreated
 
 router = APIRouter(tags=["objects"])
 
 
-@router.get("/jobs/{job_id}", response_model=JobOut, responses={404: {"description": "unknown job"}})
+@router.get("/jobs/{job_id}", response_model=JobOut, responses=responses(404, 422))
 def get_job(job_id: str, state: StateDep) -> JobOut:
     job = state.jobs.get(job_id)
     if job is None:

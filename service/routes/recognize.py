@@ -8,7 +8,8 @@ from fastapi import APIRouter, File, Form, UploadFile
 from fastapi.concurrency import run_in_threadpool
 
 from service.deps import StateDep
-from service.recognition import Query, recognise
+from service.errors import responses
+from service.recognition import MAX_DISTANCE_MM, MAX_PX, MIN_DISTANCE_MM, Query, recognise
 from service.schemas import MatchOut, RecognizeOut
 
 router = APIRouter(tags=["recognition"])
@@ -24,53 +25,51 @@ router = APIRouter(tags=["recognition"])
         "window, or a full frame with intrinsics `fx`, `fy`, `cx`, `cy` and the object's centre `u`, `v` "
         "(pixels); a colour-only frame also needs `distance_mm`."
     ),
-    responses={413: {"description": "upload or image over the limit"}, 422: {"description": "bad input"}},
+    responses=responses(400, 413, 422),
 )
 async def recognize(
     state: StateDep,
     rgb: Annotated[UploadFile | None, File(description="colour image, PNG or JPEG")] = None,
     depth: Annotated[UploadFile | None, File(description="depth image, 16-bit PNG")] = None,
     depth_scale: Annotated[float, Form(gt=0, le=1000, allow_inf_nan=False, description="mm per unit")] = 1.0,
-    fx: Annotated[
-        float | None, Form(gt=0, allow_inf_nan=False, description="focal x, px", examples=[572.4])
-    ] = None,
-    fy: Annotated[
-        float | None, Form(gt=0, allow_inf_nan=False, description="focal y, px", examples=[573.6])
-    ] = None,
+    # Bounds keep the camera matrices invertible: a focal length of 5e-324 px is no camera.
+    fx: Annotated[float | None, Form(ge=1, le=MAX_PX, description="focal x, px", examples=[572.4])] = None,
+    fy: Annotated[float | None, Form(ge=1, le=MAX_PX, description="focal y, px", examples=[573.6])] = None,
     cx: Annotated[
-        float | None, Form(allow_inf_nan=False, description="principal point x, px", examples=[325.3])
+        float | None, Form(ge=-MAX_PX, le=MAX_PX, description="principal point x, px", examples=[325.3])
     ] = None,
     cy: Annotated[
-        float | None, Form(allow_inf_nan=False, description="principal point y, px", examples=[242.0])
+        float | None, Form(ge=-MAX_PX, le=MAX_PX, description="principal point y, px", examples=[242.0])
     ] = None,
     u: Annotated[
         float | None,
-        Form(allow_inf_nan=False, description="object centre x in the frame, px", examples=[380.0]),
+        Form(ge=-MAX_PX, le=MAX_PX, description="object centre x in the frame, px", examples=[380.0]),
     ] = None,
     v: Annotated[
         float | None,
-        Form(allow_inf_nan=False, description="object centre y in the frame, px", examples=[250.0]),
+        Form(ge=-MAX_PX, le=MAX_PX, description="object centre y in the frame, px", examples=[250.0]),
     ] = None,
     distance_mm: Annotated[
         float | None,
-        Form(gt=0, le=100_000, allow_inf_nan=False, description="object distance, mm (optional with depth)"),
+        Form(ge=MIN_DISTANCE_MM, le=MAX_DISTANCE_MM, description="object distance, mm (optional with depth)"),
     ] = None,
     k: Annotated[int, Form(ge=1, description="how many matches", examples=[5])] = 5,
 ) -> RecognizeOut:
-    q = Query(
-        rgb=await rgb.read() if rgb is not None else None,
-        depth=await depth.read() if depth is not None else None,
-        depth_scale=depth_scale,
-        fx=fx,
-        fy=fy,
-        cx=cx,
-        cy=cy,
-        u=u,
-        v=v,
-        distance_mm=distance_mm,
-        k=k,
-    )
-    result = await run_in_threadpool(recognise, state, q)
+    async with state.recognition_gate:  # bounds the memory of decoded images; waiting ones stay spooled
+        q = Query(
+            rgb=await rgb.read() if rgb is not None else None,
+            depth=await depth.read() if depth is not None else None,
+            depth_scale=depth_scale,
+            fx=fx,
+            fy=fy,
+            cx=cx,
+            cy=cy,
+            u=u,
+            v=v,
+            distance_mm=distance_mm,
+            k=k,
+        )
+        result = await run_in_threadpool(recognise, state, q)
     matches = [MatchOut(**m.__dict__) for m in result.matches]
     return RecognizeOut(
         matches=matches,

@@ -62,3 +62,9 @@ def test_heavy_mesh_is_simplified_with_colours(l_shape):
     m = load_mesh(sphere.export(file_type="ply"), file_type="ply", max_faces=5000)
     assert len(m.faces) <= 5000
     assert np.all(m.visual.vertex_colors[:, 1] == 200)
+
+
+def test_a_mesh_that_simplifies_to_nothing_is_refused():
+    copies = b"v 0 0 0\nv 100 0 0\nv 0 100 0\n" + b"f 1 2 3\n" * 1000  # one triangle, a thousand times
+    with pytest.raises(MeshError, match="left none"):
+        load_mesh(copies, file_type="obj", max_faces=100)
