@@ -4,8 +4,9 @@
 A batch is built by the training's own `BatchBuilder` for `samples_per_batch` samples of random objects at
 random training viewpoints, so it has the real number of rows (samples plus their templates) and
 triplets; the images are random (their content does not change the cost). Making the images (renders
-through the sensor model, on the producer thread during training) is not included. torch is imported
-here only, with the training's thread count."""
+through the sensor model, on the producer thread during training) is not included, nor is mining hard
+templates from the bank of all templates (`training/mining.py`: it adds rows to the batch; patches per
+second counts rows). torch is imported here only, with the training's thread count."""
 
 from __future__ import annotations
 
@@ -45,8 +46,10 @@ def run(modality: str, cfg: TrainStepConfig, seed: int = 0) -> dict:
     train_R = rotations(template_views(4))
     picks = rng.integers(len(train_R), size=samples)
     batch = builder.make(range(samples), rng.integers(cfg.objects, size=samples), train_R[picks], rng)
-    net = DescriptorNet(NetConfig(modality, tc.descriptor_dim))
+    # channels_last, as `training.train` sets it (its first max-pool is much faster so on CPUs)
+    net = DescriptorNet(NetConfig(modality, tc.descriptor_dim)).to(memory_format=torch.channels_last)
     x = torch.randn(len(batch.items), net.cfg.channels, net.cfg.size, net.cfg.size)
+    x = x.contiguous(memory_format=torch.channels_last)
     loss_fn = DescriptorLoss(tc.margin, tc.pair_weight, tc.weight_decay)
     opt = torch.optim.Adam(net.parameters(), lr=tc.lr)
     pairs = torch.from_numpy(batch.pairs)
@@ -74,4 +77,6 @@ def run(modality: str, cfg: TrainStepConfig, seed: int = 0) -> dict:
         "train_patches_per_s": rows / t.median,
         "train_samples_per_s": samples / t.median,
         "parameters": sum(p.numel() for p in net.parameters()),
+        "memory_format": "channels_last",
+        "not_included": "making images (producer thread), mining from the template bank",
     }
