@@ -185,8 +185,11 @@ def _check(db: sqlite3.Connection, path: Path) -> None:
     except sqlite3.DatabaseError as e:
         raise StoreError(f"{path} is not a usable store: {e}") from None
     if problems != ["ok"]:
+        # a problem may span lines ("*** in database main ***\nPage 8: ..."): the first real one
+        lines = [ln for p in problems for ln in p.splitlines() if ln.strip() and not ln.startswith("***")]
         raise StoreError(
-            f"{path} is damaged ({problems[0]}); restore it from a backup, or move it away to start empty"
+            f"{path} is damaged ({(lines or problems)[0]}); restore it from a backup, or move it away "
+            "to start empty"
         )
 
 

@@ -23,6 +23,7 @@ def run(args: argparse.Namespace) -> int:
     from pydantic import ValidationError
 
     from index.embed import MODEL_FILES
+    from index.store import StoreError, check_store
     from service.main import create_app
     from service.settings import Settings
 
@@ -41,6 +42,10 @@ def run(args: argparse.Namespace) -> int:
         settings.data_dir.mkdir(parents=True, exist_ok=True)
     except OSError as e:
         raise UserError(f"data dir {settings.data_dir}: {e.strerror or e}") from None
+    try:  # here, not in the lifespan: uvicorn would print a start-up failure as a traceback
+        check_store(settings.data_dir)
+    except StoreError as e:
+        raise UserError(str(e)) from None
     if not 0 < args.port < 65536:
         raise UserError(f"--port {args.port}: not a port")
     logging.getLogger().setLevel(args.log_level.upper())

@@ -58,7 +58,7 @@ def _damage(path: Path, how: str) -> None:
     elif how == "templates page":  # the b-tree page of the templates table: garbage
         page, size = _root_page(path, "templates")
         start = (page - 1) * size
-        data[start : start + size] = bytes(range(256)) * (size // 256)
+        data[start : start + size] = np.random.default_rng(0).integers(0, 256, size, np.uint8).tobytes()
     elif how == "objects page":
         page, size = _root_page(path, "objects")
         start = (page - 1) * size

@@ -120,6 +120,11 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
+def serve_command(port: int, data_dir: Path, models: Path) -> list[str]:
+    cmd = [sys.executable, "-m", "posedesc.cli", "serve", "--host", "127.0.0.1", "--port", str(port)]
+    return cmd + ["--data-dir", str(data_dir), "--models", str(models), "--log-level", "warning"]
+
+
 class Server:
     """`posedesc serve` in a subprocess on a free loopback port; `env` adds POSEDESC_* settings."""
 
@@ -133,8 +138,7 @@ class Server:
             "POSEDESC_SYNC_SECONDS": "30",
             **(env or {}),
         }
-        cmd = [sys.executable, "-m", "posedesc.cli", "serve", "--host", "127.0.0.1", "--port", str(self.port)]
-        cmd += ["--data-dir", str(data_dir), "--models", str(models), "--log-level", "warning"]
+        cmd = serve_command(self.port, data_dir, models)
         self.log = data_dir.parent / f"server-{self.port}.log"
         with open(self.log, "wb") as out:  # the child keeps its own copy of the descriptor
             self.proc = subprocess.Popen(cmd, cwd=ROOT, env=env, stdout=out, stderr=subprocess.STDOUT)
