@@ -340,3 +340,19 @@ def test_a_changed_model_gets_its_templates_made_again(tmp_path, posedesc_models
         ready = wait_ready(c)
         assert ready["templates"] == {"rgb": 71, "depth": 71, "rgbd": 71} and ready["detail"] is None
         assert c.get(f"/objects/{oid}").json()["templates"]["rgb"] == 71
+
+
+def test_a_camera_jpeg_with_two_pictures_is_accepted(client):
+    """Phones save some photos as MPO: a JPEG followed by more pictures; the first one is used."""
+    buf = io.BytesIO()
+    first = Image.fromarray(GREY)
+    first.save(buf, format="MPO", save_all=True, append_images=[Image.fromarray(255 - GREY)])
+    r = client.post("/recognize", files={"rgb": ("photo.jpg", buf.getvalue())})
+    assert r.status_code == 200, r.text
+
+
+def test_only_png_and_jpeg_are_parsed(client):
+    buf = io.BytesIO()
+    Image.fromarray(GREY).save(buf, format="TIFF")
+    r = client.post("/recognize", files={"rgb": ("a.tiff", buf.getvalue())})
+    assert r.status_code == 422 and r.json() == {"detail": "rgb: not an image (PNG or JPEG expected)"}
