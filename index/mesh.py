@@ -57,12 +57,14 @@ def load_mesh(
         _refuse(mesh_limits.declared(data, file_type), max_input_faces, "declares")
     try:
         loaded = trimesh.load(io.BytesIO(data), file_type=file_type, process=False)
+        if max_input_faces is not None:
+            _refuse(mesh_limits.parsed(loaded), max_input_faces, "holds")
+        mesh = _as_single_mesh(loaded)
+        _check(mesh)
+    except MeshError:
+        raise
     except Exception as e:  # trimesh raises anything from KeyError to struct.error on garbage
         raise MeshError(f"not a readable {file_type.upper()} mesh ({type(e).__name__}: {e})") from None
-    if max_input_faces is not None:
-        _refuse(mesh_limits.parsed(loaded), max_input_faces, "holds")
-    mesh = _as_single_mesh(loaded)
-    _check(mesh)
     mesh.apply_scale(UNIT_SCALE[units])
     size = float(np.ptp(mesh.vertices, axis=0).max())
     if not size <= MAX_SIZE_MM:
@@ -81,6 +83,9 @@ def _refuse(size: mesh_limits.Size, max_faces: int, verb: str) -> None:
 
 def _as_single_mesh(loaded: object) -> trimesh.Trimesh:
     if isinstance(loaded, trimesh.Scene):
+        for g in loaded.geometry.values():  # before dump(), which reads colours through the faces
+            if isinstance(g, trimesh.Trimesh):
+                _check_indices(g)
         parts = [g for g in loaded.dump() if isinstance(g, trimesh.Trimesh) and len(g.faces)]
         if not parts:
             raise MeshError("the file holds no triangles")
@@ -98,13 +103,19 @@ def _as_single_mesh(loaded: object) -> trimesh.Trimesh:
 def _check(mesh: trimesh.Trimesh) -> None:
     if len(mesh.faces) == 0 or len(mesh.vertices) == 0:
         raise MeshError("the mesh is empty: no faces")
+    if mesh.vertices.shape[1:] != (3,) or mesh.faces.shape[1:] != (3,):
+        raise MeshError(f"vertices {mesh.vertices.shape} and faces {mesh.faces.shape} are not (N, 3)")
     if not np.all(np.isfinite(mesh.vertices)):
         raise MeshError("the mesh has NaN or infinite vertex coordinates")
-    if mesh.faces.max() >= len(mesh.vertices) or mesh.faces.min() < 0:
-        raise MeshError("the mesh's faces point at vertices that do not exist")
+    _check_indices(mesh)
     extent = mesh.vertices.max(axis=0) - mesh.vertices.min(axis=0)
     if np.sort(extent)[-2] <= 0 or mesh.area <= 0:
         raise MeshError("the mesh is degenerate: it has no area (all points on a line or a point)")
+
+
+def _check_indices(mesh: trimesh.Trimesh) -> None:
+    if len(mesh.faces) and (mesh.faces.max() >= len(mesh.vertices) or mesh.faces.min() < 0):
+        raise MeshError("the mesh's faces point at vertices that do not exist")
 
 
 def simplify(mesh: trimesh.Trimesh, max_faces: int) -> trimesh.Trimesh:

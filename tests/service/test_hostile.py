@@ -103,6 +103,17 @@ def glb_accessor_lie() -> bytes:
     )
 
 
+def glb_index_outside() -> bytes:
+    """The box's first face index set to 257 of 8 vertices (a 500 before: trimesh's colours read it)."""
+    data, doc, _ = glb_of_a_box()
+    (length,) = struct.unpack_from("<I", data, 12)
+    acc = doc["accessors"][doc["meshes"][0]["primitives"][0]["indices"]]
+    view = doc["bufferViews"][acc["bufferView"]]
+    at = 20 + length + 8 + view.get("byteOffset", 0) + acc.get("byteOffset", 0)  # JSON chunk, BIN header
+    struct.pack_into({5125: "<I", 5123: "<H"}[acc["componentType"]], data, at, 257)
+    return bytes(data)
+
+
 def gltf_placed(n: int) -> bytes:
     """One triangle placed on n nodes: 1 MB for 20,000, which took trimesh 15 s to merge."""
     buf = np.array([[0, 0, 0], [100, 0, 0], [0, 100, 0]], np.float32).tobytes()
@@ -167,6 +178,7 @@ CASES: dict[str, Case] = {
         {}, 422, "across", 2, 50,
     ),
     "glb whose json chunk claims 2 GB": ("mesh", "m.glb", glb_chunk_length_lie, {}, 422, "not a readable GLB", 2, 50),
+    "glb whose faces point past its vertices": ("mesh", "m.glb", glb_index_outside, {}, 422, "do not exist", 2, 50),
     "glb whose accessors claim 2e9 items": ("mesh", "m.glb", glb_accessor_lie, {}, 413, "666,666,666 faces", 2, 50),
 }  # fmt: skip
 
