@@ -10,6 +10,8 @@ One code path for templates, training, evaluation and the service:
 
 Shape conventions: rgb (H, W, 3) uint8 RGB order; depth (H, W) float mm, 0 = no depth;
 a network input is (C, S, S) float32 with channels R, G, B, D as the modality has them.
+The normalising functions also take a batch, a leading (N) or (*) (`batch_inputs`: (N, C, S, S)), and
+work on the whole batch at once: a single patch goes through the same code with N = 1.
 """
 
 from __future__ import annotations
@@ -83,53 +85,90 @@ def crop(
     return rgb_out, depth_out
 
 
+def _median_of_valid(values: np.ndarray) -> np.ndarray:
+    """Row-wise median of the non-NaN values, as `np.nanmedian` (mean of the two middle ones when even).
+    Shape: (N, K) -> (N,), NaN where a row has none. Sorting once beats `nanmedian` on many short rows."""
+    ordered = np.sort(values, axis=1)  # NaNs sort last
+    k = np.count_nonzero(~np.isnan(values), axis=1)
+    rows = np.arange(len(values))
+    lo, hi = ordered[rows, np.maximum(k - 1, 0) // 2], ordered[rows, k // 2]
+    return np.where(k > 0, (lo + hi) / 2, np.nan)
+
+
 def fill_depth(depth: np.ndarray, max_iterations: int = 200) -> np.ndarray:
-    """Fills zeros with the median of the valid 3x3 neighbours, repeated until the holes close."""
-    d = depth.astype(np.float32).copy()
-    holes = d <= 0
-    if not holes.any() or holes.all():
-        return d
+    """Fills zeros with the median of the valid 3x3 neighbours, repeated until the holes close.
+
+    Each patch on its own; one without holes or without any depth comes back as it was.
+    Shape: (*, H, W) mm -> (*, H, W) float32."""
+    d = np.array(depth, dtype=np.float32)  # a copy
+    flat = d.reshape(-1, *d.shape[-2:])  # a view of d: (N, H, W)
+    h, w = flat.shape[1:]
+    holes = flat <= 0
+    active = np.flatnonzero(holes.any(axis=(1, 2)) & ~holes.all(axis=(1, 2)))
+    window = np.array([i * (w + 2) + j for i in range(3) for j in range(3)])  # 3x3, in padded, flat
     for _ in range(max_iterations):
-        padded = np.pad(np.where(d > 0, d, np.nan), 1, constant_values=np.nan)
-        h, w = d.shape
-        stack = np.stack([padded[i : i + h, j : j + w] for i in range(3) for j in range(3)])
-        valid = np.isfinite(stack).any(axis=0)
-        todo = (d <= 0) & valid
-        if not todo.any():
+        if not active.size:
             break
-        with np.errstate(all="ignore"):
-            med = np.nanmedian(stack[:, todo], axis=0)
-        d[todo] = med
-        if (d > 0).all():
+        sub = flat[active]
+        padded = np.full((len(active), h + 2, w + 2), np.nan, np.float32)
+        padded[:, 1:-1, 1:-1] = np.where(sub > 0, sub, np.nan)
+        valid = ~np.isnan(padded)
+        near = np.zeros(sub.shape, bool)
+        for i in range(3):
+            for j in range(3):
+                near |= valid[:, i : i + h, j : j + w]
+        todo = np.flatnonzero((sub <= 0) & near)
+        if not todo.size:
             break
+        m, yx = np.divmod(todo, h * w)
+        y, x = np.divmod(yx, w)
+        corner = (m * (h + 2) + y) * (w + 2) + x  # the pixel's 3x3 neighbourhood starts here in padded
+        sub.reshape(-1)[todo] = _median_of_valid(padded.reshape(-1)[corner[:, None] + window])
+        flat[active] = sub
+        # a patch stops once full, or once no hole has a valid neighbour
+        progressed = np.zeros(len(active), bool)
+        progressed[m] = True
+        active = active[progressed & (sub <= 0).any(axis=(1, 2))]
     return d
 
 
-def surface_depth(depth: np.ndarray, nominal_mm: float, window_mm: float) -> float:
+def surface_depth(depth: np.ndarray, nominal_mm: float | np.ndarray, window_mm: float) -> np.ndarray:
     """Depth of the object's surface at the patch centre: median of the valid depths in the central
     quarter that lie within half a window of `nominal_mm`; `nominal_mm` when there are none.
+    Shape: depth (*, S, S) mm, nominal_mm () or (*) -> (*) mm, in depth's float type.
 
     Depth is normalised relative to this rather than to the object's origin, because a user of the
     service knows where the object is in the image but not how deep its origin lies behind its surface;
     templates use the same rule, so both sides agree by construction."""
-    s = depth.shape[0]
-    q = depth[3 * s // 8 : 5 * s // 8, 3 * s // 8 : 5 * s // 8]
-    near = q[(q > 0) & (np.abs(q - nominal_mm) < window_mm / 2)]
-    return float(np.median(near)) if near.size else float(nominal_mm)
+    depth = np.asarray(depth)
+    dtype = np.result_type(depth.dtype, np.float32)
+    s = depth.shape[-1]
+    q = depth[..., 3 * s // 8 : 5 * s // 8, 3 * s // 8 : 5 * s // 8].astype(dtype)
+    q = q.reshape(*q.shape[:-2], q.shape[-2] * q.shape[-1])
+    nominal = np.broadcast_to(np.asarray(nominal_mm, dtype), q.shape[:-1])
+    near = (q > 0) & (np.abs(q - nominal[..., None]) < window_mm / 2)
+    med = _median_of_valid(np.where(near, q, np.nan).reshape(-1, q.shape[-1])).reshape(nominal.shape)
+    return np.where(np.isnan(med), nominal, med).astype(dtype)
 
 
-def normalise_depth(depth: np.ndarray, centre_mm: float, window_mm: float) -> np.ndarray:
-    """(depth - centre) / (window / 2), clipped to [-1, 1]; empty pixels (0) are far: +1."""
-    out = np.clip((depth - centre_mm) / (window_mm / 2), -1.0, 1.0)
+def normalise_depth(depth: np.ndarray, centre_mm: float | np.ndarray, window_mm: float) -> np.ndarray:
+    """(depth - centre) / (window / 2), clipped to [-1, 1]; empty pixels (0) are far: +1.
+    Shape: depth (*, S, S) mm, centre_mm () or (*) -> (*, S, S) float32."""
+    depth = np.asarray(depth)
+    centre = np.asarray(centre_mm, np.result_type(depth.dtype, np.float32))[..., None, None]
+    out = np.clip((depth - centre) / (window_mm / 2), -1.0, 1.0)
     out[depth <= 0] = 1.0
     return out.astype(np.float32)
 
 
 def normalise_rgb(rgb: np.ndarray) -> np.ndarray:
-    """Per channel zero mean, unit variance. Shape: (S, S, 3) uint8 -> (3, S, S) float32."""
-    x = rgb.astype(np.float32).reshape(-1, 3)
-    x = (x - x.mean(axis=0)) / (x.std(axis=0) + 1e-3 * 255)
-    return x.reshape(rgb.shape).transpose(2, 0, 1).astype(np.float32)
+    """Per patch and channel zero mean, unit variance. Shape: (*, S, S, 3) uint8 -> (*, 3, S, S) float32."""
+    x = np.moveaxis(rgb, -1, -3).astype(np.float32, order="C")  # channels first, so each mean is contiguous
+    mean = x.mean(axis=(-2, -1), keepdims=True)
+    std = x.std(axis=(-2, -1), keepdims=True)
+    x -= mean
+    x /= std + 1e-3 * 255
+    return x
 
 
 def network_input(
@@ -140,24 +179,22 @@ def network_input(
     window_mm: float,
     fill: bool = True,
 ) -> np.ndarray:
-    """One patch as the network takes it. Shape: (C, S, S) float32, C = 3 (rgb), 1 (depth), 4 (rgbd).
+    """One patch as the network takes it: `batch_inputs` with N = 1.
+    Shape: rgb (S, S, 3), depth (S, S) -> (C, S, S) float32, C = 3 (rgb), 1 (depth), 4 (rgbd).
 
     `fill` closes sensor holes first (real and simulated sensors); clean renders pass False, since
     their zeros are background, not missing measurements."""
-    parts = []
-    if modality in ("rgb", "rgbd"):
-        if rgb is None:
-            raise ValueError(f"modality {modality} needs an RGB image")
-        parts.append(normalise_rgb(rgb))
-    if modality in ("depth", "rgbd"):
-        if depth is None:
-            raise ValueError(f"modality {modality} needs a depth image")
-        d = fill_depth(depth) if fill else depth
-        centre = surface_depth(d, nominal_mm, window_mm)
-        parts.append(normalise_depth(d, centre, window_mm)[None])
-    if not parts:
-        raise ValueError(f"unknown modality {modality!r}; use one of {sorted(MODALITY_CHANNELS)}")
-    return np.concatenate(parts, axis=0)
+    for name, image, shape in (("rgb", rgb, "(S, S, 3)"), ("depth", depth, "(S, S)")):
+        if image is not None and np.ndim(image) != shape.count(",") + 1:
+            raise ValueError(f"one {name} patch must be {shape}, got {np.shape(image)}")
+    return batch_inputs(
+        modality,
+        None if rgb is None else np.asarray(rgb)[None],
+        None if depth is None else np.asarray(depth)[None],
+        nominal_mm,
+        window_mm,
+        fill,
+    )[0]
 
 
 def batch_inputs(
@@ -168,19 +205,31 @@ def batch_inputs(
     window_mm: float,
     fill: bool = True,
 ) -> np.ndarray:
-    """`network_input` over a batch: rgb (N, S, S, 3), depth (N, S, S). Shape: (N, C, S, S)."""
+    """Patches as the network takes them, all at once.
+    Shape: rgb (N, S, S, 3) uint8, depth (N, S, S) mm, nominal_mm () or (N) -> (N, C, S, S) float32,
+    C = 3 (rgb), 1 (depth), 4 (rgbd)."""
+    if modality not in MODALITY_CHANNELS:
+        raise ValueError(f"unknown modality {modality!r}; use one of {sorted(MODALITY_CHANNELS)}")
+    colour, ranged = modality in ("rgb", "rgbd"), modality in ("depth", "rgbd")
+    if colour and rgb is None:
+        raise ValueError(f"modality {modality} needs an RGB image")
+    if ranged and depth is None:
+        raise ValueError(f"modality {modality} needs a depth image")
+    rgb = np.asarray(rgb) if colour else None
+    depth = np.asarray(depth) if ranged else None
+    if rgb is not None and (rgb.ndim != 4 or rgb.shape[3] != 3 or rgb.shape[1] != rgb.shape[2]):
+        raise ValueError(f"rgb patches must be (N, S, S, 3), got {rgb.shape}")
+    if depth is not None and (depth.ndim != 3 or depth.shape[1] != depth.shape[2]):
+        raise ValueError(f"depth patches must be (N, S, S), got {depth.shape}")
+    if rgb is not None and depth is not None and rgb.shape[:3] != depth.shape:
+        raise ValueError(f"rgb {rgb.shape} and depth {depth.shape} patches differ in number or size")
     n = len(rgb if rgb is not None else depth)  # type: ignore[arg-type]
-    nominal = np.broadcast_to(np.asarray(nominal_mm, dtype=float), (n,))
-    return np.stack(
-        [
-            network_input(
-                modality,
-                None if rgb is None else rgb[i],
-                None if depth is None else depth[i],
-                float(nominal[i]),
-                window_mm,
-                fill,
-            )
-            for i in range(n)
-        ]
-    )
+    nominal = np.broadcast_to(np.asarray(nominal_mm, float), (n,))
+
+    parts = []
+    if rgb is not None:
+        parts.append(normalise_rgb(rgb))
+    if depth is not None:
+        d = fill_depth(depth) if fill else depth
+        parts.append(normalise_depth(d, surface_depth(d, nominal, window_mm), window_mm)[:, None])
+    return np.concatenate(parts, axis=1) if len(parts) > 1 else parts[0]

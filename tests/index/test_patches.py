@@ -2,6 +2,7 @@ import numpy as np
 import pytest
 
 from index.patches import (
+    MODALITY_CHANNELS,
     PatchSpec,
     batch_inputs,
     fill_depth,
@@ -73,3 +74,98 @@ def test_network_input_shapes_and_errors():
     with pytest.raises(ValueError, match="unknown modality"):
         network_input("ir", rgb, depth, 400, 200)
     assert PatchSpec().size == 64 and PatchSpec().window_mm == 200
+
+
+def _reference_fill(depth: np.ndarray) -> np.ndarray:
+    """The documented fill, pixel by pixel: each round, every hole with a valid 3x3 neighbour takes
+    their median, until no hole is left (an all-empty patch stays empty)."""
+    d = depth.astype(np.float64)
+    if (d <= 0).all():
+        return d
+    while (d <= 0).any():
+        new = d.copy()
+        for y, x in zip(*np.nonzero(d <= 0), strict=True):
+            around = d[max(y - 1, 0) : y + 2, max(x - 1, 0) : x + 2]
+            if (around > 0).any():
+                new[y, x] = np.median(around[around > 0])
+        d = new
+    return d
+
+
+def _reference_input(modality, rgb, depth, nominal, window, fill):
+    """The documented formulas, one patch at a time, in float64."""
+    channels = []
+    if modality in ("rgb", "rgbd"):
+        x = rgb.astype(np.float64)
+        channels += [(x[..., c] - x[..., c].mean()) / (x[..., c].std() + 0.255) for c in range(3)]
+    if modality in ("depth", "rgbd"):
+        d = _reference_fill(depth) if fill else depth.astype(np.float64)
+        s = d.shape[0]
+        q = d[3 * s // 8 : 5 * s // 8, 3 * s // 8 : 5 * s // 8]
+        near = q[(q > 0) & (np.abs(q - nominal) < window / 2)]
+        centre = np.median(near) if near.size else nominal
+        n = np.clip((d - centre) / (window / 2), -1, 1)
+        n[d <= 0] = 1
+        channels.append(n)
+    return np.stack(channels)
+
+
+def _awkward_patches(s: int = 32):
+    """Patches that take every branch: holes, a large hole, no depth at all, a central quarter with no
+    valid depth near the nominal distance (far, or empty), a flat colour; whole-mm depths so that float32
+    and float64 fills agree exactly."""
+    rng = np.random.default_rng(3)
+    nominal = np.array([400.0, 400.0, 600.0, 400.0, 500.0, 500.0, 400.0, 450.0])
+    n, c = len(nominal), slice(3 * s // 8, 5 * s // 8)
+    depth = (nominal[:, None, None] + rng.integers(-150, 150, (n, s, s))).astype(np.float32)
+    rgb = rng.integers(0, 256, (n, s, s, 3), dtype=np.uint8)
+    depth[1][rng.random((s, s)) < 0.3] = 0  # sensor holes
+    depth[2, 4:20, 6:26] = 0  # one large hole: several fill rounds
+    depth[2][rng.random((s, s)) < 0.1] = 0
+    depth[3] = 0  # no depth at all
+    depth[4, c, c] = 900.0  # central quarter valid but far from the nominal 500 mm
+    depth[4][rng.random((s, s)) < 0.2] = 0
+    depth[5, c, c] = 0  # central quarter empty: filled from around it, or nominal without fill
+    depth[6, :, : s // 2] = 0  # half empty, as a render's background
+    rgb[6] = (10, 200, 30)  # one flat colour: zero variance
+    return rgb, depth, nominal
+
+
+@pytest.mark.parametrize("fill", [False, True])
+@pytest.mark.parametrize("modality", ["rgb", "depth", "rgbd"])
+def test_batch_matches_per_patch_reference(modality, fill):
+    rgb, depth, nominal = _awkward_patches()
+    x = batch_inputs(modality, rgb, depth, nominal, 200.0, fill)
+    ref = np.stack(
+        [
+            _reference_input(modality, r, d, m, 200.0, fill)
+            for r, d, m in zip(rgb, depth, nominal, strict=True)
+        ]
+    )
+    assert x.dtype == np.float32 and x.shape == ref.shape == (8, MODALITY_CHANNELS[modality], 32, 32)
+    np.testing.assert_allclose(x, ref, rtol=0, atol=1e-5)
+    # one patch at a time is the same code with N = 1
+    for i in range(len(nominal)):
+        one = network_input(modality, rgb[i], depth[i], float(nominal[i]), 200.0, fill)
+        assert np.array_equal(one, x[i])
+
+
+def test_reference_sees_what_the_awkward_patches_are_for():
+    # guards the parity test: its patches really take the branches they are named for
+    _, depth, nominal = _awkward_patches()
+    assert (fill_depth(depth)[[0, 1, 2, 4, 5, 6]] > 0).all() and (fill_depth(depth)[3] == 0).all()
+    centre = surface_depth(depth, nominal, 200.0)
+    assert centre[3] == 400.0 and centre[4] == 500.0 and centre[5] == 500.0  # fallback to nominal
+    assert surface_depth(fill_depth(depth), nominal, 200.0)[5] != 500.0  # filled centre has depth
+    assert centre.shape == (8,) and fill_depth(depth[1]).shape == (32, 32)
+
+
+def test_batch_input_shapes_are_checked():
+    rgb, depth, _ = _awkward_patches()
+    assert batch_inputs("rgbd", rgb[:0], depth[:0], 400.0, 200.0).shape == (0, 4, 32, 32)
+    with pytest.raises(ValueError, match=r"\(N, S, S, 3\)"):
+        batch_inputs("rgb", rgb[0], None, 400.0, 200.0)
+    with pytest.raises(ValueError, match="differ"):
+        batch_inputs("rgbd", rgb[:3], depth[:2], 400.0, 200.0)
+    with pytest.raises(ValueError, match=r"one depth patch must be \(S, S\)"):
+        network_input("depth", None, depth, 400.0, 200.0)
