@@ -60,6 +60,14 @@ def depth_png(depth_mm: np.ndarray) -> bytes:
     return png(np.round(depth_mm).astype(np.uint16))
 
 
+def patch_files() -> dict[str, dict[str, tuple[str, bytes]]]:
+    """Per model, the files of a plain patch (grey; 400 mm flat): with k = 100 the reliability tests get
+    every template of their small stores back, so an answer shows exactly which objects it saw."""
+    rgb = ("p.png", png(np.full((64, 64, 3), 120, np.uint8)))
+    depth = ("d.png", depth_png(np.full((64, 64), 400.0)))
+    return {"rgb": {"rgb": rgb}, "depth": {"depth": depth}, "rgbd": {"rgb": rgb, "depth": depth}}
+
+
 def frame(renderer, mesh: trimesh.Trimesh, view: View, uv: tuple[float, float], wall_mm: float | None = None):
     """rgb, depth of `mesh` seen from `view` with its origin at pixel `uv`, optionally before a black wall."""
     ray = np.linalg.inv(K) @ np.array([uv[0], uv[1], 1.0])

@@ -16,15 +16,14 @@ from contextlib import contextmanager
 from pathlib import Path
 
 import faiss
-import numpy as np
 import pytest
 from fastapi.testclient import TestClient
-from service_helpers import png, register, service_settings, wait_ready
+from service_helpers import patch_files, register, service_settings, wait_ready
 
 import index.store
 from service.main import create_app
 
-QUERY = {"files": {"rgb": ("p.png", png(np.full((64, 64, 3), 120, np.uint8)))}, "data": {"k": "100"}}
+QUERY = {"files": patch_files()["rgb"], "data": {"k": "100"}}
 
 
 @contextmanager

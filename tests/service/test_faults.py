@@ -17,24 +17,14 @@ import faiss
 import httpx
 import numpy as np
 import pytest
-from service_helpers import ROOT, Server, depth_png, free_port, png, serve_command
+from service_helpers import ROOT, Server, free_port, patch_files, serve_command
 
 from index.register import TemplateConfig, template_views
 
 ENV = {"POSEDESC_LEVEL": "1", "POSEDESC_SYNC_SECONDS": "0"}  # short registrations, all answered 202
 VIEWS = len(template_views("none", TemplateConfig(level=1)))  # 16 templates per object and model
 MODELS = ("rgb", "depth", "rgbd")
-QUERIES = {  # one per model, k = 100: more than all the templates of these tests, so every one comes back
-    "rgb": {"files": {"rgb": ("p.png", png(np.full((64, 64, 3), 120, np.uint8)))}, "data": {"k": "100"}},
-    "depth": {"files": {"depth": ("d.png", depth_png(np.full((64, 64), 400.0)))}, "data": {"k": "100"}},
-    "rgbd": {
-        "files": {
-            "rgb": ("p.png", png(np.full((64, 64, 3), 120, np.uint8))),
-            "depth": ("d.png", depth_png(np.full((64, 64), 400.0))),
-        },
-        "data": {"k": "100"},
-    },
-}
+PATCHES = patch_files()  # k = 100: more than all the templates of these tests, so every one comes back
 
 
 def post_mesh(c: httpx.Client, mesh, name: str) -> str:
@@ -54,8 +44,8 @@ def wait_job(c: httpx.Client, job_id: str, timeout: float = 60.0) -> dict:
 
 def answers(c: httpx.Client) -> dict[str, list[dict]]:
     out = {}
-    for model, q in QUERIES.items():
-        r = c.post("/recognize", **q)
+    for model, files in PATCHES.items():
+        r = c.post("/recognize", files=files, data={"k": "100"})
         assert r.status_code == 200, r.text
         out[model] = r.json()["matches"]
     return out

@@ -15,18 +15,14 @@ from dataclasses import dataclass, field
 
 import httpx
 import numpy as np
-from service_helpers import Server, depth_png, png
+from service_helpers import Server, patch_files
 
 from index.shapes import random_shape
 
 SECONDS = 5.0
 CLIENTS = ("rgb", "depth", "rgbd")  # one recogniser per model
 KEEP = 3  # objects the writer keeps registered at a time (beside the first one)
-QUERY = {
-    "rgb": {"rgb": ("p.png", png(np.full((64, 64, 3), 120, np.uint8)))},
-    "depth": {"depth": ("d.png", depth_png(np.full((64, 64), 400.0)))},
-}
-QUERY["rgbd"] = {**QUERY["rgb"], **QUERY["depth"]}
+QUERY = patch_files()
 
 
 @dataclass
