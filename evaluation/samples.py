@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from index.bop import BopDataset, Instance, instance_patch
+from index.bop import BopDataset, Instance, instance_patch, table_depth
 from index.patches import PatchSpec
 from index.pose import View
 
@@ -94,9 +94,10 @@ def synthetic_samples(
     progress: Callable[[int], None] | None = None,
 ) -> Samples:
     """Patches from synthetic frames: the annotated objects of each frame rendered at their annotated
-    poses, composited over a random background, through the sensor model."""
+    poses, standing on their table (`index.bop.table_depth`, textured like a background), composited
+    over a random background, through the sensor model."""
     from index.render import Renderer
-    from index.sensor import SensorModel, random_background
+    from index.sensor import SensorModel, random_background, with_support
 
     rng = np.random.default_rng(seed)
     sensor = SensorModel()
@@ -118,6 +119,9 @@ def synthetic_samples(
             )
             far = max(float(np.linalg.norm(i.t)) for i in everyone)
             bg_rgb, bg_depth = random_background((h, w), rng, far)
+            # the objects stand on their table, as in the real frames (when they show one)
+            table = table_depth(everyone, [meshes[i.obj_id] for i in everyone], w, h)
+            bg_depth, bg_rgb = with_support(bg_depth, bg_rgb, table, random_background((h, w), rng, far)[0])
             rgb, depth = sensor.apply(rgb, depth, rng, bg_rgb, bg_depth)
             for inst in group:
                 prgb, pdepth, view = instance_patch(inst, spec, rectify, rgb=rgb, depth=depth)

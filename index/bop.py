@@ -8,7 +8,7 @@ A dataset folder has `models/` (obj_NNNNNN.ply in mm, models_info.json) and one 
 from __future__ import annotations
 
 import json
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
@@ -20,6 +20,7 @@ import trimesh
 from index.mesh import load_mesh
 from index.patches import PatchSpec, crop
 from index.pose import View, pose_to_view
+from index.sensor import fit_plane, plane_depth
 from index.symmetry import from_bop
 
 
@@ -171,3 +172,24 @@ def instance_patch(
     if rectify:
         view = View(view.azimuth, view.elevation, 0.0, view.distance)
     return prgb, pdepth, view
+
+
+def table_depth(
+    instances: Sequence[Instance], meshes: Sequence[trimesh.Trimesh], width: int, height: int
+) -> np.ndarray:
+    """Depth (mm) of the table a frame's objects stand on, for synthetic frames made from its ground
+    truth: the plane through the bottoms (lowest bounding-box face, in each object's own frame) of three
+    or more instances when they lie on one, within 15 mm; zeros where there is none or it is over 10 m
+    away. Shape: (height, width) float32."""
+    none = np.zeros((height, width), np.float32)
+    if len(instances) < 3:
+        return none
+    bottoms = []
+    for inst, m in zip(instances, meshes, strict=True):
+        (x0, y0, z0), (x1, y1, _) = m.bounds
+        bottoms.append(inst.R @ np.array([(x0 + x1) / 2, (y0 + y1) / 2, z0]) + np.ravel(inst.t))
+    n, d, residual = fit_plane(np.array(bottoms))
+    if residual > 15.0:
+        return none
+    z = plane_depth(instances[0].K, n, d, (height, width))
+    return np.where(z < 10_000.0, z, 0.0).astype(np.float32)

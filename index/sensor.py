@@ -39,6 +39,7 @@ class SensorModel:
     focal_px: float = 580.0  # Kinect depth camera, for disparity quantisation
     baseline_mm: float = 75.0
     edge_dropout: float = 0.6  # chance that a depth pixel at a depth edge is missing
+    edge_step_mm: float = 20.0  # a depth discontinuity at least this high is an edge
     random_dropout: float = 0.003  # fraction of pixels lost in small random holes
     rgb_noise_std: tuple[float, float] = (1.0, 6.0)  # range of per-image Gaussian noise, grey levels
     gain: tuple[float, float] = (0.6, 1.4)  # range of global brightness change
@@ -84,10 +85,12 @@ class SensorModel:
             c = self.focal_px * self.baseline_mm * 8  # z = c / disparity, disparity in 1/8 px
             disparity = np.round(c / np.maximum(out, 1.0))
             out = c / np.maximum(disparity, 1.0)
-        # Structured light misses depth where surfaces break off: drop pixels at depth edges.
-        gx = cv2.Sobel(depth, cv2.CV_32F, 1, 0, ksize=3)
-        gy = cv2.Sobel(depth, cv2.CV_32F, 0, 1, ksize=3)
-        edges = cv2.dilate((np.hypot(gx, gy) > 40).astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
+        # Structured light misses depth where surfaces break off: drop pixels at depth discontinuities.
+        # The 4-neighbour Laplacian is 0 on any plane however slanted (a gradient threshold would punch
+        # holes all over a steep table) and about the step's height next to one.
+        jumps = np.abs(cv2.Laplacian(depth, cv2.CV_32F, ksize=1)) > self.edge_step_mm
+        jumps[[0, -1], :] = jumps[:, [0, -1]] = False  # no neighbours beyond the border to compare
+        edges = cv2.dilate(jumps.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
         drop = edges & (rng.random(depth.shape) < self.edge_dropout)
         holes = rng.random(depth.shape) < self.random_dropout
         drop |= cv2.dilate(holes.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
@@ -122,3 +125,48 @@ def random_background(
     bumps = (fractal_noise(shape, rng, octaves=3) - 0.5) * rng.uniform(0, 80)
     depth = object_distance_mm + offset + slope[0] * (yy - h / 2) + slope[1] * (xx - w / 2) + bumps
     return rgb, np.maximum(depth, object_distance_mm + 20).astype(np.float32)
+
+
+def plane_depth(K: np.ndarray, normal: np.ndarray, offset: float, shape: tuple[int, int]) -> np.ndarray:
+    """Depth (mm along the optical axis) at every pixel of a camera with intrinsics K of the plane
+    {X : normal . X = offset} (camera frame, mm); 0 where a pixel's ray misses it or meets it behind.
+    Shape: (H, W) float32."""
+    h, w = shape
+    u, v = np.meshgrid(np.arange(w, dtype=float), np.arange(h, dtype=float))
+    rays = np.linalg.inv(np.asarray(K, float)) @ np.stack([u.ravel(), v.ravel(), np.ones(h * w)])
+    denom = np.asarray(normal, float) @ rays  # rays have z = 1, so offset / denom is the depth
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z = offset / denom
+    z[~np.isfinite(z) | (z <= 0)] = 0.0
+    return z.reshape(h, w).astype(np.float32)
+
+
+def support_plane(R_m2c: np.ndarray, t_m2c: np.ndarray, z_min: float) -> tuple[np.ndarray, float]:
+    """The plane an upright object stands on, its own xy plane at height `z_min` (mm), in camera
+    coordinates as (normal, offset). The template viewpoints' half-sphere assumes objects stand so."""
+    R = np.asarray(R_m2c, float)
+    n = R[:, 2]
+    return n, float(n @ (R @ np.array([0.0, 0.0, z_min]) + np.ravel(t_m2c)))
+
+
+def fit_plane(points: np.ndarray) -> tuple[np.ndarray, float, float]:
+    """Least-squares plane through points (N >= 3, camera frame, mm), its normal facing the camera:
+    (normal, offset, largest distance of a point from it)."""
+    p = np.asarray(points, float)
+    c = p.mean(axis=0)
+    n = np.linalg.svd(p - c)[2][2]
+    if n @ c > 0:  # the camera (origin) on the normal's side: offset < 0
+        n = -n
+    return n, float(n @ c), float(np.abs((p - c) @ n).max())
+
+
+def with_support(
+    depth: np.ndarray, rgb: np.ndarray | None, plane: np.ndarray, texture: np.ndarray | None
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """A background (depth, rgb) with a support plane's depth `plane` (0 = none) in front of it, the
+    plane showing `texture` (same size as rgb)."""
+    on = (plane > 0) & ((plane < depth) | (depth <= 0))
+    depth = np.where(on, plane, depth).astype(np.float32)
+    if rgb is not None and texture is not None:
+        rgb = np.where(on[..., None], texture, rgb).astype(np.uint8)
+    return depth, rgb

@@ -24,13 +24,14 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+import trimesh
 from tqdm import tqdm
 
-from index.bop import BopDataset, Instance
-from index.patches import PatchSpec, crop, network_input
+from index.bop import BopDataset, Instance, table_depth
+from index.patches import PatchSpec, crop, network_input, patch_camera
 from index.pose import View, pose_to_view
 from index.render import Lighting, Renderer
-from index.sensor import SensorModel, random_background
+from index.sensor import SensorModel, plane_depth, random_background, support_plane, with_support
 from index.shapes import random_shape
 from index.viewpoints import hemisphere, template_views
 from training.similarity import rotations
@@ -54,14 +55,16 @@ class DataConfig:
     occlude: float = 0.3  # chance a synthetic sample is partly hidden behind another object
     colour_jitter: float = 1.0  # strength of random gamma / saturation / contrast / hue changes (0: none)
     exclude: tuple[int, ...] = ()  # BOP object ids left out of training, to measure unseen objects
+    support: float = 0.5  # chance a synthetic sample stands on a textured support plane (a table)
     seed: int = 0
 
     def key(self, roots: list[str]) -> str:
         d = asdict(self)
         batch_time = ("real_paste", "occlude", "min_visib_train", "min_visib_test", "centre_jitter_px")
-        for k in (*batch_time, "colour_jitter"):
+        for k in (*batch_time, "colour_jitter", "support"):
             d.pop(k)  # batch-time choices: not part of the cache
-        return hashlib.sha1(json.dumps([d, roots], sort_keys=True).encode()).hexdigest()[:12]
+        # version 2: support planes (per-object z_min; the table in the frames' depth)
+        return hashlib.sha1(json.dumps([d, roots, 2], sort_keys=True).encode()).hexdigest()[:12]
 
 
 @dataclass
@@ -113,6 +116,7 @@ class TrainingData:
         self.t_rgb, self.t_depth = arrays["t_rgb"], arrays["t_depth"]  # (O, T, S, S, 3), (O, T, S, S)
         self.s_rgb, self.s_depth = arrays["s_rgb"], arrays["s_depth"]  # (M, S, S, 3), (M, S, S)
         self.s_obj, self.s_R = arrays["s_obj"], arrays["s_R"]
+        self.z_min: list[float] = meta["z_min"]  # lowest point of each object in its own frame, mm
         self.frames = arrays["frames"]  # (F, H, W, 3) uint8
         self.labels = arrays["labels"]  # (F, H, W) uint8: 1 + object index of the visible object, 0 none
         self.frame_depth = arrays["frame_depth"]  # (F, H, W) float16 mm, rendered from the GT poses
@@ -229,6 +233,12 @@ class TrainingData:
                 rgb[front], depth[front] = o_rgb[front], o_depth[front]
         rgb = colour_jitter(rgb, rng, self.cfg.colour_jitter)  # the background replaces what is not object
         bg_rgb, bg_depth = self._background(rng)
+        if rng.random() < self.cfg.support:  # standing on a table, textured like another background
+            obj = int(self.s_obj[i])
+            t = np.array([0.0, 0.0, self.cfg.distance])
+            n, d = support_plane(self.s_R[i], t, self.z_min[obj])
+            plane = plane_depth(patch_camera(self.spec, self.cfg.distance), n, d, bg_depth.shape)
+            bg_depth, bg_rgb = with_support(bg_depth, bg_rgb, plane, self._background(rng)[0])
         return self.sensor.apply(rgb, depth, rng, bg_rgb, bg_depth)  # type: ignore[return-value]
 
     def _real(self, i: int, turn: float, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
@@ -332,6 +342,10 @@ def _render_all(roots: list[Path], cfg: DataConfig) -> tuple[dict[str, np.ndarra
         obj_index = {
             oid: names.index(f"{ds.root.name}/obj_{oid:06d}") for oid in ds.obj_ids if oid not in cfg.exclude
         }
+
+        def meshes_of(oid: int, ds: BopDataset = ds, obj_index: dict = obj_index) -> trimesh.Trimesh:
+            return meshes[obj_index[oid]] if oid in obj_index else left_out[(ds.root, oid)]
+
         for scene in ds.scene_dirs("test") + ds.scene_dirs("train"):
             insts = list(ds.instances(scene))
             frame_ids = sorted({i.frame_id for i in insts})
@@ -346,8 +360,7 @@ def _render_all(roots: list[Path], cfg: DataConfig) -> tuple[dict[str, np.ndarra
                 h, w = rgb.shape[:2]
                 depths = []
                 for inst in group:
-                    oid = inst.obj_id
-                    mesh = meshes[obj_index[oid]] if oid in obj_index else left_out[(ds.root, oid)]
+                    mesh = meshes_of(inst.obj_id)
                     _, d = renderer.render_frame([(mesh, inst.R, inst.t)], inst.K, w, h)
                     depths.append(np.where(d > 0, d, np.inf))
                 stack = np.stack(depths)
@@ -374,7 +387,8 @@ def _render_all(roots: list[Path], cfg: DataConfig) -> tuple[dict[str, np.ndarra
                     real_split.append(split[fid])
                 frames.append(rgb)
                 labels.append(label)
-                frame_depth.append(np.where(seen, stack.min(axis=0), 0).astype(np.float16))
+                table = table_depth(group, [meshes_of(i.obj_id) for i in group], w, h)
+                frame_depth.append(np.where(seen, stack.min(axis=0), table).astype(np.float16))
     renderer.close()
     s = t_rgb[0].shape[1]
     arrays = {
@@ -389,6 +403,7 @@ def _render_all(roots: list[Path], cfg: DataConfig) -> tuple[dict[str, np.ndarra
         "frame_depth": np.stack(frame_depth) if frame_depth else np.zeros((0, s, s), np.float16),
     }
     meta = {
+        "z_min": [float(m.bounds[0][2]) for m in meshes],
         "names": names,
         "symmetries": symmetries,
         "real_objects": real_objects,
