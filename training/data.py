@@ -53,15 +53,16 @@ class DataConfig:
     min_visib_test: float = 0.5  # the issue's protocol
     real_paste: float = 0.7  # chance a real patch is cut out by its mask and pasted on a random background
     occlude: float = 0.3  # chance a synthetic sample is partly hidden behind another object
-    colour_jitter: float = 1.0  # strength of random gamma / saturation / contrast / hue changes (0: none)
+    colour_jitter: float = 0.0  # random gamma / saturation / contrast / hue; off: no gain measured (rgb)
     exclude: tuple[int, ...] = ()  # BOP object ids left out of training, to measure unseen objects
     support: float = 0.5  # chance a synthetic sample stands on a textured support plane (a table)
+    clutter: float = 0.6  # chance 1-3 other objects stand around a sample (synthetic or pasted real)
     seed: int = 0
 
     def key(self, roots: list[str]) -> str:
         d = asdict(self)
         batch_time = ("real_paste", "occlude", "min_visib_train", "min_visib_test", "centre_jitter_px")
-        for k in (*batch_time, "colour_jitter", "support"):
+        for k in (*batch_time, "colour_jitter", "support", "clutter"):
             d.pop(k)  # batch-time choices: not part of the cache
         # version 2: support planes (per-object z_min; the table in the frames' depth)
         return hashlib.sha1(json.dumps([d, roots, 2], sort_keys=True).encode()).hexdigest()[:12]
@@ -217,28 +218,49 @@ class TrainingData:
         s = self.spec.size
         return random_background((s, s), rng, self.cfg.distance, self.backgrounds)
 
+    def _shifted(self, rng: np.random.Generator, lo: float, hi: float) -> tuple[np.ndarray, np.ndarray]:
+        """A random training render moved lo..hi px from the patch centre in a random direction."""
+        j = int(rng.integers(len(self.s_rgb)))
+        a, r = rng.uniform(0, 2 * np.pi), rng.uniform(lo, hi)
+        M = np.float32([[1, 0, r * np.cos(a)], [0, 1, r * np.sin(a)]])
+        s = self.spec.size
+        o_rgb = cv2.warpAffine(self.s_rgb[j], M, (s, s), flags=cv2.INTER_NEAREST)
+        o_depth = cv2.warpAffine(self.s_depth[j].astype(np.float32), M, (s, s), flags=cv2.INTER_NEAREST)
+        return o_rgb, o_depth
+
+    def _scene(
+        self, rng: np.random.Generator, plane: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """What surrounds a sample: a random background, the support plane's depth `plane` (textured like
+        another background) when given, and often 1-3 other objects standing around it: real frames are
+        cluttered with objects, known ones among them, and the network must learn which one is centred."""
+        bg_rgb, bg_depth = self._background(rng)
+        if plane is not None:
+            bg_depth, bg_rgb = with_support(bg_depth, bg_rgb, plane, self._background(rng)[0])
+        if rng.random() < self.cfg.clutter:
+            for _ in range(int(rng.integers(1, 4))):
+                o_rgb, o_depth = self._shifted(rng, 18.0, 46.0)
+                on = o_depth > 0
+                bg_rgb = np.where(on[..., None], o_rgb, bg_rgb)
+                bg_depth = np.where(on, o_depth + rng.uniform(0.0, 150.0), bg_depth).astype(np.float32)
+        return bg_rgb, bg_depth
+
     def _synth(self, i: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
         rgb, depth = self.s_rgb[i].copy(), self.s_depth[i].astype(np.float32)
         if rng.random() < self.cfg.occlude:  # another object in front, shifted towards a side
-            j = int(rng.integers(len(self.s_rgb)))
-            shift = rng.integers(28, 48) * np.array([np.cos(a := rng.uniform(0, 2 * np.pi)), np.sin(a)])
-            M = np.float32([[1, 0, shift[0]], [0, 1, shift[1]]])
-            s = self.spec.size
-            o_rgb = cv2.warpAffine(self.s_rgb[j], M, (s, s), flags=cv2.INTER_NEAREST)
-            o_depth = cv2.warpAffine(self.s_depth[j].astype(np.float32), M, (s, s), flags=cv2.INTER_NEAREST)
+            o_rgb, o_depth = self._shifted(rng, 28.0, 48.0)
             front = o_depth > 0
             if front.any():
                 near = depth[depth > 0].min() if (depth > 0).any() else self.cfg.distance
                 o_depth = o_depth - o_depth[front].max() + near - 10.0
                 rgb[front], depth[front] = o_rgb[front], o_depth[front]
         rgb = colour_jitter(rgb, rng, self.cfg.colour_jitter)  # the background replaces what is not object
-        bg_rgb, bg_depth = self._background(rng)
-        if rng.random() < self.cfg.support:  # standing on a table, textured like another background
-            obj = int(self.s_obj[i])
+        plane = None
+        if rng.random() < self.cfg.support:  # standing on a table
             t = np.array([0.0, 0.0, self.cfg.distance])
-            n, d = support_plane(self.s_R[i], t, self.z_min[obj])
-            plane = plane_depth(patch_camera(self.spec, self.cfg.distance), n, d, bg_depth.shape)
-            bg_depth, bg_rgb = with_support(bg_depth, bg_rgb, plane, self._background(rng)[0])
+            n, d = support_plane(self.s_R[i], t, self.z_min[int(self.s_obj[i])])
+            plane = plane_depth(patch_camera(self.spec, self.cfg.distance), n, d, depth.shape)
+        bg_rgb, bg_depth = self._scene(rng, plane)
         return self.sensor.apply(rgb, depth, rng, bg_rgb, bg_depth)  # type: ignore[return-value]
 
     def _real(self, i: int, turn: float, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
@@ -248,7 +270,7 @@ class TrainingData:
         d = r.view.distance
         frame_depth = self.frame_depth[r.frame].astype(np.float32)
         rgb, depth = crop(self.frames[r.frame], frame_depth, r.K, uv, d, self.spec, r.view.inplane + turn)
-        bg_rgb, bg_depth = self._background(rng)
+        bg_rgb, bg_depth = self._scene(rng)
         # depth from the rendered frame, relative to the object's own nominal distance like a template's
         depth = np.where(depth > 0, depth - d + self.cfg.distance, 0.0).astype(np.float32)
         if rng.random() < self.cfg.real_paste:
