@@ -57,12 +57,13 @@ class DataConfig:
     exclude: tuple[int, ...] = ()  # BOP object ids left out of training, to measure unseen objects
     support: float = 0.5  # chance a synthetic sample stands on a textured support plane (a table)
     clutter: float = 0.6  # chance 1-3 other objects stand around a sample (synthetic or pasted real)
+    real_clutter: float = 0.5  # of those, the share cut out of the training frames rather than rendered
     seed: int = 0
 
     def key(self, roots: list[str]) -> str:
         d = asdict(self)
         batch_time = ("real_paste", "occlude", "min_visib_train", "min_visib_test", "centre_jitter_px")
-        for k in (*batch_time, "colour_jitter", "support", "clutter"):
+        for k in (*batch_time, "colour_jitter", "support", "clutter", "real_clutter"):
             d.pop(k)  # batch-time choices: not part of the cache
         # version 2: support planes (per-object z_min; the table in the frames' depth)
         return hashlib.sha1(json.dumps([d, roots, 2], sort_keys=True).encode()).hexdigest()[:12]
@@ -148,6 +149,10 @@ class TrainingData:
             for o in range(len(self.names))
         }
         self.s_by_obj = {o: np.flatnonzero(self.s_obj == o) for o in range(len(self.names))}
+        # real objects of the training frames, to stand around samples as clutter
+        self.cutouts = [
+            i for i, r in enumerate(self.real) if self.real_split[i] == "train" and r.visib >= 0.5
+        ]
         self._template_inputs: dict[str, np.ndarray] = {}
 
     @property
@@ -228,6 +233,22 @@ class TrainingData:
         o_depth = cv2.warpAffine(self.s_depth[j].astype(np.float32), M, (s, s), flags=cv2.INTER_NEAREST)
         return o_rgb, o_depth
 
+    def _cutout(self, rng: np.random.Generator, lo: float, hi: float) -> tuple[np.ndarray, np.ndarray]:
+        """A real object of a training frame, cut out by its visible mask, moved lo..hi px from the patch
+        centre; its depth (rendered from the ground truth) relative to the nominal distance."""
+        r = self.real[self.cutouts[int(rng.integers(len(self.cutouts)))]]
+        a, dist = rng.uniform(0, 2 * np.pi), rng.uniform(lo, hi)
+        shift = dist * np.array([np.cos(a), np.sin(a)])
+        f = r.K[0, 0] * self.spec.window_mm / self.spec.size / r.view.distance  # frame px a patch px
+        uv = (r.centre_uv[0] - shift[0] * f, r.centre_uv[1] - shift[1] * f)
+        turn = float(rng.uniform(-180, 180))
+        frame_depth = self.frame_depth[r.frame].astype(np.float32)
+        mask = ((self.labels[r.frame] == r.obj + 1) * frame_depth).astype(np.float32)
+        rgb, depth = crop(self.frames[r.frame], mask, r.K, uv, r.view.distance, self.spec, turn)
+        depth = np.where(depth > 0, depth - r.view.distance + self.cfg.distance, 0.0).astype(np.float32)
+        rgb = np.where((depth > 0)[..., None], rgb, 0).astype(np.uint8)
+        return rgb, depth
+
     def _scene(
         self, rng: np.random.Generator, plane: np.ndarray | None = None
     ) -> tuple[np.ndarray, np.ndarray]:
@@ -239,7 +260,10 @@ class TrainingData:
             bg_depth, bg_rgb = with_support(bg_depth, bg_rgb, plane, self._background(rng)[0])
         if rng.random() < self.cfg.clutter:
             for _ in range(int(rng.integers(1, 4))):
-                o_rgb, o_depth = self._shifted(rng, 18.0, 46.0)
+                if self.cutouts and rng.random() < self.cfg.real_clutter:
+                    o_rgb, o_depth = self._cutout(rng, 18.0, 46.0)
+                else:
+                    o_rgb, o_depth = self._shifted(rng, 18.0, 46.0)
                 on = o_depth > 0
                 bg_rgb = np.where(on[..., None], o_rgb, bg_rgb)
                 bg_depth = np.where(on, o_depth + rng.uniform(0.0, 150.0), bg_depth).astype(np.float32)
