@@ -32,6 +32,7 @@ def run(args: argparse.Namespace) -> int:
         extra["train_minutes"] = str(r.get("train_minutes", ""))
         extra["objects"] = json.dumps(r.get("objects", []))
         extra["excluded_objects"] = json.dumps(r.get("excluded_objects", []))
+        extra["code"] = r.get("code", "")
         for k in ("real_heldout", "synthetic_unseen_demo_shapes", "synthetic_bop_objects"):
             if k in r:
                 extra[k] = json.dumps({a: b for a, b in r[k].items() if a != "bands"})

@@ -52,6 +52,23 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-validate", action="store_true", help="skip the per-epoch and final validation")
 
 
+def _code_version() -> str:
+    """The commit the training code came from (with "+changes" when the tree was not clean), or ""."""
+    import subprocess
+
+    root = Path(__file__).resolve().parents[2]
+    try:
+        head = subprocess.run(
+            ["git", "rev-parse", "--short", "HEAD"], cwd=root, capture_output=True, text=True
+        )
+        dirty = subprocess.run(["git", "status", "--porcelain"], cwd=root, capture_output=True, text=True)
+    except OSError:
+        return ""
+    if head.returncode != 0:
+        return ""
+    return head.stdout.strip() + ("+changes" if dirty.stdout.strip() else "")
+
+
 def run(args: argparse.Namespace) -> int:
     for d in args.data:
         if not (d / "models" / "models_info.json").is_file():
@@ -107,6 +124,7 @@ def run(args: argparse.Namespace) -> int:
         "excluded_objects": list(exclude),
         "data_minutes": round(data_minutes, 1),
         "train_minutes": round(train_minutes, 1),
+        "code": _code_version(),
     }
     if not args.no_validate:
         from index.shapes import demo_shapes
