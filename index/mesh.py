@@ -131,15 +131,30 @@ def simplify(mesh: trimesh.Trimesh, max_faces: int) -> trimesh.Trimesh:
 
 
 def diameter(mesh: trimesh.Trimesh) -> float:
-    """Largest distance between two vertices of the convex hull, mm (BOP's `diameter`)."""
+    """Largest distance between two vertices of the convex hull, mm (BOP's `diameter`).
+
+    Exact over up to `_EXACT` hull vertices, in blocks (|a|^2 + |b|^2 - 2ab, centred, float64: a few ms
+    where a full difference tensor took 0.1-0.7 s on a registration's request path). More hull vertices
+    than that are first cut to the extreme ones along 500 directions, among which the farthest pair lies
+    unless two directions' extremes all miss it (an error under 1 - cos(5 deg) = 0.4 %)."""
     try:
-        pts = mesh.convex_hull.vertices
+        pts = np.asarray(mesh.convex_hull.vertices, np.float64)
     except Exception:  # qhull fails on flat meshes
-        pts = mesh.vertices
-    if len(pts) > 2000:
-        pts = pts[np.random.default_rng(0).choice(len(pts), 2000, replace=False)]
-    d = pts[:, None, :] - pts[None, :, :]
-    return float(np.sqrt((d**2).sum(-1)).max())
+        pts = np.asarray(mesh.vertices, np.float64)
+    pts = pts - pts.mean(axis=0)
+    if len(pts) > _EXACT:
+        dirs = np.random.default_rng(0).normal(size=(500, 3))
+        proj = pts @ dirs.T
+        pts = pts[np.unique(np.concatenate([proj.argmax(0), proj.argmin(0)]))]
+    sq = (pts**2).sum(axis=1)
+    best = 0.0
+    for i in range(0, len(pts), 1024):
+        d2 = sq[i : i + 1024, None] + sq[None, :] - 2.0 * (pts[i : i + 1024] @ pts.T)
+        best = max(best, float(d2.max()))
+    return float(np.sqrt(best))
+
+
+_EXACT = 6000
 
 
 def scale_warning(mesh: trimesh.Trimesh, window_mm: float) -> str | None:

@@ -60,6 +60,14 @@ def render_size(size: int) -> int:
     return int(np.ceil(size * np.sqrt(2))) | 1  # odd, so the centre is a pixel centre both ways
 
 
+@dataclass
+class _Rig:
+    """A scene's camera node and its lights (node, direction in OpenCV camera axes)."""
+
+    camera: pyrender.Node
+    lights: list[tuple[pyrender.Node, np.ndarray]]
+
+
 class Renderer:
     """Renders meshes from views. Owns an EGL context: create and use it on one thread only."""
 
@@ -104,8 +112,9 @@ class Renderer:
         groups: dict[tuple[float, float, float], list[int]] = {}
         for i, v in enumerate(views):
             groups.setdefault((v.azimuth, v.elevation, v.distance), []).append(i)
+        rig = self._rig(scene, lighting)  # camera and lights added once, moved for every view
         for (az, el, dist), idx in groups.items():
-            big_rgb, big_depth = self._render_one(scene, View(az, el, 0.0, dist), lighting)
+            big_rgb, big_depth = self._render_one(scene, View(az, el, 0.0, dist), rig)
             for i in idx:
                 rgb[i], depth[i] = rotate_crop(big_rgb, big_depth, views[i].inplane, s)
             if progress:
@@ -118,7 +127,8 @@ class Renderer:
         """One full (uncropped, big x big) render at in-plane 0: for pictures and training data."""
         self._check_thread()
         lighting = lighting or self.lighting
-        return self._render_one(self._scene(mesh, lighting), view, lighting)
+        scene = self._scene(mesh, lighting)
+        return self._render_one(scene, view, self._rig(scene, lighting))
 
     def render_frame(
         self,
@@ -160,26 +170,31 @@ class Renderer:
         scene.add(pyrender.Mesh.from_trimesh(mesh, smooth=True))
         return scene
 
-    def _render_one(
-        self, scene: pyrender.Scene, view: View, lighting: Lighting
-    ) -> tuple[np.ndarray, np.ndarray]:
-        R, t = view_to_pose(View(view.azimuth, view.elevation, 0.0, view.distance))
-        cam_pose = opengl_camera_pose(R, t)
-        f = self.size * view.distance / self.window_mm  # the window spans `size` px at the distance
+    def _rig(self, scene: pyrender.Scene, lighting: Lighting) -> _Rig:
         c = self.big / 2  # pyrender puts pixel centres at i + 0.5: this is the centre pixel's centre
-        near, far = max(1.0, view.distance / 20), view.distance * 20
-        cam = pyrender.IntrinsicsCamera(f, f, c, c, znear=near, zfar=far)
-        nodes = [scene.add(cam, pose=cam_pose)]
-        for direction, intensity in lighting.lights:
-            # A pyrender light shines along its node's -z; build a node pose whose -z is `direction`
-            # (given in OpenCV camera axes), expressed in the object frame.
-            d_obj = R.T @ (np.asarray(direction, float) / np.linalg.norm(direction))
-            nodes.append(scene.add(pyrender.DirectionalLight(intensity=intensity), pose=_light_pose(d_obj)))
-        try:
-            color, depth = self._gl.render(scene)
-        finally:
-            for node in nodes:
-                scene.remove_node(node)
+        cam = scene.add(pyrender.IntrinsicsCamera(1.0, 1.0, c, c, znear=1.0, zfar=2.0), pose=np.eye(4))
+        lights = [
+            (
+                scene.add(pyrender.DirectionalLight(intensity=i), pose=np.eye(4)),
+                np.asarray(d, float) / np.linalg.norm(d),
+            )
+            for d, i in lighting.lights
+        ]
+        return _Rig(cam, lights)
+
+    def _render_one(self, scene: pyrender.Scene, view: View, rig: _Rig) -> tuple[np.ndarray, np.ndarray]:
+        """One render at in-plane 0 through `rig`, which it moves (setting a pose is cheap in pyrender;
+        adding and removing a camera and lights for every view cost ~10% of a registration)."""
+        R, t = view_to_pose(View(view.azimuth, view.elevation, 0.0, view.distance))
+        cam = rig.camera.camera
+        cam.fx = cam.fy = self.size * view.distance / self.window_mm  # the window spans `size` px there
+        cam.znear, cam.zfar = max(1.0, view.distance / 20), view.distance * 20
+        scene.set_pose(rig.camera, opengl_camera_pose(R, t))
+        for node, direction in rig.lights:
+            # A pyrender light shines along its node's -z; pose it so that -z is `direction` (given in
+            # OpenCV camera axes), expressed in the object frame.
+            scene.set_pose(node, _light_pose(R.T @ direction))
+        color, depth = self._gl.render(scene)
         return np.ascontiguousarray(color[..., :3]), depth.astype(np.float32)
 
     def close(self) -> None:
