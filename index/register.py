@@ -5,7 +5,7 @@ every model -> the store, in one transaction for all models.
 Template views: the paper's level-3 half-sphere (301 viewpoints) at 400 mm, times the in-plane steps.
 The default has no in-plane variants. Measured with `.venv/bin/python benchmarks/serving.py` (2 cores
 shared with other work, three models, a 21.8k-face mesh): 301 templates per model take render 2.5 s and
-embed 1.0 s, overlapping, 2.8 s in all (rendering alone is ~1.3 s on an idle machine); in-plane variants
+embed 1.0 s, overlapping, 2.8 s in all (since then, on an idle machine: render 1.2 s, all 1.35 s; `posedesc bench`); in-plane variants
 cost no render but multiply embedding: +-45 in 45 steps (903) 4.4 s, 15 steps (2107) 7.6 s, against a
 target of ~2 s per registration. A service that must recognise rolled objects sets a step (settings).
 
