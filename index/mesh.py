@@ -130,13 +130,16 @@ def simplify(mesh: trimesh.Trimesh, max_faces: int) -> trimesh.Trimesh:
     return simple
 
 
+_EXACT = 6000  # hull vertices measured pair by pair
+
+
 def diameter(mesh: trimesh.Trimesh) -> float:
     """Largest distance between two vertices of the convex hull, mm (BOP's `diameter`).
 
-    Exact over up to `_EXACT` hull vertices, in blocks (|a|^2 + |b|^2 - 2ab, centred, float64: a few ms
-    where a full difference tensor took 0.1-0.7 s on a registration's request path). More hull vertices
-    than that are first cut to the extreme ones along 500 directions, among which the farthest pair lies
-    unless two directions' extremes all miss it (an error under 1 - cos(5 deg) = 0.4 %)."""
+    Exact over up to `_EXACT` hull vertices, in blocks (|a|^2 + |b|^2 - 2ab, centred, float64): 0.03 s for a
+    20k-face mesh's 3,485, where a full difference tensor took 0.1-0.7 s on a registration's request path.
+    More hull vertices than that are first cut to the extremes along 500 directions: a lower bound, exact
+    when the farthest pair is among them (a 40,962-vertex sphere's diameter came out exact)."""
     try:
         pts = np.asarray(mesh.convex_hull.vertices, np.float64)
     except Exception:  # qhull fails on flat meshes
@@ -152,9 +155,6 @@ def diameter(mesh: trimesh.Trimesh) -> float:
         d2 = sq[i : i + 1024, None] + sq[None, :] - 2.0 * (pts[i : i + 1024] @ pts.T)
         best = max(best, float(d2.max()))
     return float(np.sqrt(best))
-
-
-_EXACT = 6000
 
 
 def scale_warning(mesh: trimesh.Trimesh, window_mm: float) -> str | None:
