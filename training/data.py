@@ -2,15 +2,20 @@
 
 - Objects: the meshes of the BOP datasets given, plus `shapes` procedural objects (`index.shapes`): the
   service registers meshes the network never saw, so it must learn views of objects in general.
-- Templates: clean renders at the 301 template viewpoints (in-plane 0, black background), as the index has.
-- Synthetic samples: renders from the 1241 training viewpoints with random lighting and a small in-plane
-  turn, composited at batch time over a random background, sometimes partly hidden behind another
+- Templates: clean renders at the 301 template viewpoints (black background), each turned in-plane every
+  `template_inplane_step` degrees over the whole turn, as the index of a roll-trained model has them: a
+  real camera rolls, so a rolled view must be told from a change of view. Kept as one upright render a
+  viewpoint, wide enough to turn (`index.render.render_size`), turned when a batch asks for it.
+- Synthetic samples: renders from the 1241 training viewpoints with random lighting and a random in-plane
+  turn (the whole turn by default), composited at batch time over a random background, sometimes partly hidden behind another
   object, and passed through the sensor model (`index.sensor`).
-- Real samples: patches of annotated BOP instances cut at the true centre, rectified by the true in-plane
-  angle plus a small random turn. Most are cut out by their visible mask (rendered from the ground-truth
+- Real samples: patches of annotated BOP instances cut at the true centre, turned to a random in-plane
+  angle (the annotated one is undone first). Most are cut out by their visible mask (rendered from the ground-truth
   pose, nearer objects winning) and pasted on a random background, so the network learns the object and
   not which objects stand next to it in the one scene it saw. Real frames are split into contiguous
-  blocks: held-out blocks never reach training, nor do `holdout_gap` frames on either side of them.
+  blocks (`training/splits.py`): validation and test blocks never reach training, nor do the frames
+  beside them. Objects left out (`exclude`) are painted out of every frame (inpainted over their
+  rendered mask), so no pixel of them reaches training, not even as background or clutter.
 Everything rendered is cached under `cache_dir` by a hash of what it depends on.
 """
 
@@ -19,7 +24,7 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import cv2
@@ -28,13 +33,15 @@ import trimesh
 from tqdm import tqdm
 
 from index.bop import BopDataset, Instance, table_depth
-from index.patches import PatchSpec, crop, network_input, patch_camera
+from index.patches import MODALITY_CHANNELS, PatchSpec, crop, network_input, patch_camera
 from index.pose import View, pose_to_view
-from index.render import Lighting, Renderer
+from index.render import Lighting, Renderer, render_size, rotate_crop
 from index.sensor import SensorModel, plane_depth, random_background, support_plane, with_support
 from index.shapes import random_shape
 from index.viewpoints import hemisphere, template_views
+from training.augment import colour_jitter
 from training.similarity import rotations
+from training.splits import SplitConfig, frames_of, split_frames
 
 log = logging.getLogger(__name__)
 
@@ -45,10 +52,11 @@ class DataConfig:
     shape_views: int = 300  # training renders per procedural object; real meshes get all 1241
     distance: float = 400.0  # render distance, mm (LineMOD's); the metric window makes it matter little
     window_mm: float = 200.0
-    inplane_jitter: float = 5.0  # deg, renders and real crops: the rectification is never exact
+    roll: float = 180.0  # deg: samples are turned in-plane uniformly within +-roll (180: the whole turn)
+    template_inplane_step: float = 30.0  # deg between the in-plane variants of a template (0: upright only)
+    size: int = 64  # patch side, px
     centre_jitter_px: float = 1.5  # real crops: the centre is never exact either
-    holdout: tuple[tuple[float, float], ...] = ((0.25, 0.40), (0.70, 0.85))  # blocks of each scene's frames
-    holdout_gap: int = 2  # frames next to a held-out block also kept out of training (they look alike)
+    split: SplitConfig = field(default_factory=SplitConfig)  # train / val / test blocks of every scene
     min_visib_train: float = 0.3  # real instances used for training
     min_visib_test: float = 0.5  # the issue's protocol
     real_paste: float = 0.7  # chance a real patch is cut out by its mask and pasted on a random background
@@ -63,10 +71,17 @@ class DataConfig:
     def key(self, roots: list[str]) -> str:
         d = asdict(self)
         batch_time = ("real_paste", "occlude", "min_visib_train", "min_visib_test", "centre_jitter_px")
-        for k in (*batch_time, "colour_jitter", "support", "clutter", "real_clutter"):
+        for k in (
+            *batch_time,
+            "colour_jitter",
+            "support",
+            "clutter",
+            "real_clutter",
+            "template_inplane_step",
+        ):
             d.pop(k)  # batch-time choices: not part of the cache
-        # version 2: support planes (per-object z_min; the table in the frames' depth)
-        return hashlib.sha1(json.dumps([d, roots, 2], sort_keys=True).encode()).hexdigest()[:12]
+        # version 3: templates kept wide (turned at batch time), whole-turn roll, excluded objects painted out
+        return hashlib.sha1(json.dumps([d, roots, 3], sort_keys=True).encode()).hexdigest()[:12]
 
 
 @dataclass
@@ -79,22 +94,6 @@ class RealInstance:
     visib: float
     frame_id: int
     scene: str
-
-
-def colour_jitter(rgb: np.ndarray, rng: np.random.Generator, strength: float) -> np.ndarray:
-    """Random gamma, saturation, contrast and a small hue turn: a mesh's colours, baked under the scanner's
-    light, never match what a camera makes of the object. Shape: (S, S, 3) uint8 -> same."""
-    if strength <= 0:
-        return rgb
-    s = strength
-    x = (rgb.astype(np.float32) / 255.0) ** rng.uniform(1 - 0.35 * s, 1 + 0.5 * s)
-    grey = x.mean(axis=2, keepdims=True)
-    x = grey + (x - grey) * rng.uniform(1 - 0.4 * s, 1 + 0.4 * s)
-    x = x.mean() + (x - x.mean()) * rng.uniform(1 - 0.25 * s, 1 + 0.25 * s)
-    out = np.clip(x * 255.0, 0, 255).astype(np.uint8)
-    hsv = cv2.cvtColor(out, cv2.COLOR_RGB2HSV)  # OpenCV's hue is 0-179 (2 degrees a step)
-    hsv[..., 0] = ((hsv[..., 0].astype(np.int16) + int(round(rng.uniform(-4, 4) * s))) % 180).astype(np.uint8)
-    return cv2.cvtColor(hsv, cv2.COLOR_HSV2RGB)
 
 
 def _random_lighting(rng: np.random.Generator) -> Lighting:
@@ -113,9 +112,16 @@ class TrainingData:
             s if isinstance(s, str) else [np.asarray(m) for m in s] for s in meta["symmetries"]
         ]
         self.real_objects: int = meta["real_objects"]
-        self.template_views = [View(*v) for v in meta["template_views"]]
+        self.viewpoints = [View(*v) for v in meta["template_views"]]  # upright, one a viewpoint
+        step = cfg.template_inplane_step
+        self.inplane = np.arange(0.0, 360.0, step) if step > 0 else np.zeros(1)
+        # template index t = viewpoint * len(inplane) + in-plane variant
+        self.template_views = [
+            View(v.azimuth, v.elevation, float(a), v.distance) for v in self.viewpoints for a in self.inplane
+        ]
         self.template_R = rotations(self.template_views)
-        self.t_rgb, self.t_depth = arrays["t_rgb"], arrays["t_depth"]  # (O, T, S, S, 3), (O, T, S, S)
+        # upright renders wide enough to turn: (O, V, W, W, 3) uint8 and (O, V, W, W) float16 mm
+        self.t_rgb, self.t_depth = arrays["t_rgb"], arrays["t_depth"]
         self.s_rgb, self.s_depth = arrays["s_rgb"], arrays["s_depth"]  # (M, S, S, 3), (M, S, S)
         self.s_obj, self.s_R = arrays["s_obj"], arrays["s_R"]
         self.z_min: list[float] = meta["z_min"]  # lowest point of each object in its own frame, mm
@@ -135,9 +141,10 @@ class TrainingData:
             )
             for r in meta["real"]
         ]
-        self.real_split = meta["real_split"]  # "train" / "test" / "gap" per instance
-        self.heldout_frames: dict[str, list[int]] = meta["heldout_frames"]
-        self.spec = PatchSpec(self.t_rgb.shape[2], cfg.window_mm)
+        self.real_split = meta["real_split"]  # "train" / "val" / "test" / "gap" per instance
+        #: {"<dataset>/<scene>": {"train": [...], "val": [...], "test": [...]}}, for the model's metadata
+        self.split_frames: dict[str, dict[str, list[int]]] = meta["split_frames"]
+        self.spec = PatchSpec(cfg.size, cfg.window_mm)
         self.sensor = SensorModel()
         self.backgrounds = self._background_tiles(np.random.default_rng(cfg.seed))
         self.train_real = {
@@ -159,9 +166,14 @@ class TrainingData:
     def n_objects(self) -> int:
         return len(self.names)
 
-    def test_instances(self, min_visib: float | None = None) -> list[int]:
+    @property
+    def n_templates(self) -> int:
+        return len(self.template_views)
+
+    def test_instances(self, split: str = "val", min_visib: float | None = None) -> list[int]:
+        """Real instances of the validation (default) or test frames, visible enough to score."""
         v = self.cfg.min_visib_test if min_visib is None else min_visib
-        return [i for i, r in enumerate(self.real) if self.real_split[i] == "test" and r.visib >= v]
+        return [i for i, r in enumerate(self.real) if self.real_split[i] == split and r.visib >= v]
 
     def _background_tiles(self, rng: np.random.Generator, n: int = 400) -> list[np.ndarray]:
         """Tiles of the training frames at about an object's scale, for backgrounds."""
@@ -181,39 +193,59 @@ class TrainingData:
         real = self.train_real.get(obj, [])
         if real and modality != "depth" and rng.random() < real_fraction:
             i = int(real[rng.integers(len(real))])
-            turn = float(rng.uniform(-self.cfg.inplane_jitter, self.cfg.inplane_jitter))
+            roll = float(rng.uniform(-self.cfg.roll, self.cfg.roll))  # the in-plane angle of the patch
             v = self.real[i].view
-            return ("real", i, turn), rotations([View(v.azimuth, v.elevation, turn)])[0]
+            return ("real", i, roll), rotations([View(v.azimuth, v.elevation, roll)])[0]
         i = int(self.s_by_obj[obj][rng.integers(len(self.s_by_obj[obj]))])
         return ("synth", i, 0.0), self.s_R[i]
 
     def sample_input(self, sample: tuple, modality: str, rng: np.random.Generator) -> np.ndarray:
-        kind, i, turn = sample
+        kind, i, roll = sample
         if kind == "synth":
             rgb, depth = self._synth(i, rng)
         else:
-            rgb, depth = self._real(i, turn, rng)
+            rgb, depth = self._real(i, roll, rng)
         return network_input(modality, rgb, depth, self.cfg.distance, self.cfg.window_mm, fill=True)
 
     def template_inputs(self, modality: str) -> np.ndarray:
-        """Every template as the network takes it. Shape: (O, T, C, S, S) float16."""
-        if modality not in self._template_inputs:  # templates never change: normalise them once
-            self._template_inputs[modality] = np.stack(
-                [
-                    np.stack([self._template_input(o, k, modality) for k in range(self.t_rgb.shape[1])])
-                    for o in range(self.n_objects)
-                ]
-            ).astype(np.float16)
+        """Every template (in-plane variants included) as the network takes it. Shape: (O, T, C, S, S)
+        float16 (~2 GB for 47 objects x 3612 colour templates)."""
+        if modality not in self._template_inputs:  # templates never change: turn and normalise them once
+            out = np.zeros(
+                (
+                    self.n_objects,
+                    self.n_templates,
+                    MODALITY_CHANNELS[modality],
+                    self.spec.size,
+                    self.spec.size,
+                ),
+                np.float16,
+            )
+            for o in tqdm(range(self.n_objects), desc="template inputs", unit="obj", leave=False):
+                for k in range(self.n_templates):
+                    out[o, k] = self._template_input(o, k, modality)
+            self._template_inputs[modality] = out
         return self._template_inputs[modality]
 
     def template_input(self, obj: int, t: int, modality: str) -> np.ndarray:
         return self.template_inputs(modality)[obj, t].astype(np.float32)
 
+    def template_patch(self, obj: int, t: int) -> tuple[np.ndarray, np.ndarray]:
+        """Template t of an object, turned to its in-plane angle: rgb (S, S, 3), depth (S, S) mm."""
+        v, k = divmod(t, len(self.inplane))
+        return rotate_crop(
+            self.t_rgb[obj, v],
+            self.t_depth[obj, v].astype(np.float32),
+            float(self.inplane[k]),
+            self.spec.size,
+        )
+
     def _template_input(self, obj: int, t: int, modality: str) -> np.ndarray:
+        rgb, depth = self.template_patch(obj, t)
         return network_input(
             modality,
-            self.t_rgb[obj, t],
-            self.t_depth[obj, t].astype(np.float32),
+            rgb,
+            depth,
             self.cfg.distance,
             self.cfg.window_mm,
             fill=False,
@@ -287,19 +319,21 @@ class TrainingData:
         bg_rgb, bg_depth = self._scene(rng, plane)
         return self.sensor.apply(rgb, depth, rng, bg_rgb, bg_depth)  # type: ignore[return-value]
 
-    def _real(self, i: int, turn: float, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    def _real(self, i: int, roll: float, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+        """Real instance i cut so that it appears turned `roll` degrees in-plane."""
         r = self.real[i]
         j = self.cfg.centre_jitter_px
         uv = (r.centre_uv[0] + rng.uniform(-j, j), r.centre_uv[1] + rng.uniform(-j, j))
         d = r.view.distance
         frame_depth = self.frame_depth[r.frame].astype(np.float32)
-        rgb, depth = crop(self.frames[r.frame], frame_depth, r.K, uv, d, self.spec, r.view.inplane + turn)
+        undo = r.view.inplane - roll  # crop undoes this angle: the object comes out rolled by `roll`
+        rgb, depth = crop(self.frames[r.frame], frame_depth, r.K, uv, d, self.spec, undo)
         bg_rgb, bg_depth = self._scene(rng)
         # depth from the rendered frame, relative to the object's own nominal distance like a template's
         depth = np.where(depth > 0, depth - d + self.cfg.distance, 0.0).astype(np.float32)
         if rng.random() < self.cfg.real_paste:
             mask3 = np.repeat(((self.labels[r.frame] == r.obj + 1) * 255).astype(np.uint8)[..., None], 3, 2)
-            m = crop(mask3, None, r.K, uv, d, self.spec, r.view.inplane + turn)[0][..., :1] / 255.0
+            m = crop(mask3, None, r.K, uv, d, self.spec, undo)[0][..., :1] / 255.0
             rgb = (m * rgb + (1 - m) * bg_rgb).astype(np.uint8)
             depth = np.where(m[..., 0] > 0.5, depth, 0.0).astype(np.float32)
         rgb, _ = self.sensor.apply(colour_jitter(rgb, rng, 0.5 * self.cfg.colour_jitter), None, rng)
@@ -308,17 +342,6 @@ class TrainingData:
 
 
 # --- building -----------------------------------------------------------------------------------------
-
-
-def _split(frame_ids: list[int], cfg: DataConfig) -> dict[int, str]:
-    """Contiguous blocks of the frame order held out ("test"), their neighbours ("gap"), the rest "train"."""
-    n = len(frame_ids)
-    split = {f: "train" for f in frame_ids}
-    for a, b in cfg.holdout:
-        lo, hi = int(round(a * n)), int(round(b * n))
-        for k in range(max(0, lo - cfg.holdout_gap), min(n, hi + cfg.holdout_gap)):
-            split[frame_ids[k]] = "test" if lo <= k < hi else "gap"
-    return split
 
 
 def build(roots: list[Path], cfg: DataConfig, cache_dir: Path | None = None) -> TrainingData:
@@ -341,7 +364,10 @@ def build(roots: list[Path], cfg: DataConfig, cache_dir: Path | None = None) -> 
 
 def _render_all(roots: list[Path], cfg: DataConfig) -> tuple[dict[str, np.ndarray], dict]:
     rng = np.random.default_rng(cfg.seed)
-    renderer = Renderer(window_mm=cfg.window_mm)
+    renderer = Renderer(size=cfg.size, window_mm=cfg.window_mm)
+    # templates are kept upright and wide enough to turn: the same pixel scale, a wider window
+    wide = render_size(cfg.size)
+    wide_renderer = Renderer(size=wide, window_mm=cfg.window_mm * wide / cfg.size)
     meshes, names, symmetries = [], [], []
     datasets = [BopDataset(r) for r in roots]
     left_out = {}  # rendered into the frames' masks and depth (they occlude), never a training object
@@ -363,7 +389,7 @@ def _render_all(roots: list[Path], cfg: DataConfig) -> tuple[dict[str, np.ndarra
     train_vp = hemisphere(4)
     t_rgb, t_depth, s_rgb, s_depth, s_obj, s_R = [], [], [], [], [], []
     for o, mesh in enumerate(tqdm(meshes, desc="render objects", unit="obj", disable=False)):
-        t = renderer.render(mesh, t_views)
+        t = wide_renderer.render(mesh, t_views)
         t_rgb.append(t.rgb)
         t_depth.append(t.depth.astype(np.float16))
         vps = train_vp if o < real_objects else train_vp[rng.choice(len(train_vp), cfg.shape_views, False)]
@@ -371,7 +397,7 @@ def _render_all(roots: list[Path], cfg: DataConfig) -> tuple[dict[str, np.ndarra
             View(
                 float(az),
                 float(el),
-                float(rng.uniform(-cfg.inplane_jitter, cfg.inplane_jitter)),
+                float(rng.uniform(-cfg.roll, cfg.roll)),
                 cfg.distance,
             )
             for az, el in vps
@@ -383,7 +409,7 @@ def _render_all(roots: list[Path], cfg: DataConfig) -> tuple[dict[str, np.ndarra
             s_depth.append(r.depth.astype(np.float16))
             s_obj += [o] * len(chunk)
             s_R.append(rotations(chunk))
-    frames, labels, frame_depth, real, real_split, heldout = [], [], [], [], [], {}
+    frames, labels, frame_depth, real, real_split, splits = [], [], [], [], [], {}
     for ds in datasets:
         obj_index = {
             oid: names.index(f"{ds.root.name}/obj_{oid:06d}") for oid in ds.obj_ids if oid not in cfg.exclude
@@ -395,8 +421,8 @@ def _render_all(roots: list[Path], cfg: DataConfig) -> tuple[dict[str, np.ndarra
         for scene in ds.scene_dirs("test") + ds.scene_dirs("train"):
             insts = list(ds.instances(scene))
             frame_ids = sorted({i.frame_id for i in insts})
-            split = _split(frame_ids, cfg)
-            heldout[f"{ds.root.name}/{scene.name}"] = [f for f in frame_ids if split[f] == "test"]
+            split = split_frames(frame_ids, cfg.split)
+            splits[f"{ds.root.name}/{scene.name}"] = frames_of(split)
             by_frame: dict[int, list[Instance]] = {}
             for inst in insts:
                 by_frame.setdefault(inst.frame_id, []).append(inst)
@@ -431,11 +457,18 @@ def _render_all(roots: list[Path], cfg: DataConfig) -> tuple[dict[str, np.ndarra
                         }
                     )
                     real_split.append(split[fid])
+                table = table_depth(group, [meshes_of(i.obj_id) for i in group], w, h)
+                hidden = np.zeros((h, w), bool)  # pixels of objects left out of training
+                for k, inst in enumerate(group):
+                    if inst.obj_id not in obj_index:
+                        hidden |= seen & (nearest == k)
+                if hidden.any():
+                    rgb = paint_out(rgb, hidden)
                 frames.append(rgb)
                 labels.append(label)
-                table = table_depth(group, [meshes_of(i.obj_id) for i in group], w, h)
-                frame_depth.append(np.where(seen, stack.min(axis=0), table).astype(np.float16))
+                frame_depth.append(np.where(seen & ~hidden, stack.min(axis=0), table).astype(np.float16))
     renderer.close()
+    wide_renderer.close()
     s = t_rgb[0].shape[1]
     arrays = {
         "t_rgb": np.stack(t_rgb),
@@ -456,14 +489,24 @@ def _render_all(roots: list[Path], cfg: DataConfig) -> tuple[dict[str, np.ndarra
         "template_views": [[v.azimuth, v.elevation, v.inplane, v.distance] for v in t_views],
         "real": real,
         "real_split": real_split,
-        "heldout_frames": heldout,
+        "split_frames": splits,
     }
     return arrays, meta
 
 
-def test_input(data: TrainingData, i: int, modality: str, rng: np.random.Generator) -> np.ndarray:
-    """A held-out real instance as the paper's protocol sees it: cut at the true centre and distance,
-    rectified by the true in-plane angle. LM-O has no depth: depth is rendered from the ground-truth
+def paint_out(rgb: np.ndarray, mask: np.ndarray, grow_px: int = 4) -> np.ndarray:
+    """The frame with the pixels of `mask` (grown by `grow_px`, for the blurred edge) inpainted from their
+    surroundings (Telea): an object left out of training leaves no pixel behind. Shape: (H, W, 3) uint8."""
+    kernel = np.ones((2 * grow_px + 1, 2 * grow_px + 1), np.uint8)
+    m = cv2.dilate(mask.astype(np.uint8), kernel)
+    return cv2.inpaint(np.ascontiguousarray(rgb), m, 5, cv2.INPAINT_TELEA)
+
+
+def test_input(
+    data: TrainingData, i: int, modality: str, rng: np.random.Generator, rectify: bool = False
+) -> np.ndarray:
+    """A held-out real instance as a user sends it: cut at the true centre and distance, rolled as the
+    camera saw it (`rectify`: the paper's protocol, the true in-plane angle undone). LM-O has no depth: depth is rendered from the ground-truth
     poses of all annotated objects (so they occlude each other), over a random background, through the
     sensor model; the RGB is the real image."""
     r = data.real[i]
@@ -475,7 +518,7 @@ def test_input(data: TrainingData, i: int, modality: str, rng: np.random.Generat
         r.centre_uv,
         d,
         data.spec,
-        r.view.inplane,
+        r.view.inplane if rectify else 0.0,
     )
     if modality != "rgb":
         depth = np.where(depth > 0, depth - d + data.cfg.distance, 0.0).astype(np.float32)

@@ -43,8 +43,13 @@ def pair_cost(f: torch.Tensor, first: torch.Tensor, second: torch.Tensor) -> tor
 
 
 def weight_decay(net: nn.Module) -> torch.Tensor:
-    """Sum of squared weights of conv and linear layers; biases are not decayed."""
-    return sum((p**2).sum() for name, p in net.named_parameters() if name.endswith("weight") and p.dim() > 1)  # type: ignore[return-value]
+    """Sum of squared weights of the trained conv and linear layers; biases (and a frozen trunk) are not
+    decayed."""
+    return sum(  # type: ignore[return-value]
+        (p**2).sum()
+        for name, p in net.named_parameters()
+        if name.endswith("weight") and p.dim() > 1 and p.requires_grad
+    )
 
 
 class DescriptorLoss(nn.Module):

@@ -4,8 +4,9 @@ The paper bootstraps over its whole training set: after a first phase it adds wh
 constraints most. In-batch bootstrapping (`batches.bootstrap_triplets`) sees only the couple of hundred
 templates a batch happens to hold, while the confusions that cost accuracy (another object's template
 that looks like this view; a far-off view of the same object) usually lie elsewhere. So a bank keeps a
-descriptor of every template (all refreshed every `refresh_every` steps; a batch's own templates after
-each step); before a step the batch's samples are embedded, their nearest templates in the bank -- of
+descriptor of every template (refreshed a part at a time: every `refresh_every` steps the next of
+`parts` slices, so with thousands of in-plane variants an object a refresh stays short; a batch's own
+templates after each step); before a step the batch's samples are embedded, their nearest templates in the bank -- of
 other objects, and of their own object at a pose over `min_angle` away -- join the batch, and in-batch
 bootstrapping picks its hard triplets among them as among the rest.
 """
@@ -25,17 +26,30 @@ Embed = Callable[[np.ndarray], np.ndarray]  # network inputs (N, C, S, S) -> des
 class TemplateBank:
     """Descriptors of all templates: (objects, templates, D), possibly a few hundred steps old."""
 
-    def __init__(self, template_inputs: np.ndarray, dim: int, refresh_every: int = 300):
+    def __init__(self, template_inputs: np.ndarray, dim: int, refresh_every: int = 300, parts: int = 1):
         self.inputs = template_inputs  # (O, T, C, S, S), float16 is fine
         o, t = template_inputs.shape[:2]
         self.f = np.zeros((o, t, dim), np.float32)
         self.refresh_every = refresh_every
+        self.parts = parts
         self.refreshed_at: int | None = None
+        self._next_part = 0
 
     def refresh(self, embed: Embed, step: int, chunk: int = 1024) -> None:
-        flat = self.inputs.reshape(-1, *self.inputs.shape[2:])
-        out = [embed(flat[i : i + chunk].astype(np.float32)) for i in range(0, len(flat), chunk)]
-        self.f = np.concatenate(out).reshape(self.f.shape)
+        """The first call embeds every template; later ones the next slice of `parts`."""
+        flat_in = self.inputs.reshape(-1, *self.inputs.shape[2:])
+        flat_f = self.f.reshape(-1, self.f.shape[-1])
+        n = len(flat_in)
+        if self.refreshed_at is None:
+            lo, hi = 0, n
+        else:
+            size = -(-n // self.parts)
+            lo = self._next_part * size
+            hi = min(n, lo + size)
+            self._next_part = (self._next_part + 1) % self.parts
+        for i in range(lo, hi, chunk):
+            j = min(hi, i + chunk)
+            flat_f[i:j] = embed(flat_in[i:j].astype(np.float32))
         self.refreshed_at = step
 
     def due(self, step: int) -> bool:

@@ -1,4 +1,10 @@
-"""The paper's network: two conv + max-pool + ReLU stages, a 256-unit layer, a linear descriptor."""
+"""Descriptor networks: patch -> descriptor.
+
+- `paper`: Wohlhart & Lepetit's network, two conv + max-pool + ReLU stages, a 256-unit layer, a linear
+  descriptor. Kept as the reproducible baseline row.
+- `trunk`: a frozen ImageNet MobileNetV2 trunk (`training/trunk.py`, colour only) and a small trained
+  head: two stride-2 3x3 convolutions 24 -> 48 -> 64 with BatchNorm, FC 1024 -> 256 -> D. The head keeps
+  the map's layout until the last layers (pooling it away destroys the pose, measured in issue 11)."""
 
 from __future__ import annotations
 
@@ -8,6 +14,9 @@ import torch
 from torch import nn
 
 from index.patches import MODALITY_CHANNELS
+from training.trunk import TRUNK_CHANNELS, Trunk
+
+ARCHS = ("paper", "trunk")
 
 
 @dataclass
@@ -15,6 +24,7 @@ class NetConfig:
     modality: str = "rgb"  # rgb (3 channels), depth (1) or rgbd (4)
     descriptor_dim: int = 16  # 3 for pictures, 32 as in the paper's table
     size: int = 64  # input side, px
+    arch: str = "paper"  # see the module docstring
 
     @property
     def channels(self) -> int:
@@ -22,23 +32,41 @@ class NetConfig:
 
 
 class DescriptorNet(nn.Module):
-    """Patch -> descriptor. Shape: (B, C, 64, 64) -> (B, D)."""
+    """Patch -> descriptor. Shape: (B, C, S, S) -> (B, D)."""
 
-    def __init__(self, cfg: NetConfig):
+    def __init__(self, cfg: NetConfig, pretrained: bool = True):
         super().__init__()
         self.cfg = cfg
-        self.features = nn.Sequential(
-            nn.Conv2d(cfg.channels, 16, kernel_size=8),  # 64 -> 57
-            nn.MaxPool2d(2),  # -> 28
-            nn.ReLU(),
-            nn.Conv2d(16, 7, kernel_size=5),  # -> 24
-            nn.MaxPool2d(2),  # -> 12
-            nn.ReLU(),
-        )
-        side = ((cfg.size - 7) // 2 - 4) // 2
+        if cfg.arch == "trunk":
+            if cfg.modality != "rgb":
+                raise ValueError("the pretrained trunk takes colour only: use --arch paper for depth/rgbd")
+            side = cfg.size // 16  # /4 in the trunk, /4 in the head
+            self.features: nn.Module = nn.Sequential(
+                Trunk(pretrained),
+                nn.Conv2d(TRUNK_CHANNELS, 48, 3, 2, 1, bias=False),
+                nn.BatchNorm2d(48),
+                nn.ReLU(),
+                nn.Conv2d(48, 64, 3, 2, 1, bias=False),
+                nn.BatchNorm2d(64),
+                nn.ReLU(),
+            )
+            flat = 64 * side * side
+        elif cfg.arch == "paper":
+            self.features = nn.Sequential(
+                nn.Conv2d(cfg.channels, 16, kernel_size=8),  # 64 -> 57
+                nn.MaxPool2d(2),  # -> 28
+                nn.ReLU(),
+                nn.Conv2d(16, 7, kernel_size=5),  # -> 24
+                nn.MaxPool2d(2),  # -> 12
+                nn.ReLU(),
+            )
+            side = ((cfg.size - 7) // 2 - 4) // 2
+            flat = 7 * side * side
+        else:
+            raise ValueError(f"unknown arch {cfg.arch!r}; use one of {', '.join(ARCHS)}")
         self.head = nn.Sequential(
             nn.Flatten(),
-            nn.Linear(7 * side * side, 256),
+            nn.Linear(flat, 256),
             nn.ReLU(),
             nn.Linear(256, cfg.descriptor_dim),
         )

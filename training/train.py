@@ -33,6 +33,7 @@ log = logging.getLogger(__name__)
 @dataclass
 class TrainConfig:
     modality: str = "rgb"
+    arch: str = "paper"  # "paper" (the baseline) or "trunk" (frozen pretrained MobileNetV2 stages + head)
     descriptor_dim: int = 16  # the paper's default; 32 in its table
     minutes: float = 25.0  # wall-clock budget for the optimisation (data rendering not included)
     max_steps: int = 0  # stop after this many steps too (0: only the budget); makes --seed runs repeat
@@ -44,7 +45,8 @@ class TrainConfig:
     lr_end: float = 0.05
     bootstrap_after: float = 0.3  # fraction of the budget after which in-batch bootstrapping starts
     mine: bool = True  # bootstrapping also draws hard templates from all templates (training/mining.py)
-    mine_refresh: int = 300  # steps between full refreshes of the mining bank's template descriptors
+    mine_refresh: int = 300  # steps between refreshes of a part of the mining bank's template descriptors
+    mine_parts: int = 4  # the bank is refreshed a quarter at a time: 170k templates take ~1 min
     pair_weight: float = 1.0
     margin: float = 0.01  # m of the triplet cost
     weight_decay: float = 1e-6  # lambda, on weights only
@@ -126,19 +128,20 @@ def train(
     torch.manual_seed(cfg.seed)
     torch.set_num_threads(cfg.threads)
     out.mkdir(parents=True, exist_ok=True)
-    net = DescriptorNet(NetConfig(cfg.modality, cfg.descriptor_dim, data.spec.size))
+    net = DescriptorNet(NetConfig(cfg.modality, cfg.descriptor_dim, data.spec.size, cfg.arch))
     # channels_last: the 57x57x16 max-pool after the first convolution runs ~8x faster on this CPU,
     # and a whole step ~1.8x (measured on 285-patch batches).
     net = net.to(memory_format=torch.channels_last)
     loss_fn = DescriptorLoss(cfg.margin, cfg.pair_weight, cfg.weight_decay)
-    opt = torch.optim.Adam(net.parameters(), lr=cfg.lr)
+    opt = torch.optim.Adam([p for p in net.parameters() if p.requires_grad], lr=cfg.lr)
     # normalised once, here, before the producer thread would do it too
     templates = data.template_inputs(cfg.modality)
-    bank = TemplateBank(templates, cfg.descriptor_dim, cfg.mine_refresh) if cfg.mine else None
+    bank = TemplateBank(templates, cfg.descriptor_dim, cfg.mine_refresh, cfg.mine_parts) if cfg.mine else None
     producer = BatchProducer(data, cfg)
     budget = cfg.minutes * 60.0
     t0 = time.monotonic()
     step, epoch = 0, 0
+    best = -1.0
     logf = (out / "log.jsonl").open("a")
     try:
         done = False
@@ -190,18 +193,23 @@ def train(
             }
             if validate is not None:
                 record["val"] = validate(net)
-            torch.save(
-                {
-                    "net": net.state_dict(),
-                    "config": asdict(cfg),
-                    "size": data.spec.size,
-                    "window_mm": data.spec.window_mm,
-                    "epoch": epoch,
-                    "step": step,
-                    "command": command,
-                },
-                out / "checkpoint.pt",
-            )
+            ckpt = {
+                "net": net.state_dict(),
+                "config": asdict(cfg),
+                "size": data.spec.size,
+                "window_mm": data.spec.window_mm,
+                "epoch": epoch,
+                "step": step,
+                "command": command,
+                "val": record.get("val"),
+            }
+            torch.save(ckpt, out / "checkpoint.pt")
+            # the checkpoint chosen on validation frames: 3-D pose error < 20 deg, then recognition
+            score = _val_score(record.get("val"))
+            if score is not None and score > best:
+                best = score
+                torch.save(ckpt, out / "best.pt")
+                record["best"] = True
             logf.write(json.dumps(record) + "\n")
             logf.flush()
             log.info("%s", record)
@@ -212,9 +220,18 @@ def train(
     return net
 
 
-def load_checkpoint(run_dir: Path) -> tuple[DescriptorNet, dict]:
-    ckpt = torch.load(run_dir / "checkpoint.pt", map_location="cpu", weights_only=False)
+def _val_score(val: dict | None) -> float | None:
+    if not val:
+        return None
+    return float(val.get("within_3d_20", 0.0)) + 1e-3 * float(val.get("recognised", 0.0))
+
+
+def load_checkpoint(run_dir: Path, which: str = "checkpoint") -> tuple[DescriptorNet, dict]:
+    """The run's last checkpoint (`checkpoint`) or the one chosen on validation frames (`best`)."""
+    ckpt = torch.load(run_dir / f"{which}.pt", map_location="cpu", weights_only=False)
     c = ckpt["config"]
-    net = DescriptorNet(NetConfig(c["modality"], c["descriptor_dim"], ckpt["size"]))
+    net = DescriptorNet(
+        NetConfig(c["modality"], c["descriptor_dim"], ckpt["size"], c.get("arch", "paper")), False
+    )
     net.load_state_dict(ckpt["net"])
     return net.eval(), ckpt

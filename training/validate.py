@@ -1,6 +1,8 @@
-"""k = 1 nearest-neighbour accuracy under the paper's protocol: a test patch is matched against the clean
-templates of all objects; it counts at a threshold when the object is right and the viewpoint error
-(`index.symmetry.view_error`: angle between viewing directions, symmetry-aware) is below it."""
+"""k = 1 nearest-neighbour accuracy during training: a test patch, rolled as the camera saw it, is matched
+against the clean templates of all objects (their in-plane variants included); it counts at a threshold
+when the object is right and the pose error is strictly below it. Two errors: the 3-D rotation angle
+(in-plane included, `training.similarity.pose_distances`, symmetry-aware) and the angle between viewing
+directions (`index.symmetry.view_error`)."""
 
 from __future__ import annotations
 
@@ -17,6 +19,7 @@ from index.sensor import SensorModel, random_background
 from index.symmetry import view_error
 from index.viewpoints import template_views
 from training.data import TrainingData, test_input
+from training.similarity import pose_distances, rotations
 
 Embed = Callable[[np.ndarray], np.ndarray]  # network inputs (N, C, S, S) -> descriptors (N, D)
 THRESHOLDS = (5.0, 20.0, 40.0)
@@ -27,16 +30,19 @@ class Accuracy:
     n: int
     recognised: float
     within: dict[float, float]  # threshold (deg) -> fraction right object and viewpoint error below it
+    within_3d: dict[float, float]  # the same with the 3-D rotation error (in-plane included)
 
     def line(self) -> str:
-        parts = " / ".join(f"{100 * self.within[t]:.0f}" for t in THRESHOLDS)
-        return f"{parts} / {100 * self.recognised:.0f} % (5/20/40 deg / recognised, n={self.n})"
+        parts = " / ".join(f"{100 * self.within_3d[t]:.0f}" for t in THRESHOLDS)
+        view = " / ".join(f"{100 * self.within[t]:.0f}" for t in THRESHOLDS)
+        return f"3-D {parts}, view {view}, recognised {100 * self.recognised:.0f} % (5/20/40 deg, n={self.n})"
 
     def as_dict(self) -> dict:
         return {
             "n": self.n,
             "recognised": self.recognised,
             **{f"within_{t:g}": v for t, v in self.within.items()},
+            **{f"within_3d_{t:g}": v for t, v in self.within_3d.items()},
         }
 
 
@@ -65,34 +71,43 @@ def nearest_neighbour(
             for j, v, o in zip(nn, test_views, test_obj, strict=True)
         ]
     )
+    err_3d = np.array(
+        [
+            pose_distances(rotations([template_views_[j]]), rotations([v]), symmetries[o])[0, 0]
+            for j, v, o in zip(nn, test_views, test_obj, strict=True)
+        ]
+    )
     n = len(test_obj)
     return Accuracy(
         n,
         float(right.mean()) if n else 0.0,
         {t: float((right & (err < t)).mean()) if n else 0.0 for t in THRESHOLDS},
+        {t: float((right & (err_3d < t)).mean()) if n else 0.0 for t in THRESHOLDS},
     )
 
 
 def template_descriptors(
     data: TrainingData, embed: Embed, modality: str, objects: Sequence[int]
 ) -> np.ndarray:
-    """Descriptors of the clean templates of `objects`. Shape: (len(objects) * T, D)."""
+    """Descriptors of the clean templates of `objects`, in-plane variants included. Shape: (len(objects) * T, D)."""
+    inputs = data.template_inputs(modality)
     out = []
     for o in objects:
-        x = np.stack([data.template_input(o, t, modality) for t in range(len(data.template_views))])
-        out.append(embed(x))
+        for lo in range(0, data.n_templates, 1024):
+            out.append(embed(inputs[o, lo : lo + 1024].astype(np.float32)))
     return np.concatenate(out)
 
 
-def validate_real(data: TrainingData, embed: Embed, modality: str, seed: int = 0) -> tuple[Accuracy, dict]:
-    """Held-out real instances (visibility >= min_visib_test) against the templates of the BOP objects.
-    Also returns accuracies by visibility band."""
+def validate_real(
+    data: TrainingData, embed: Embed, modality: str, seed: int = 0, split: str = "val"
+) -> tuple[Accuracy, dict]:
+    """Real instances of the `split` frames (visibility >= min_visib_test), rolled as seen, against the
+    templates of the BOP objects. Also returns accuracies by visibility band."""
     objects = list(range(data.real_objects))
     tf = template_descriptors(data, embed, modality, objects)
-    T = len(data.template_views)
-    t_obj = np.repeat(objects, T)
+    t_obj = np.repeat(objects, data.n_templates)
     t_views = data.template_views * len(objects)
-    idx = data.test_instances()
+    idx = data.test_instances(split)
     rng = np.random.default_rng(seed)
     x = np.stack([test_input(data, i, modality, rng) for i in idx]) if idx else np.zeros((0,))
     f = embed(x) if idx else np.zeros((0, tf.shape[1]), np.float32)

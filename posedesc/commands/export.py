@@ -12,6 +12,12 @@ from posedesc.cli import UserError
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("run", type=Path, help="run folder of `posedesc train`")
     p.add_argument("--out", type=Path, required=True, help="MODEL.onnx")
+    p.add_argument(
+        "--checkpoint",
+        choices=("best", "last"),
+        default="best",
+        help="best: the epoch chosen on the validation frames (default); last: the final one",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -20,20 +26,35 @@ def run(args: argparse.Namespace) -> int:
     from training.export import export_onnx
     from training.train import load_checkpoint
 
-    net, ckpt = load_checkpoint(args.run)
-    extra = {"command": ckpt.get("command", ""), "epoch": str(ckpt["epoch"]), "steps": str(ckpt["step"])}
+    which = "best" if args.checkpoint == "best" and (args.run / "best.pt").is_file() else "checkpoint"
+    net, ckpt = load_checkpoint(args.run, which)
+    extra = {
+        "command": ckpt.get("command", ""),
+        "epoch": str(ckpt["epoch"]),
+        "steps": str(ckpt["step"]),
+        "checkpoint": "best on validation frames" if which == "best" else "last",
+        "arch": ckpt["config"].get("arch", "paper"),
+    }
+    if ckpt.get("val"):
+        extra["validation"] = json.dumps(ckpt["val"])
     cfg_path = args.run / "config.json"
     if cfg_path.is_file():
-        extra["data"] = json.dumps(json.loads(cfg_path.read_text())["data"])
+        c = json.loads(cfg_path.read_text())
+        extra["data"] = json.dumps(c["data"])
+        if "split_frames" in c:
+            extra["split_frames"] = json.dumps(c["split_frames"])
+        step = c["config"]["data"].get("template_inplane_step", 0.0)
+        if c["config"]["data"].get("roll", 0.0) >= 180.0 and step > 0:
+            extra["inplane_step"] = str(step)  # the service stores in-plane variants this far apart
+        extra["code"] = c.get("code", "")
     report = args.run / "report.json"
     if report.is_file():
         r = json.loads(report.read_text())
-        extra["heldout_frames"] = json.dumps(r.get("heldout_frames", {}))
         extra["train_minutes"] = str(r.get("train_minutes", ""))
         extra["objects"] = json.dumps(r.get("objects", []))
         extra["excluded_objects"] = json.dumps(r.get("excluded_objects", []))
         extra["code"] = r.get("code", "")
-        for k in ("real_heldout", "synthetic_unseen_demo_shapes", "synthetic_bop_objects"):
+        for k in ("real_val", "synthetic_unseen_demo_shapes", "synthetic_bop_objects"):
             if k in r:
                 extra[k] = json.dumps({a: b for a, b in r[k].items() if a != "bands"})
     out = export_onnx(net, args.out, ckpt["window_mm"], extra)

@@ -32,16 +32,28 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--minutes", type=float, default=25.0, help="wall-clock budget of the optimisation")
     p.add_argument("--max-steps", type=int, default=0, help="also stop after this many batches (0: no limit)")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--dim", type=int, default=16, help="descriptor dimension")
+    p.add_argument("--arch", choices=("paper", "trunk"), default="trunk",
+                   help="trunk: frozen ImageNet MobileNetV2 stages + trained head (colour only); "
+                   "paper: the paper's network (the baseline; depth and rgbd)")  # fmt: skip
+    p.add_argument("--dim", type=int, default=None, help="descriptor dimension (default: 32 trunk, 16 paper)")
+    p.add_argument("--roll", type=float, default=180.0, help="samples turn in-plane within +-this, deg")
+    p.add_argument("--inplane-step", type=float, default=30.0,
+                   help="deg between the in-plane variants of a template (0: upright only)")  # fmt: skip
     p.add_argument("--shapes", type=int, default=40, help="procedural objects besides the BOP meshes")
     p.add_argument("--batch", type=int, default=48, help="training samples per batch")
     p.add_argument("--lr", type=float, default=1e-3)
     p.add_argument("--threads", type=int, default=2, help="torch threads")
     p.add_argument(
-        "--holdout",
+        "--val",
         type=_blocks,
-        default=((0.25, 0.40), (0.70, 0.85)),
-        help="held-out blocks of each scene's frame order, as fractions: A:B,C:D",
+        default=((0.20, 0.40),),
+        help="validation blocks of each scene's frame order, as fractions: A:B,C:D (choose on these)",
+    )
+    p.add_argument(
+        "--test",
+        type=_blocks,
+        default=((0.70, 0.90),),
+        help="test blocks of each scene's frame order (report on these; training never sees them)",
     )
     p.add_argument(
         "--exclude-objects",
@@ -74,8 +86,12 @@ def run(args: argparse.Namespace) -> int:
         if not (d / "models" / "models_info.json").is_file():
             raise UserError(f"{d} is not a BOP dataset (no models/models_info.json)")
     from training.data import DataConfig, build
+    from training.splits import SplitConfig
     from training.train import TrainConfig, train
     from training.validate import validate_real, validate_synthetic
+
+    arch = args.arch if args.modality == "rgb" else "paper"  # the pretrained trunk takes colour only
+    dim = args.dim or (32 if arch == "trunk" else 16)
 
     try:
         exclude = tuple(int(x) for x in args.exclude_objects.split(",") if x.strip())
@@ -83,10 +99,18 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(
             f"--exclude-objects takes comma-separated object ids, not {args.exclude_objects!r}"
         ) from None
-    data_cfg = DataConfig(shapes=args.shapes, holdout=args.holdout, seed=args.seed, exclude=exclude)
+    data_cfg = DataConfig(
+        shapes=args.shapes,
+        split=SplitConfig(val=args.val, test=args.test),
+        seed=args.seed,
+        exclude=exclude,
+        roll=args.roll,
+        template_inplane_step=args.inplane_step,
+    )
     cfg = TrainConfig(
         modality=args.modality,
-        descriptor_dim=args.dim,
+        arch=arch,
+        descriptor_dim=dim,
         minutes=args.minutes,
         max_steps=args.max_steps,
         samples_per_batch=args.batch,
@@ -103,7 +127,16 @@ def run(args: argparse.Namespace) -> int:
     data = build(args.data, data_cfg, args.cache)
     data_minutes = (time.perf_counter() - t0) / 60
     (args.out / "config.json").write_text(
-        json.dumps({"config": asdict(cfg), "data": [str(d) for d in args.data], "command": command}, indent=2)
+        json.dumps(
+            {
+                "config": asdict(cfg),
+                "data": [str(d) for d in args.data],
+                "command": command,
+                "split_frames": data.split_frames,
+                "code": _code_version(),
+            },
+            indent=2,
+        )
     )
     has_real = bool(data.test_instances())
 
@@ -119,7 +152,7 @@ def run(args: argparse.Namespace) -> int:
     report = {
         "command": command,
         "data": [str(d) for d in args.data],
-        "heldout_frames": data.heldout_frames,
+        "split_frames": data.split_frames,
         "objects": data.names[: data.real_objects],
         "excluded_objects": list(exclude),
         "data_minutes": round(data_minutes, 1),
@@ -133,8 +166,8 @@ def run(args: argparse.Namespace) -> int:
         embed = lambda x: torch_descriptors(net, x)  # noqa: E731
         if has_real:
             acc, bands = validate_real(data, embed, args.modality)
-            report["real_heldout"] = acc.as_dict() | {"bands": {k: v.as_dict() for k, v in bands.items()}}
-            print(f"real held-out frames: {acc.line()}")
+            report["real_val"] = acc.as_dict() | {"bands": {k: v.as_dict() for k, v in bands.items()}}
+            print(f"real validation frames (last epoch): {acc.line()}")
             for k, v in bands.items():
                 print(f"  visibility {k}: {v.line()}")
         unseen = {k: (m, "none") for k, m in demo_shapes().items()}

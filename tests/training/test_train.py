@@ -16,8 +16,11 @@ from training.train import BatchProducer, TrainConfig, load_checkpoint, train
 @pytest.fixture(scope="module")
 def two_shapes():
     # No BOP data: two procedural shapes, few training renders, so the test stays fast.
-    # Augmentations off: 120 steps are to show the mechanics work, not to learn invariances.
-    return build([], DataConfig(shapes=2, shape_views=80, occlude=0.0, colour_jitter=0.0, seed=3))
+    # Augmentations and roll off: 120 steps are to show the mechanics work, not to learn invariances.
+    cfg = DataConfig(
+        shapes=2, shape_views=80, occlude=0.0, colour_jitter=0.0, roll=5.0, template_inplane_step=0.0, seed=3
+    )
+    return build([], cfg)
 
 
 def batch_loss(net, batches) -> float:
