@@ -38,9 +38,9 @@ class SensorModel:
     quantise: bool = True
     focal_px: float = 580.0  # Kinect depth camera, for disparity quantisation
     baseline_mm: float = 75.0
-    edge_dropout: float = 0.6  # chance that a depth pixel at a depth edge is missing
+    edge_dropout: float = 0.02  # chance an edge pixel is lost; a real LM-O frame: 2.8% (sensor_vs_real.py)
     edge_step_mm: float = 20.0  # a depth discontinuity at least this high is an edge
-    random_dropout: float = 0.003  # fraction of pixels lost in small random holes
+    random_dropout: float = 0.0007  # seeds 3x3 holes: 0.6% lost, as a real frame off edges (sensor_vs_real)
     rgb_noise_std: tuple[float, float] = (1.0, 6.0)  # range of per-image Gaussian noise, grey levels
     gain: tuple[float, float] = (0.6, 1.4)  # range of global brightness change
     channel_gain: float = 0.12  # +- per-channel colour cast

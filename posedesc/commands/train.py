@@ -85,7 +85,8 @@ def run(args: argparse.Namespace) -> int:
     for d in args.data:
         if not (d / "models" / "models_info.json").is_file():
             raise UserError(f"{d} is not a BOP dataset (no models/models_info.json)")
-    from training.data import DataConfig, build
+    from training.data import DataConfig
+    from training.render_cache import build
     from training.splits import SplitConfig
     from training.train import TrainConfig, train
     from training.validate import validate_real, validate_synthetic

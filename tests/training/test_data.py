@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from index.render import Renderer
-from training.data import DataConfig, TrainingData, build, paint_out
+from training.data import DataConfig, TrainingData
+from training.render_cache import build, paint_out
 from training.splits import SplitConfig, frames_of, split_frames
 
 

@@ -6,10 +6,11 @@ import numpy as np
 import pytest
 import torch
 
-from training.data import DataConfig, build
+from training.data import DataConfig
 from training.export import torch_descriptors
 from training.losses import DescriptorLoss
 from training.model import DescriptorNet, NetConfig
+from training.render_cache import build
 from training.train import BatchProducer, TrainConfig, load_checkpoint, train
 
 
