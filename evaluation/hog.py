@@ -3,16 +3,25 @@ bins: 1764 values per channel; the channels of the modality (R, G, B and/or dept
 one and stacked, the whole L2-normalised; similarity is the dot product.
 
 Each channel is the network's own input (index/patches.py) mapped to 8 bits, so HOG sees exactly the
-patches our descriptor sees: the same crop, the same depth hole filling and depth normalisation."""
+patches our descriptor sees: the same crop, the same depth hole filling and depth normalisation.
+`rank` is the method's adapter: the exact nearest templates by dot product (`faiss.knn`)."""
 
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
 
+from evaluation.neighbours import Ranking, knn, separation
 from index.patches import batch_inputs
+
+if TYPE_CHECKING:
+    from evaluation.samples import Samples
+    from evaluation.templates import RenderedTemplates
+    from index.embed import Embedder
+
 
 HOG_DIM_PER_CHANNEL = 1764
 
@@ -69,3 +78,24 @@ def hog_descriptors(
         if progress:
             progress(hi - lo)
     return out if out is not None else np.zeros((0, HOG_DIM_PER_CHANNEL), np.float16)
+
+
+def rank(
+    embedder: Embedder,
+    templates: RenderedTemplates,
+    samples: Samples,
+    n: int,
+    progress: Callable[[int], None] | None = None,
+) -> Ranking:
+    """The n nearest templates of every test patch by HOG (on the inputs `embedder`'s model takes)."""
+    t, s, m, w = templates, samples, embedder.modality, embedder.info.window_mm
+    t_nominal = np.array([v.distance for v in t.views])
+    t_desc = hog_descriptors(m, t.rgb, t.depth, t_nominal, w, False, progress=progress)
+    s_desc = hog_descriptors(m, s.rgb, s.depth, s.distances, w, True)
+    neighbours, scores = knn(s_desc, t_desc, n, "dot")
+
+    def lookup(i: int, idx: np.ndarray) -> np.ndarray:
+        dot = t_desc[idx].astype(np.float32) @ s_desc[i].astype(np.float32)
+        return np.sqrt(np.maximum(2.0 - 2.0 * dot, 0.0))
+
+    return Ranking(neighbours, scores, separation(s_desc, t_desc, t.obj_ids, s.obj_ids, "dot"), lookup)

@@ -23,14 +23,23 @@ own place (0.01 is taken off per pixel away, less than one step of LineMOD's sco
 its own LineMOD class: `Detector.match` drops matches of one class at the same position and score as
 duplicates (`Match ==` ignores the template id), which silently lost templates of the same object that
 tied. A template from which LineMOD cannot extract enough features (a nearly featureless view) is not
-added; `skipped` counts them."""
+added; `skipped` counts them. `rank` is the method's adapter."""
 
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
+
+from evaluation.neighbours import Ranking
+
+if TYPE_CHECKING:
+    from evaluation.samples import Samples
+    from evaluation.templates import RenderedTemplates
+    from index.embed import Embedder
+
 
 PAD = 160
 T_PYRAMID = (4, 8)
@@ -134,3 +143,50 @@ def top_k(similarities: dict[int, float], k: int) -> tuple[np.ndarray, np.ndarra
     for j, (i, s) in enumerate(ranked):
         idx[j], sim[j] = i, s
     return idx, sim
+
+
+def rank(
+    embedder: Embedder,
+    templates: RenderedTemplates,
+    samples: Samples,
+    n: int,
+    threshold: float = 50.0,
+    progress: Callable[[int], None] | None = None,
+) -> Ranking:
+    """The n most similar templates of every test patch by LineMOD; scores are 100 - similarity.
+    `progress` counts templates added, then patches matched."""
+    t, s, spec = templates, samples, embedder.info.spec
+    index = LineModIndex(embedder.modality, spec.window_mm, spec.size, threshold)
+    index.add(t.obj_ids, t.rgb, t.depth, t.mask, np.array([v.distance for v in t.views]), progress=progress)
+    notes = []
+    if index.skipped:
+        notes.append(
+            f"LineMOD could not extract enough features from {index.skipped} of {len(t)} templates; "
+            "they are missing from its template set"
+        )
+    sims = []
+    for i in range(len(s)):
+        rgb, depth = None if s.rgb is None else s.rgb[i], None if s.depth is None else s.depth[i]
+        sims.append(index.similarities(rgb, depth, float(s.distances[i])))
+        if progress:
+            progress(1)
+    ranked = [top_k(sim, n) for sim in sims]
+    neighbours = np.stack([r[0] for r in ranked]).reshape(len(s), -1)
+    scores = np.where(neighbours >= 0, 100.0 - np.stack([r[1] for r in ranked]).reshape(len(s), -1), np.nan)
+
+    def lookup(i: int, idx: np.ndarray) -> np.ndarray:
+        return np.array([100.0 - sims[i].get(int(j), np.nan) for j in idx])
+
+    return Ranking(neighbours, scores, _separation(sims, t.obj_ids, s.obj_ids), lookup, notes=notes)
+
+
+def _separation(sims: list[dict[int, float]], template_obj: np.ndarray, sample_obj: np.ndarray) -> np.ndarray:
+    """Nearest other-object over nearest same-object template, with 100 - similarity as the distance,
+    over the templates that matched (nan: undefined)."""
+    out = np.full(len(sims), np.nan)
+    for i, s in enumerate(sims):
+        own = [100.0 - v for t, v in s.items() if template_obj[t] == sample_obj[i]]
+        other = [100.0 - v for t, v in s.items() if template_obj[t] != sample_obj[i]]
+        if own and other and min(own) > 0:
+            out[i] = min(other) / min(own)
+    return out

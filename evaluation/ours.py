@@ -1,13 +1,25 @@
-"""Our descriptor: template descriptors as the service registers them, test descriptors with the same
-embedder, exact nearest neighbours in Euclidean distance."""
+"""Our descriptor, for both protocol families:
+- the service protocol asks the service itself (`service.recognition.recognise`, see `evaluation.served`):
+  `answers` turns its distinct answers into arrays;
+- the paper and full protocols: `rank` embeds the templates with the service's own
+  `index.register.embed_templates` and the test patches with the same embedder (sensor holes filled), and
+  finds the exact nearest templates in Euclidean distance."""
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from index.embed import Embedder
+from evaluation.neighbours import Ranking, knn, separation
+from index.register import embed_templates
+from index.store import Match
+
+if TYPE_CHECKING:
+    from evaluation.samples import Samples
+    from evaluation.templates import RenderedTemplates
+    from index.embed import Embedder
 
 
 def embed(
@@ -36,22 +48,42 @@ def embed(
     return out
 
 
-def distances(queries: np.ndarray, templates: np.ndarray, chunk: int = 256) -> np.ndarray:
-    """Euclidean distances (N, T), float32."""
-    t = templates.astype(np.float32)
-    t2 = (t * t).sum(axis=1)
-    out = np.zeros((len(queries), len(t)), np.float32)
-    for lo in range(0, len(queries), chunk):
-        q = queries[lo : lo + chunk].astype(np.float32)
-        d2 = (q * q).sum(axis=1)[:, None] + t2[None] - 2.0 * q @ t.T
-        out[lo : lo + chunk] = np.sqrt(np.maximum(d2, 0.0))
-    return out
+def rank(
+    embedder: Embedder,
+    templates: RenderedTemplates,
+    samples: Samples,
+    n: int,
+    progress: Callable[[int], None] | None = None,
+) -> Ranking:
+    """The n nearest templates of every test patch by our descriptor."""
+    t, s = templates, samples
+    t_desc = np.zeros((len(t), embedder.dim), np.float32)
+    for obj in np.unique(t.obj_ids):
+        idx = t.of(int(obj))
+        t_desc[idx] = embed_templates(embedder, {t.window_mm: t.object_templates(int(obj))}).descriptors
+        if progress:
+            progress(len(idx))
+    s_desc = embed(embedder, s.rgb, s.depth, s.distances, True)
+    neighbours, scores = knn(s_desc, t_desc, n)
+
+    def lookup(i: int, idx: np.ndarray) -> np.ndarray:
+        return np.linalg.norm(t_desc[idx] - s_desc[i], axis=1)
+
+    return Ranking(
+        neighbours,
+        scores,
+        separation(s_desc, t_desc, t.obj_ids, s.obj_ids, "l2"),
+        lookup,
+        {"templates": t_desc, "samples": s_desc},
+    )
 
 
-def nearest(dist: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
-    """The k smallest of each row, sorted: (indices (N, k), values (N, k))."""
-    k = min(k, dist.shape[1])
-    part = np.argpartition(dist, k - 1, axis=1)[:, :k]
-    vals = np.take_along_axis(dist, part, axis=1)
-    order = np.argsort(vals, axis=1, kind="stable")
-    return np.take_along_axis(part, order, axis=1), np.take_along_axis(vals, order, axis=1)
+def answers(matches: Sequence[Match], dataset_ids: dict[int, int], k: int) -> tuple[np.ndarray, ...]:
+    """The service's answers to one query as arrays: (object (k,), the dataset's id, -1 = none; views
+    (k, 3) azimuth, elevation, in-plane; distances (k,), nan = none)."""
+    obj, views, dist = np.full(k, -1, int), np.zeros((k, 3)), np.full(k, np.nan)
+    for j, m in enumerate(matches[:k]):
+        obj[j] = dataset_ids.get(m.object_id, -1)
+        views[j] = m.azimuth, m.elevation, m.inplane
+        dist[j] = m.distance
+    return obj, views, dist

@@ -13,6 +13,7 @@ import numpy as np  # noqa: E402
 
 from evaluation.run import Evaluation  # noqa: E402
 from index.sheet import depth_to_colour  # noqa: E402
+from index.symmetry import within  # noqa: E402
 
 COLOURS = {"ours": "tab:blue", "hog": "tab:orange", "linemod": "tab:green"}
 LABELS = {"ours": "ours", "hog": "HOG", "linemod": "LineMOD"}
@@ -24,13 +25,14 @@ def _title(ev: Evaluation) -> str:
 
 
 def accuracy_curves(ev: Evaluation, path: Path, ks: tuple[int, ...] = (1, 5, 22)) -> Path:
-    """Fraction of patches within each threshold (best of k nearest; wrong object never counts)."""
+    """Fraction of patches within each threshold (strictly below; best of k nearest; wrong object never
+    counts)."""
     thresholds = np.linspace(0, 180, 181)
     fig, axes = plt.subplots(1, len(ks), figsize=(4.2 * len(ks), 3.6), sharey=True)
     for ax, k in zip(np.atleast_1d(axes), ks, strict=True):
         for name, r in ev.results.items():
             best = np.where(r.same[:, :k], r.errors[:, :k], np.inf).min(axis=1)
-            curve = [np.mean(best <= t) for t in thresholds]
+            curve = [np.mean(within(best, t)) for t in thresholds]
             ax.plot(thresholds, curve, color=COLOURS[name], label=LABELS[name])
         for t in (5, 20, 40):
             ax.axvline(t, color="0.85", lw=0.8, zorder=0)
@@ -96,6 +98,7 @@ def nearest_templates(ev: Evaluation, method: str, path: Path, n: int = 8, k: in
     """Rows of a test patch and its k nearest templates; frame: green = right object within 20°,
     orange = right object, red = another object."""
     s, t, r = ev.samples, ev.templates, ev.results[method]
+    assert t is not None and r.neighbours is not None
     rng = np.random.default_rng(ev.config.seed)
     rows = np.sort(rng.choice(len(s), min(n, len(s)), replace=False))
     fig, axes = plt.subplots(len(rows), k + 1, figsize=(1.1 * (k + 1), 1.2 * len(rows)), squeeze=False)
@@ -107,7 +110,7 @@ def nearest_templates(ev: Evaluation, method: str, path: Path, n: int = 8, k: in
             ti = r.neighbours[i, j] if j < r.neighbours.shape[1] else -1
             if ti >= 0:
                 ax.imshow(_show(t.rgb, t.depth, ti))
-                colour = "green" if r.errors[i, j] <= 20 else "orange" if r.same[i, j] else "red"
+                colour = "green" if within(r.errors[i, j], 20) else "orange" if r.same[i, j] else "red"
                 for spine in ax.spines.values():
                     spine.set(color=colour, lw=2.5)
                 ax.set_title(f"{r.errors[i, j]:.0f}°", fontsize=6, color=colour)

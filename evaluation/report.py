@@ -25,14 +25,15 @@ def _pct(x: float) -> str:
     return f"{100 * x:.1f}"
 
 
-def table(summary: dict, ks: tuple[int, ...] = (1, 22)) -> str:
-    """Rows method x k; columns: within 5°, 20°, 40°, and the right object (percent of test patches)."""
+def table(summary: dict, ks: tuple[int, ...] = (1, 22), key: str = "methods") -> str:
+    """Rows method x k; columns: within 5°, 20°, 40°, and the right object (percent of test patches).
+    `key`: "methods" (the protocol's error) or "view_direction" (the service protocol's other error)."""
     lines = [
         "| method | k | 5° | 20° | 40° | right object |",
         "|---|---|---|---|---|---|",
     ]
     for k in ks:
-        for name, res in summary["methods"].items():
+        for name, res in summary[key].items():
             row = res[f"k{k}"]
             cells = " | ".join(_pct(row[t]) for t in ("5", "20", "40", "180"))
             lines.append(f"| {NAMES.get(name, name)} | {k} | {cells} |")
@@ -77,20 +78,29 @@ def frames_text(frames: list[int], most: int = 20) -> str:
 
 
 def write_report(ev: Evaluation, folder: Path, command: str, model_3d: Path | None = None) -> Path:
-    """Writes report.md and the pictures into `folder`; returns the markdown's path."""
+    """Writes report.md and the pictures into `folder`; returns the markdown's path. Pictures that need
+    what a protocol does not have (templates per answer, distances to every template) are left out."""
     folder.mkdir(parents=True, exist_ok=True)
     summary = ev.summary()
-    pics = [
-        ("accuracy against threshold", pictures.accuracy_curves(ev, folder / "accuracy.png")),
-        ("distance against pose angle", pictures.distance_vs_angle(ev, folder / "distance_vs_angle.png")),
-        ("class separation", pictures.class_separation(ev, folder / "class_separation.png")),
-    ]
-    for name in ev.results:
-        path = pictures.nearest_templates(ev, name, folder / f"nearest_{name}.png")
-        pics.append((f"nearest templates, {NAMES[name]}", path))
+    pics = [("accuracy against threshold", pictures.accuracy_curves(ev, folder / "accuracy.png"))]
+    if any(len(r.angle_distance) for r in ev.results.values()):
+        pics.append(
+            ("distance against pose angle", pictures.distance_vs_angle(ev, folder / "distance_vs_angle.png"))
+        )
+    if any(len(r.separation) for r in ev.results.values()):
+        pics.append(("class separation", pictures.class_separation(ev, folder / "class_separation.png")))
+    for name, r in ev.results.items():
+        if r.neighbours is not None and ev.templates is not None:
+            path = pictures.nearest_templates(ev, name, folder / f"nearest_{name}.png")
+            pics.append((f"nearest templates, {NAMES[name]}", path))
     if (scatter := _descriptors_3d(ev, folder / "descriptors_3d.png", model_3d)) is not None:
         pics.append(("descriptors in 3-D", scatter))
     c = ev.config
+    error = (
+        "the angle between viewing directions"
+        if c.protocol == "paper"
+        else "the 3-D rotation angle, in-plane included"
+    )
     md = [
         f"# Evaluation: {c.modality}, {c.protocol} protocol",
         "",
@@ -101,14 +111,26 @@ def write_report(ev: Evaluation, folder: Path, command: str, model_3d: Path | No
         f"({summary['n_samples']} instances with visible fraction ≥ {c.min_visib}), "
         f"frames {frames_text(summary['frames'])}",
         f"- templates: {summary['n_templates']} ({len(summary['objects'])} objects)",
+        *([f"- service: {summary['service']}"] if "service" in summary else []),
+        *([f"- recognise calls (ms): {summary['timing_ms']}"] if "timing_ms" in summary else []),
         f"- seconds: {', '.join(f'{k} {v}' for k, v in summary['seconds'].items())}",
         *[f"- {note}" for note in summary["notes"]],
         "",
-        "Percent of test patches whose best pose among the k nearest templates is within 5°, 20°, 40°, "
-        "and whose object is among them (a wrong object counts as 180°):",
+        f"Percent of test patches whose best pose among the k nearest answers is within 5°, 20°, 40° "
+        f"(strictly below; error: {error}), and whose object is among them (a wrong object counts as 180°):",
         "",
         table(summary),
         "",
+        *(
+            [
+                "The same by the viewing-direction error (in-plane not counted):",
+                "",
+                table(summary, key="view_direction"),
+                "",
+            ]
+            if "view_direction" in summary
+            else []
+        ),
         "Per object, k = 1:",
         "",
         per_object_table(summary),
@@ -124,6 +146,8 @@ def _descriptors_3d(ev: Evaluation, path: Path, model_3d: Path | None) -> Path |
     """The templates (in-plane 0) as a 3-dimensional model describes them; without one, the first three
     principal components of our descriptors."""
     t = ev.templates
+    if t is None:
+        return None
     keep = np.array([v.inplane == 0 for v in t.views])
     if model_3d is not None:
         from evaluation.ours import embed

@@ -7,7 +7,7 @@ model. Instances are chosen by the dataset's visible fraction in both cases."""
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -20,7 +20,8 @@ from index.pose import View
 @dataclass
 class Samples:
     """Test patches. rgb (N, S, S, 3) uint8 or None; depth (N, S, S) mm or None; views: the true view
-    of each patch (in-plane 0 when rectified); source: "real" or "synthetic"."""
+    of each patch (in-plane 0 when rectified); source: "real" or "synthetic"; cut_mm (N,): the distance
+    each was cut at (None: the true one, the views')."""
 
     obj_ids: np.ndarray
     frame_ids: np.ndarray
@@ -29,9 +30,15 @@ class Samples:
     rgb: np.ndarray | None
     depth: np.ndarray | None
     source: str
+    cut_mm: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.views)
+
+    @property
+    def distances(self) -> np.ndarray:
+        """The distance (mm) each patch was cut at: its window spans window_mm there."""
+        return self.cut_mm if self.cut_mm is not None else np.array([v.distance for v in self.views])
 
 
 def select_instances(
@@ -53,7 +60,7 @@ def needs_synthetic(modality: str, instances: Sequence[Instance]) -> bool:
     return any((need_depth and i.depth_path is None) or (need_rgb and i.rgb_path is None) for i in instances)
 
 
-def _by_frame(instances: Sequence[Instance]) -> dict[int, list[Instance]]:
+def by_frame(instances: Sequence[Instance]) -> dict[int, list[Instance]]:
     frames: dict[int, list[Instance]] = {}
     for inst in instances:
         frames.setdefault(inst.frame_id, []).append(inst)
@@ -70,7 +77,7 @@ def real_samples(
     """Patches from the real frames; each frame is read once."""
     rgbs, depths, views = [], [], []
     ordered = []
-    for group in _by_frame(instances).values():
+    for group in by_frame(instances).values():
         rgb = group[0].load_rgb() if modality in ("rgb", "rgbd") else None
         depth = group[0].load_depth() if modality in ("depth", "rgbd") else None
         for inst in group:
@@ -93,22 +100,39 @@ def synthetic_samples(
     seed: int = 0,
     progress: Callable[[int], None] | None = None,
 ) -> Samples:
-    """Patches from synthetic frames: the annotated objects of each frame rendered at their annotated
-    poses, standing on their table (`index.bop.table_depth`, textured like a background), composited
-    over a random background, through the sensor model."""
+    """Patches from synthetic frames (`synthetic_frames`)."""
+    rgbs, depths, views, ordered = [], [], [], []
+    for group, rgb, depth in synthetic_frames(dataset, instances, seed):
+        for inst in group:
+            prgb, pdepth, view = instance_patch(inst, spec, rectify, rgb=rgb, depth=depth)
+            rgbs.append(prgb if modality in ("rgb", "rgbd") else None)
+            depths.append(pdepth if modality in ("depth", "rgbd") else None)
+            views.append(view)
+            ordered.append(inst)
+        if progress:
+            progress(len(group))
+    return _samples(ordered, views, rgbs, depths, "synthetic")
+
+
+def synthetic_frames(
+    dataset: BopDataset, instances: Sequence[Instance], seed: int = 0
+) -> Iterator[tuple[list[Instance], np.ndarray, np.ndarray]]:
+    """Per frame of `instances`: (its instances, rgb (H, W, 3) uint8, depth (H, W) float32 mm) of a
+    synthetic frame: the annotated objects of the frame rendered at their annotated poses with its camera,
+    standing on their table (`index.bop.table_depth`, textured like a background), composited over a
+    random background, through the sensor model."""
     from index.render import Renderer
     from index.sensor import SensorModel, random_background, with_support
 
     rng = np.random.default_rng(seed)
     sensor = SensorModel()
     meshes: dict[int, object] = {}
-    renderer = Renderer(window_mm=spec.window_mm)
-    rgbs, depths, views, ordered = [], [], [], []
+    renderer = Renderer()
     # Every annotated object of a frame occludes, not only the selected ones.
     scenes = {i.scene_id for i in instances}
-    everyone_by_frame = _by_frame([a for s in scenes for a in dataset.instances(s)])
+    everyone_by_frame = by_frame([a for s in scenes for a in dataset.instances(s)])
     try:
-        for frame_id, group in _by_frame(instances).items():
+        for frame_id, group in by_frame(instances).items():
             everyone = everyone_by_frame[frame_id]
             for inst in everyone:
                 if inst.obj_id not in meshes:
@@ -123,17 +147,9 @@ def synthetic_samples(
             table = table_depth(everyone, [meshes[i.obj_id] for i in everyone], w, h)
             bg_depth, bg_rgb = with_support(bg_depth, bg_rgb, table, random_background((h, w), rng, far)[0])
             rgb, depth = sensor.apply(rgb, depth, rng, bg_rgb, bg_depth)
-            for inst in group:
-                prgb, pdepth, view = instance_patch(inst, spec, rectify, rgb=rgb, depth=depth)
-                rgbs.append(prgb if modality in ("rgb", "rgbd") else None)
-                depths.append(pdepth if modality in ("depth", "rgbd") else None)
-                views.append(view)
-                ordered.append(inst)
-            if progress:
-                progress(len(group))
+            yield group, rgb, depth
     finally:
         renderer.close()
-    return _samples(ordered, views, rgbs, depths, "synthetic")
 
 
 def _frame_size(inst: Instance) -> tuple[int, int]:

@@ -2,9 +2,10 @@
 that they differ only in how they compare patches.
 
 The views are the service's (`index.register.template_views`): the paper's 301 viewpoints at 400 mm,
-fewer for symmetric objects (a "180" object keeps azimuths in [0, 180)). For the full protocol every
-view gets in-plane variants over the whole turn: real objects appear rolled by anything (LM-O: -105° to
-177°), beyond the service's default +-45°."""
+fewer for symmetric objects (a "180" object keeps azimuths in [0, 180)). The service protocol uses the
+very views the service registers for the model (its in-plane variants included); the paper protocol
+upright ones; the full protocol gives every view in-plane variants over the whole turn (`full_inplane`):
+real objects appear rolled by anything (LM-O: -105° to 177°)."""
 
 from __future__ import annotations
 
@@ -59,8 +60,8 @@ def service_symmetry(symmetry: object) -> str:
 
 
 def object_views(symmetry: object, inplane: np.ndarray | None = None) -> list[View]:
-    """The service's template views of an object, each times `inplane` (None: the service's own)."""
-    views = template_views(service_symmetry(symmetry), TemplateConfig())
+    """The service's upright template views of an object, each times `inplane` (None: upright only)."""
+    views = template_views(service_symmetry(symmetry), TemplateConfig(inplane_step=0.0))
     if inplane is None:
         return views
     return [View(v.azimuth, v.elevation, float(ip), v.distance) for v in views for ip in inplane]
@@ -68,20 +69,18 @@ def object_views(symmetry: object, inplane: np.ndarray | None = None) -> list[Vi
 
 def render_templates(
     meshes: dict[int, trimesh.Trimesh],
-    symmetries: dict[int, object],
+    views: dict[int, list[View]],
     modality: str,
     window_mm: float,
-    inplane: np.ndarray | None = None,
     progress: Callable[[int], None] | None = None,
 ) -> RenderedTemplates:
-    """Renders every object's template views (`object_views`)."""
+    """Renders every object's template `views` (a render per viewpoint, in-plane variants turned)."""
     renderer = Renderer(window_mm=window_mm)
     obj_ids, rgbs, depths, masks, all_views = [], [], [], [], []
     try:
         for obj_id, mesh in meshes.items():
-            views = object_views(symmetries[obj_id], inplane)
-            t = renderer.render(mesh, views, progress=progress)
-            obj_ids.append(np.full(len(views), obj_id))
+            t = renderer.render(mesh, views[obj_id], progress=progress)
+            obj_ids.append(np.full(len(t.views), obj_id))
             all_views += t.views
             rgbs.append(t.rgb if modality in ("rgb", "rgbd") else None)
             depths.append(t.depth if modality in ("depth", "rgbd") else None)

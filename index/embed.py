@@ -5,7 +5,6 @@ service, the evaluation and training can never disagree about it."""
 from __future__ import annotations
 
 import hashlib
-import json
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -32,6 +31,12 @@ class ModelInfo:
     def spec(self) -> PatchSpec:
         return PatchSpec(self.size, self.window_mm)
 
+    @property
+    def inplane_step(self) -> float:
+        """Degrees between the in-plane variants the model was trained to tell apart over the whole turn
+        (metadata `inplane_step`); 0 for a model trained on upright views only (a legacy model)."""
+        return float(self.extra.get("inplane_step") or 0.0)
+
     def to_metadata(self) -> dict[str, str]:
         return {
             "modality": self.modality,
@@ -47,15 +52,21 @@ class ModelInfo:
     def from_metadata(cls, meta: dict[str, str]) -> ModelInfo:
         known = {"modality", "window_mm", "size", "descriptor_dim", "normalisation"}
         try:
-            return cls(
+            info = cls(
                 modality=meta["modality"],
                 window_mm=float(meta["window_mm"]),
                 size=int(meta["size"]),
                 descriptor_dim=int(meta["descriptor_dim"]),
                 extra={k: v for k, v in meta.items() if k not in known},
             )
-        except (KeyError, ValueError) as e:
+            step = info.inplane_step
+        except KeyError as e:
             raise ValueError(f"not a posedesc model: metadata lacks {e}") from None
+        except ValueError as e:
+            raise ValueError(f"not a posedesc model: bad metadata ({e})") from None
+        if not 0.0 <= step < 360.0:
+            raise ValueError(f"not a posedesc model: inplane_step {step:g} is not in [0, 360)")
+        return info
 
 
 class Embedder:
@@ -104,10 +115,6 @@ class Embedder:
         """Cropped patches (rgb (N, S, S, 3) uint8, depth (N, S, S) mm) -> descriptors (N, D)."""
         x = batch_inputs(self.modality, rgb, depth, nominal_mm, self.info.window_mm, fill)
         return self(x)
-
-
-def metadata_json(meta: dict[str, str]) -> str:
-    return json.dumps(meta, indent=2, sort_keys=True)
 
 
 #: The shipped models' file names, by modality; a models folder holds any of them.

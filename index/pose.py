@@ -115,12 +115,6 @@ def rotation_angle(R_a: np.ndarray, R_b: np.ndarray) -> float:
     return float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
 
 
-def view_direction_angle(az_a: float, el_a: float, az_b: float, el_b: float) -> float:
-    """Angle between two viewing directions on the sphere, degrees."""
-    cos = float(camera_centre(az_a, el_a) @ camera_centre(az_b, el_b))
-    return float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
-
-
 def wrap_degrees(angle: float | np.ndarray) -> float | np.ndarray:
-    """Wraps angles to (-180, 180]."""
-    return -((-np.asarray(angle) + 180.0) % 360.0 - 180.0)
+    """Wraps angles to (-180, 180] (0 comes out as +0)."""
+    return -((-np.asarray(angle, dtype=float) + 180.0) % 360.0 - 180.0) + 0.0

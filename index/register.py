@@ -2,12 +2,18 @@
 benchmarks: mesh -> renders of every template view (on the render thread) -> patches -> descriptors of
 every model -> the store, in one transaction for all models.
 
-Template views: the paper's level-3 half-sphere (301 viewpoints) at 400 mm, times the in-plane steps.
-The default has no in-plane variants. Measured with `.venv/bin/python benchmarks/serving.py` (2 cores
-shared with other work, three models, a 21.8k-face mesh): 301 templates per model take render 2.5 s and
-embed 1.0 s, overlapping, 2.8 s in all (since then, on an idle machine: render 1.2 s, all 1.35 s; `posedesc bench`); in-plane variants
-cost no render but multiply embedding: +-45 in 45 steps (903) 4.4 s, 15 steps (2107) 7.6 s, against a
-target of ~2 s per registration. A service that must recognise rolled objects sets a step (settings).
+Template views: the paper's level-3 half-sphere (301 viewpoints) at 400 mm, times each model's in-plane
+angles. A model trained with the whole turn of roll says so in its metadata (`inplane_step`, see
+`index.embed.ModelInfo`): its templates are the views at every multiple of that step over the whole turn
+(12 per viewpoint for 30°). A model without it (a legacy model) has upright templates only. Settings may
+override both (`TemplateConfig`). The models of a service may differ, so the union of their views is
+rendered once (a render per viewpoint; in-plane variants are turns of it, `index.render`) and each model
+embeds its own subset.
+
+Costs, measured with `.venv/bin/python benchmarks/serving.py` (2 cores shared with other work, three
+models, a 21.8k-face mesh): 301 templates per model take render 2.5 s and embed 1.0 s, overlapping, 2.8 s
+in all (since then, on an idle machine: render 1.2 s, all 1.35 s; `posedesc bench`); in-plane variants
+cost no render but multiply embedding: +-45 in 45 steps (903) 4.4 s, 15 steps (2107) 7.6 s.
 
 Symmetric objects do not need every viewpoint: the views of a "180" object from azimuth a and a + 180
 are the same picture, so only azimuths in [0, 180) are kept; a "full" object looks the same from every
@@ -20,7 +26,7 @@ from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 
@@ -42,9 +48,23 @@ log = logging.getLogger(__name__)
 @dataclass(frozen=True)
 class TemplateConfig:
     level: int = 3  # icosphere subdivisions: 3 = the paper's 301 template viewpoints
-    inplane_step: float = 0.0  # degrees; 0 = no in-plane variants (see the module docstring)
-    inplane_max: float = 45.0  # variants span +-this
+    #: in-plane step for every model, degrees (0: upright only); None: each model's own metadata
+    inplane_step: float | None = None
+    #: variants span +-this (>= 180: the whole turn); None: the whole turn for a model trained with
+    #: roll, +-45 for a legacy one
+    inplane_max: float | None = None
     distance_mm: float = 400.0  # render distance (LineMOD's); patches are metric, so it barely matters
+
+    def inplane(self, model_step: float = 0.0) -> np.ndarray:
+        """In-plane angles of the templates of a model whose metadata says `model_step` (0: legacy)."""
+        step = model_step if self.inplane_step is None else self.inplane_step
+        span = self.inplane_max if self.inplane_max is not None else (360.0 if model_step > 0 else 45.0)
+        return inplane_steps(step, span)
+
+    def inplane_spacing(self, model_step: float = 0.0) -> float:
+        """Degrees between neighbouring in-plane templates of such a model; 0 when upright only."""
+        step = model_step if self.inplane_step is None else self.inplane_step
+        return float(step) if len(self.inplane(model_step)) > 1 else 0.0
 
 
 @dataclass
@@ -56,16 +76,35 @@ class Registration:
     warnings: list[str] = field(default_factory=list)
 
 
-def template_views(symmetry: str, cfg: TemplateConfig = TemplateConfig()) -> list[View]:
-    """The template views of an object with this symmetry (viewpoint-major)."""
+def template_views(
+    symmetry: str, cfg: TemplateConfig = TemplateConfig(), model_step: float = 0.0
+) -> list[View]:
+    """The template views of an object with this symmetry for a model whose metadata says `model_step`
+    (viewpoint-major: the in-plane variants of a viewpoint are adjacent)."""
     if symmetry not in SYMMETRIES:
         raise MeshError(f"unknown symmetry {symmetry!r}; use one of {', '.join(SYMMETRIES)}")
-    views = all_template_views(cfg.level, inplane_steps(cfg.inplane_step, cfg.inplane_max), cfg.distance_mm)
+    views = all_template_views(cfg.level, cfg.inplane(model_step), cfg.distance_mm)
     if symmetry == "none":
         return views
     wedge = {"180": 180.0, "full": 72.0}[symmetry]
     # +1e-6: a vertex on a wedge's edge may come out of arctan2 a hair below it (359.9999... for 0)
     return [v for v in views if (v.azimuth + 1e-6) % 360.0 < wedge]
+
+
+def model_views(
+    symmetry: str, cfg: TemplateConfig, embedders: Mapping[str, Embedder]
+) -> dict[str, list[View]]:
+    """Each model's template views of an object (they differ when the models' in-plane steps do)."""
+    return {m: template_views(symmetry, cfg, e.info.inplane_step) for m, e in embedders.items()}
+
+
+def _viewpoints(views: Mapping[str, list[View]]) -> list[list[View]]:
+    """The union of the models' views, grouped by viewpoint (first-seen order), in-plane sorted."""
+    groups: dict[tuple[float, float, float], set[float]] = {}
+    for vs in views.values():
+        for v in vs:
+            groups.setdefault((v.azimuth, v.elevation, v.distance), set()).add(v.inplane)
+    return [[View(az, el, ip, d) for ip in sorted(ips)] for (az, el, d), ips in groups.items()]
 
 
 def render_templates(
@@ -91,14 +130,18 @@ def render_templates(
     return worker.submit(job)
 
 
-def embed_templates(embedder: Embedder, rendered: Mapping[float, Templates]) -> TemplateSet:
-    """Descriptors of rendered templates with one model."""
+def embed_templates(
+    embedder: Embedder, rendered: Mapping[float, Templates], keep: Sequence[int] | None = None
+) -> TemplateSet:
+    """Descriptors of rendered templates (those at `keep`, default all) with one model."""
     t = rendered[embedder.info.window_mm]
-    rgb = t.rgb if embedder.modality in ("rgb", "rgbd") else None
-    depth = t.depth if embedder.modality in ("depth", "rgbd") else None
-    nominal = np.array([v.distance for v in t.views])
+    idx = np.arange(len(t.views)) if keep is None else np.asarray(keep, int)
+    rgb = t.rgb[idx] if embedder.modality in ("rgb", "rgbd") else None
+    depth = t.depth[idx] if embedder.modality in ("depth", "rgbd") else None
+    views = [t.views[i] for i in idx]
+    nominal = np.array([v.distance for v in views])
     desc = embedder.embed_patches(rgb, depth, nominal, fill=False)  # a render's zeros are background
-    poses = np.array([(v.azimuth, v.elevation, v.inplane) for v in t.views], np.float32)
+    poses = np.array([(v.azimuth, v.elevation, v.inplane) for v in views], np.float32).reshape(-1, 3)
     return TemplateSet(poses, desc)
 
 
@@ -106,26 +149,29 @@ def make_templates(
     worker: RenderWorker,
     embedders: Mapping[str, Embedder],
     mesh: trimesh.Trimesh,
-    views: list[View],
+    views: Mapping[str, list[View]],
     pool: ThreadPoolExecutor | None = None,
     chunks: int = 4,
 ) -> tuple[dict[str, TemplateSet], dict[str, float]]:
-    """Every model's templates of `mesh` from `views`, and seconds spent rendering and embedding.
+    """Every model's templates of `mesh` from its `views`, and seconds spent rendering and embedding.
 
-    The views go to the render thread in `chunks` (whole viewpoints each); a chunk is embedded while
-    the next renders, and the models of a chunk run side by side on `pool` (serially without one).
-    The mesh is decimated once (on the render thread, to the renderer's level of detail), not per chunk."""
+    The union of the views goes to the render thread once, in `chunks` (whole viewpoints each); a chunk
+    is embedded while the next renders, each model embedding its own views of it, side by side on
+    `pool` (serially without one). The mesh is decimated once (on the render thread, to the renderer's
+    level of detail), not per chunk."""
 
     def decimate(renderer: Renderer) -> trimesh.Trimesh:
         return simplify(mesh, renderer.max_faces) if len(mesh.faces) > renderer.max_faces else mesh
 
     light = worker.submit(decimate)
     windows = {e.info.window_mm for e in embedders.values()}
-    per_viewpoint = max(1, len(views) // max(1, len({(v.azimuth, v.elevation) for v in views})))
-    step = per_viewpoint * max(1, int(np.ceil(len(views) / per_viewpoint / chunks)))
+    groups = _viewpoints(views)
+    per = max(1, int(np.ceil(len(groups) / chunks)))
     renders = [
-        render_templates(worker, light, views[i : i + step], windows) for i in range(0, len(views), step)
+        render_templates(worker, light, [v for g in groups[i : i + per] for v in g], windows)
+        for i in range(0, len(groups), per)
     ]
+    wanted = {m: {(v.azimuth, v.elevation, v.inplane, v.distance) for v in vs} for m, vs in views.items()}
     parts: dict[str, list[TemplateSet]] = {m: [] for m in embedders}
     seconds = {"render": 0.0, "embed": 0.0}
     visible = False
@@ -133,11 +179,18 @@ def make_templates(
         rendered, render_s = fut.result()
         seconds["render"] += render_s
         visible = visible or _visible(rendered)
+        chunk = next(iter(rendered.values())).views
+        keep = {
+            m: [
+                i for i, v in enumerate(chunk) if (v.azimuth, v.elevation, v.inplane, v.distance) in wanted[m]
+            ]
+            for m in embedders
+        }
         t0 = time.perf_counter()
         if pool is None:
-            sets = {m: embed_templates(e, rendered) for m, e in embedders.items()}
+            sets = {m: embed_templates(e, rendered, keep[m]) for m, e in embedders.items()}
         else:
-            futures = {m: pool.submit(embed_templates, e, rendered) for m, e in embedders.items()}
+            futures = {m: pool.submit(embed_templates, e, rendered, keep[m]) for m, e in embedders.items()}
             sets = {m: f.result() for m, f in futures.items()}
         seconds["embed"] += time.perf_counter() - t0
         for m, ts in sets.items():
@@ -169,7 +222,8 @@ def register(
 ) -> Registration:
     """Adds `mesh` (mm) under `name` to every model's store; raises MeshError when it cannot be used."""
     t0 = time.perf_counter()
-    sets, timings = make_templates(worker, embedders, mesh, template_views(symmetry, cfg), pool)
+    views = model_views(symmetry, cfg, embedders)
+    sets, timings = make_templates(worker, embedders, mesh, views, pool)
     t1 = time.perf_counter()
     glb = mesh.export(file_type="glb")  # kept so templates can be made again when a model changes
     record = store.add_object(name, symmetry, sets, faces=len(mesh.faces), mesh=glb, extra=extra)
@@ -201,7 +255,7 @@ def reembed(
             continue
         mesh = load_mesh(glb, file_type="glb", max_faces=None)
         subset = {m: embedders[m] for m in models}
-        sets, _ = make_templates(worker, subset, mesh, template_views(rec.symmetry, cfg), pool)
+        sets, _ = make_templates(worker, subset, mesh, model_views(rec.symmetry, cfg, subset), pool)
         try:
             for m, ts in sets.items():
                 store.add_templates(oid, m, ts)

@@ -41,6 +41,9 @@ from pathlib import Path
 import faiss
 import numpy as np
 
+from index.answers import distinct
+from index.pose import wrap_degrees
+
 log = logging.getLogger(__name__)
 
 INDEX_KINDS = ("flat", "ivf")
@@ -157,6 +160,49 @@ class Snapshot:
                 ]
             )
         return out
+
+    def answers(
+        self,
+        model: str,
+        queries: np.ndarray,
+        k: int,
+        offsets: np.ndarray | None = None,
+        variants: int = 1,
+        most: int = 8192,
+    ) -> list[Match]:
+        """The k best distinct (object, viewpoint) answers to one query described by Q descriptors (Q, D):
+        the query cut Q times, turned by `offsets` (Q,) degrees (`index.patches.crop`'s in-plane, undone
+        roll; default 0). A template of in-plane θ found for a turn by o says the object is rolled θ + o,
+        wrapped to (-180, 180]; the in-plane variants and turns of one viewpoint collapse to their
+        nearest (`index.answers.distinct`). Each turn searches k * `variants` neighbours (the templates
+        a viewpoint has), which holds k distinct viewpoints, more (up to `most`) if not; fewer answers
+        than k only when the store is small."""
+        mi = self.models[model]
+        if mi.size == 0 or k <= 0:
+            return []
+        q = np.ascontiguousarray(queries, np.float32).reshape(-1, mi.index.d)
+        offsets = np.zeros(len(q)) if offsets is None else np.asarray(offsets, float)
+        n = min(mi.size, max(k, k * variants), most)
+        while True:
+            dist, ids = mi.index.search(q, n)
+            turn, col = np.nonzero(ids >= 0)
+            pos = np.searchsorted(mi.ids, ids[turn, col])
+            oid, poses, d = mi.object_ids[pos], mi.poses[pos], dist[turn, col]
+            best = distinct((oid, poses[:, 0], poses[:, 1]), d, k)
+            if len(best) >= k or n >= min(mi.size, most):
+                break
+            n = min(mi.size, most, 2 * n)
+        return [
+            Match(
+                object_id=int(oid[b]),
+                name=self.objects[int(oid[b])].name,
+                azimuth=float(poses[b, 0]),
+                elevation=float(poses[b, 1]),
+                inplane=float(wrap_degrees(float(poses[b, 2]) + offsets[turn[b]])),
+                distance=float(np.sqrt(max(float(d[b]), 0.0))),
+            )
+            for b in best
+        ]
 
 
 class StoreError(RuntimeError):

@@ -10,7 +10,7 @@ from functools import cache
 
 import numpy as np
 
-from index.pose import View
+from index.pose import View, wrap_degrees
 
 
 @cache
@@ -68,9 +68,13 @@ def hemisphere(level: int = 3) -> np.ndarray:
 
 
 def inplane_steps(step_deg: float = 0.0, max_deg: float = 45.0) -> np.ndarray:
-    """In-plane angles -max..max in `step_deg` steps (0 always included); step 0 gives just [0]."""
+    """In-plane angles -max..max in `step_deg` steps (0 always included); step 0 gives just [0].
+    `max_deg` >= 180 is the whole turn: every multiple of the step below 360, wrapped to (-180, 180]."""
     if step_deg <= 0:
         return np.zeros(1)
+    if max_deg >= 180.0:
+        turn = np.arange(int(np.ceil(360.0 / step_deg - 1e-9))) * float(step_deg)
+        return np.sort(wrap_degrees(turn))
     n = int(np.floor(max_deg / step_deg + 1e-9))
     return np.arange(-n, n + 1) * float(step_deg)
 

@@ -1,17 +1,26 @@
-"""One recognition: decoded images -> the model's patch -> descriptor -> nearest templates.
+"""One recognition: decoded images -> the model's patch (and its turns) -> descriptors -> k distinct answers.
 
 Runs in a worker thread (never on the event loop) and never waits on a registration: it reads the
-store's current snapshot and runs the model's own onnxruntime session."""
+store's current snapshot and runs the model's own onnxruntime session. `posedesc evaluate --protocol
+service` calls `recognise` itself, so what it measures is what a user of `POST /recognize` gets.
+
+Roll: a template's in-plane angle is a roll the service can answer, so with templates over the whole
+turn (a model trained with roll, or the settings) every answer's in-plane is an estimate. With
+`query_turns` n > 1 the query is also cut turned by j * s / n (j < n, s the templates' in-plane step, or
+the whole turn when they are upright only): the n patches are embedded in one batch and searched, and a
+match of template in-plane θ on the turn by o says the object is rolled θ + o (`crop` undoes o)."""
 
 from __future__ import annotations
 
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import cv2
 import numpy as np
 
-from index.patches import crop
+from index.embed import Embedder
+from index.patches import PatchSpec, crop, patch_camera
 from index.store import Match
 from service.errors import ApiError
 from service.images import read_depth, read_rgb
@@ -24,6 +33,9 @@ MIN_DISTANCE_MM, MAX_DISTANCE_MM = 1.0, 100_000.0  # the object's distance, give
 
 @dataclass(frozen=True)
 class Query:
+    """What a user sends. `distance_mm`: from the camera centre to the object's origin along the ray
+    through (u, v) (‖t‖ of a BOP pose); without it, a frame's depth gives the surface's distance there."""
+
     rgb: bytes | None
     depth: bytes | None
     depth_scale: float = 1.0
@@ -44,8 +56,47 @@ class Result:
     timings_ms: dict[str, float]
 
 
+@dataclass
+class Decoded:
+    """A query's images, decoded, and the model its modality picks."""
+
+    modality: str
+    embedder: Embedder
+    rgb: np.ndarray | None
+    depth: np.ndarray | None
+
+
+@dataclass
+class Patches:
+    """The query cut as the network takes it, once per turn. rgb (n, S, S, 3) uint8 or None; depth
+    (n, S, S) mm or None; offsets (n,) degrees of roll undone; distance (mm) the window was cut at."""
+
+    rgb: np.ndarray | None
+    depth: np.ndarray | None
+    offsets: np.ndarray
+    distance: float
+
+
 def recognise(state: AppState, q: Query) -> Result:
+    """What `POST /recognize` answers: the k best distinct (object, viewpoint) answers, nearest first."""
     t0 = time.perf_counter()
+    d = decode(state, q)
+    t1 = time.perf_counter()
+    step = d.embedder.info.inplane_step
+    offsets = turn_offsets(state.settings.query_turns, state.templates.inplane_spacing(step))
+    p = cut(q, d.rgb, d.depth, d.embedder.info.spec, offsets)
+    t2 = time.perf_counter()
+    desc = d.embedder.embed_patches(p.rgb, p.depth, p.distance, fill=True)
+    t3 = time.perf_counter()
+    variants = len(state.templates.inplane(step))
+    matches = state.store.snapshot.answers(d.modality, desc, q.k, p.offsets, variants)
+    t4 = time.perf_counter()
+    ms = {"decode": t1 - t0, "patch": t2 - t1, "embed": t3 - t2, "search": t4 - t3, "total": t4 - t0}
+    return Result(state.model_names[d.modality], matches, {k: round(v * 1000, 2) for k, v in ms.items()})
+
+
+def decode(state: AppState, q: Query) -> Decoded:
+    """Checks what was sent, picks the model of its modality and decodes the images."""
     if q.k > state.settings.max_k:
         raise ApiError(422, f"k: must be at most {state.settings.max_k}, got {q.k}")
     if q.rgb is None and q.depth is None:
@@ -65,33 +116,51 @@ def recognise(state: AppState, q: Query) -> Result:
             422,
             f"rgb is {rgb.shape[1]} x {rgb.shape[0]} px but depth is {depth.shape[1]} x {depth.shape[0]} px",
         )
-    t1 = time.perf_counter()
-    spec = embedder.info.spec
+    return Decoded(modality, embedder, rgb, depth)
+
+
+def turn_offsets(turns: int, spacing: float) -> np.ndarray:
+    """The query's turns, degrees: j * spacing / turns (j < turns); the whole turn when spacing is 0."""
+    span = spacing if spacing > 0 else 360.0
+    return np.arange(max(1, turns)) * (span / max(1, turns))
+
+
+def cut(
+    q: Query,
+    rgb: np.ndarray | None,
+    depth: np.ndarray | None,
+    spec: PatchSpec,
+    offsets: Sequence[float] | np.ndarray = (0.0,),
+) -> Patches:
+    """The patches of a decoded query, one per turn in `offsets` (degrees of roll undone)."""
     given = [f for f in FRAME_FIELDS if getattr(q, f) is not None]
     if given and len(given) < len(FRAME_FIELDS):
         missing = ", ".join(f for f in FRAME_FIELDS if f not in given)
         raise ApiError(422, f"a full frame needs fx, fy, cx, cy, u and v; missing: {missing}")
     if given:
-        rgb_p, depth_p, distance = _from_frame(q, rgb, depth, spec)
+        K, centre, distance = _from_frame(q, rgb, depth)
     else:
-        rgb_p, depth_p, distance = _from_patch(q, rgb, depth, spec.size)
-    if depth_p is not None and not (depth_p > 0).any():
+        rgb, depth, distance = _from_patch(q, rgb, depth, spec.size)
+        K, centre = patch_camera(spec, distance), ((spec.size - 1) / 2, (spec.size - 1) / 2)
+    rgbs, depths = [], []
+    for o in offsets:
+        if o == 0 and not given:
+            rgb_p, depth_p = rgb, depth  # the patch itself: no resampling
+        else:
+            rgb_p, depth_p = crop(rgb, depth, K, centre, distance, spec, inplane=float(o))
+        rgbs.append(rgb_p)
+        depths.append(depth_p)
+    if depths[0] is not None and not (depths[0] > 0).any():
         raise ApiError(422, "the depth patch is all zero: no depth was measured around the object")
-    t2 = time.perf_counter()
-    desc = embedder.embed_patches(
-        None if rgb_p is None else rgb_p[None],
-        None if depth_p is None else depth_p[None],
+    return Patches(
+        None if rgbs[0] is None else np.stack(rgbs),
+        None if depths[0] is None else np.stack(depths),
+        np.asarray(offsets, float),
         distance,
-        fill=True,
     )
-    t3 = time.perf_counter()
-    (matches,) = state.store.snapshot.search(modality, desc, q.k)
-    t4 = time.perf_counter()
-    ms = {"decode": t1 - t0, "patch": t2 - t1, "embed": t3 - t2, "search": t4 - t3, "total": t4 - t0}
-    return Result(state.model_names[modality], matches, {k: round(v * 1000, 2) for k, v in ms.items()})
 
 
-def _from_frame(q: Query, rgb, depth, spec):
+def _from_frame(q: Query, rgb, depth) -> tuple[np.ndarray, tuple[float, float], float]:
     h, w = (rgb if rgb is not None else depth).shape[:2]
     u, v = float(q.u), float(q.v)  # type: ignore[arg-type]
     if not (0 <= u < w and 0 <= v < h):
@@ -100,10 +169,11 @@ def _from_frame(q: Query, rgb, depth, spec):
     distance = q.distance_mm
     if distance is None:
         if depth is None:
-            raise ApiError(422, "a colour-only frame needs distance_mm (the object's distance, mm)")
+            raise ApiError(
+                422, "a colour-only frame needs distance_mm (from the camera to the object's origin, mm)"
+            )
         distance = _measured(_depth_at(depth, K, u, v))
-    rgb_p, depth_p = crop(rgb, depth, K, (u, v), distance, spec)
-    return rgb_p, depth_p, distance
+    return K, (u, v), distance
 
 
 def _depth_at(depth: np.ndarray, K: np.ndarray, u: float, v: float, r: int = 7) -> float:

@@ -15,7 +15,8 @@ MATCH_EXAMPLE = {
 
 
 class MatchOut(BaseModel):
-    """A template close to the query: its object and its pose (degrees, see the pose conventions)."""
+    """An answer: an object and its pose (degrees, see the pose conventions), from the nearest template of
+    that (object, viewpoint)."""
 
     model_config = ConfigDict(json_schema_extra={"examples": [MATCH_EXAMPLE]})
 
@@ -23,7 +24,10 @@ class MatchOut(BaseModel):
     name: str
     azimuth: float = Field(description="camera azimuth about the object's +z, from +x towards +y, degrees")
     elevation: float = Field(description="camera elevation above the object's xy plane, degrees")
-    inplane: float = Field(description="roll about the optical axis, counter-clockwise in the image, degrees")
+    inplane: float = Field(
+        description="estimated roll about the optical axis, counter-clockwise in the image, degrees in "
+        "(-180, 180]: the template's in-plane angle plus the query turn it was found on"
+    )
     distance: float = Field(description="descriptor distance (L2); smaller is closer")
 
 
@@ -41,8 +45,11 @@ class RecognizeOut(BaseModel):
         }
     )
 
-    matches: list[MatchOut] = Field(description="the k nearest templates, nearest first")
-    best: MatchOut | None = Field(description="the nearest template (null when no object is registered)")
+    matches: list[MatchOut] = Field(
+        description="the k nearest distinct (object, viewpoint) answers, nearest first: the in-plane "
+        "variants of a viewpoint count once, at their nearest"
+    )
+    best: MatchOut | None = Field(description="the nearest answer (null when no object is registered)")
     timings_ms: dict[str, float]
     model: str = Field(description="the model that matched the modality sent")
 

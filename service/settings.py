@@ -26,8 +26,20 @@ class Settings(BaseSettings):
     max_k: int = Field(100, gt=0, description="largest k of /recognize")
 
     threads: int = Field(1, ge=1, description="onnxruntime intra-op and FAISS OpenMP threads per call")
-    inplane_step: float = Field(0.0, ge=0, description="template in-plane step, degrees (0: none)")
-    inplane_max: float = Field(45.0, ge=0, le=180, description="template in-plane range +-, degrees")
+    # In-plane (roll): by default each model's own metadata decides (`index.register.TemplateConfig`):
+    # templates over the whole turn for a model trained with roll, upright ones for a legacy model.
+    inplane_step: float | None = Field(
+        None, ge=0, lt=360, description="template in-plane step for every model, degrees (0: upright only); "
+        "unset: each model's own (its metadata)",
+    )  # fmt: skip
+    inplane_max: float | None = Field(
+        None, ge=0, le=360, description="template in-plane range +-, degrees (>= 180: the whole turn); "
+        "unset: the whole turn for a model trained with roll, +-45 otherwise",
+    )  # fmt: skip
+    query_turns: int = Field(
+        1, ge=1, le=36, description="cut the query this many times, turned by fractions of the templates' "
+        "in-plane step (of the whole turn when upright only), and keep the best: finer roll, n embeddings",
+    )  # fmt: skip
     level: int = Field(3, ge=0, le=4, description="template viewpoints: icosphere level (3 = 301)")
     index_kind: Literal["flat", "ivf"] = Field("flat", description="flat = exact; ivf for large collections")
 

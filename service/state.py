@@ -49,10 +49,11 @@ class AppState:
         return {m: e.path.stem for m, e in self.embedders.items()}
 
 
-def load_state(settings: Settings) -> AppState:
-    """Models, store and render thread; raises with a one-line message when something is missing."""
+def load_state(settings: Settings, embedders: dict[str, Embedder] | None = None) -> AppState:
+    """Models (those of `settings.models_dir` unless given), store and render thread; raises with a
+    one-line message when something is missing."""
     set_threads(settings.threads)
-    embedders = load_models(settings.models_dir, settings.threads)
+    embedders = embedders or load_models(settings.models_dir, settings.threads)
     windows = {e.info.window_mm for e in embedders.values()}
     sizes = {e.info.size for e in embedders.values()}
     if len(sizes) != 1:

@@ -16,7 +16,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--models", type=Path, default=Path("models"), help="folder of posedesc-*.onnx models")
     p.add_argument("--units", choices=("mm", "m"), default="mm", help="units of the mesh files")
     p.add_argument("--symmetry", choices=("none", "180", "full"), default="none", help="of every mesh")
-    p.add_argument("--inplane-step", type=float, default=0.0, help="template in-plane step, degrees")
+    p.add_argument("--inplane-step", type=float, default=None,
+                   help="template in-plane step for every model, degrees (0: upright only; default: each "
+                   "model's own metadata, as the service)")  # fmt: skip
+    p.add_argument("--inplane-max", type=float, default=None,
+                   help="in-plane range +-, degrees (>= 180: the whole turn; default as the service)")  # fmt: skip
     p.add_argument("--level", type=int, default=3, help="template viewpoints: icosphere level (3 = 301)")
     p.add_argument("--max-faces", type=int, default=200_000, help="meshes above this are simplified")
 
@@ -43,7 +47,7 @@ def run(args: argparse.Namespace) -> int:
     present = {r.name for r in store.snapshot.objects.values()}
     window = min(e.info.window_mm for e in embedders.values())
     worker = RenderWorker(size=next(iter(embedders.values())).info.size, window_mm=window)
-    cfg = TemplateConfig(level=args.level, inplane_step=args.inplane_step)
+    cfg = TemplateConfig(args.level, args.inplane_step, args.inplane_max)
     added, failed, t0 = 0, [], time.perf_counter()
     try:
         with ThreadPoolExecutor(2) as pool:

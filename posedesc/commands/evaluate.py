@@ -1,4 +1,4 @@
-"""Measure recognition and pose accuracy as the paper does, beside HOG and LineMOD: JSON and a report."""
+"""Measure what `POST /recognize` answers (or the paper's protocols) beside HOG and LineMOD: JSON, report."""
 
 from __future__ import annotations
 
@@ -12,6 +12,8 @@ from pathlib import Path
 from posedesc.cli import UserError
 
 METHODS = ("ours", "hog", "linemod")
+PROTOCOLS = ("service", "paper", "full")
+SPLITS = ("train", "val", "test")
 
 
 def parse_ids(text: str) -> list[int]:
@@ -37,10 +39,31 @@ def heldout_frames(meta: dict[str, str], dataset: Path, scene: int) -> list[int]
     return sorted(int(f) for f in frames) if frames else None
 
 
+def split_frames(meta: dict[str, str], dataset: Path, scene: int, split: str) -> list[int] | None:
+    """The frames of `dataset`'s scene in the model's `split` ("train", "val", "test"), from its
+    `split_frames` metadata ({"<dataset folder>/<scene>": {"train": [...], "val": [...], "test": [...]}},
+    written by `posedesc export`); None when it has none."""
+    try:
+        splits = json.loads(meta.get("split_frames", "{}"))
+    except json.JSONDecodeError:
+        return None
+    frames = (splits.get(f"{dataset.resolve().name}/{scene:06d}") or {}).get(split)
+    return sorted(int(f) for f in frames) if frames else None
+
+
 def _frames(args: argparse.Namespace, embedder) -> list[int] | None:
     if not args.frames:
         return None
-    if args.frames.strip() == "heldout":
+    name = args.frames.strip()
+    if name in SPLITS:
+        frames = split_frames(embedder.info.extra, args.dataset, args.scene, name)
+        if not frames:
+            raise UserError(
+                f"{args.model} names no {name} frames of {args.dataset.name} scene {args.scene} "
+                "(no split_frames in its metadata)"
+            )
+        return frames
+    if name == "heldout":
         frames = heldout_frames(embedder.info.extra, args.dataset, args.scene)
         if not frames:
             raise UserError(
@@ -56,16 +79,34 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--model", type=Path, required=True, help="ONNX descriptor model of that modality")
     p.add_argument("--scene", type=int, default=2, help="test scene id")
     p.add_argument("--min-visib", type=float, default=0.5, help="least visible fraction of an instance")
-    p.add_argument("--protocol", choices=("paper", "full"), default="paper",
-                   help="paper: rectified patch, viewing-direction error; full: in-plane estimated, "
-                   "3-D rotation error")  # fmt: skip
+    p.add_argument("--protocol", choices=PROTOCOLS, default="service",
+                   help="service (default): what POST /recognize answers, called in process with the "
+                   "frame, camera, centre and distance (colour) or depth, as a user sends them; templates "
+                   "from the service's registration and settings; 3-D rotation error (in-plane included) "
+                   "and viewing-direction error of the top answers. paper: patch cut at the true centre "
+                   "and rectified by the true in-plane angle, viewing-direction error. full: true centre "
+                   "and distance, templates with in-plane variants over the whole turn, 3-D rotation "
+                   "error")  # fmt: skip
     p.add_argument("--methods", default=",".join(METHODS), help="comma-separated: ours,hog,linemod")
     p.add_argument("--unseen", default="", help="ids of objects the model never saw (reported apart)")
     p.add_argument("--frames", default=None,
-                   help="frames to use, e.g. 0-399,1000, or 'heldout': those the model's metadata says "
+                   help="frames to use (ids): a list like 0-39,50; 'val' or 'test': the model's split "
+                   "(its split_frames metadata); 'heldout': those its heldout_frames metadata says "
                    "training never saw (default: all)")  # fmt: skip
     p.add_argument("--objects", default=None, help="register only these object ids (default: all)")
-    p.add_argument("--inplane-step", type=float, default=20.0, help="full protocol: in-plane step, deg")
+    p.add_argument("--inplane-step", type=float, default=None,
+                   help="full protocol: in-plane step of the templates, degrees (default 20); service "
+                   "protocol: the service's INPLANE_STEP setting (default: POSEDESC_INPLANE_STEP, else "
+                   "the model's metadata)")  # fmt: skip
+    p.add_argument(
+        "--inplane-max",
+        type=float,
+        default=None,
+        help="service protocol: the service's INPLANE_MAX setting (>= 180: the whole turn)",
+    )
+    p.add_argument("--query-turns", type=int, default=None,
+                   help="service protocol: the service's QUERY_TURNS setting (default: "
+                   "POSEDESC_QUERY_TURNS, else 1)")  # fmt: skip
     p.add_argument("--synthetic", action="store_true",
                    help="synthetic test scenes even where the dataset has the images")  # fmt: skip
     p.add_argument("--model-3d", type=Path, default=None, help="a 3-dimensional model for the 3-D picture")
@@ -75,6 +116,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from pydantic import ValidationError
+
     from evaluation.report import table, write_json, write_report
     from evaluation.run import Config, evaluate
     from index.embed import Embedder
@@ -90,8 +133,12 @@ def run(args: argparse.Namespace) -> int:
     embedder = Embedder(args.model, threads=2)
     if embedder.modality != args.modality:
         raise UserError(f"{args.model} is a {embedder.modality} model, not {args.modality}")
-    if args.inplane_step <= 0 or args.inplane_step > 180:
-        raise UserError("--inplane-step must be in (0, 180]")
+    if args.inplane_step is not None and not (0 <= args.inplane_step <= 180):
+        raise UserError("--inplane-step must be in [0, 180]")
+    if args.protocol == "full" and args.inplane_step == 0:
+        raise UserError("--inplane-step must be in (0, 180] for the full protocol")
+    if args.query_turns is not None and not (1 <= args.query_turns <= 36):
+        raise UserError("--query-turns must be in 1..36")
     cfg = Config(
         dataset=args.dataset,
         model=args.model,
@@ -104,19 +151,31 @@ def run(args: argparse.Namespace) -> int:
         frames=_frames(args, embedder),
         objects=parse_ids(args.objects) if args.objects else None,
         inplane_step=args.inplane_step,
+        inplane_max=args.inplane_max,
+        query_turns=args.query_turns,
         synthetic=True if args.synthetic else None,
         seed=args.seed,
     )
     t0 = time.perf_counter()
-    ev = evaluate(cfg, embedder)
+    try:
+        ev = evaluate(cfg, embedder)
+    except ValidationError as e:  # a service setting out of range (POSEDESC_* or an option)
+        raise UserError(
+            "bad setting: " + "; ".join(f"{x['loc'][0]}: {x['msg']}" for x in e.errors())
+        ) from None
     summary = write_json(ev, args.json)
     command = "posedesc evaluate " + shlex.join(sys.argv[2:] if sys.argv[1:2] == ["evaluate"] else [])
     if args.report:
         write_report(ev, args.report, command.strip(), args.model_3d)
     print(table(summary))
+    if "view_direction" in summary:
+        print("viewing-direction error:")
+        print(table(summary, key="view_direction"))
     where = f"{args.json}" + (f" and {args.report}/report.md" if args.report else "")
+    timing = summary.get("timing_ms")
+    calls = f", recognise median {timing['recognise_median']} ms" if timing else ""
     print(
         f"{summary['n_samples']} {summary['test_data']} test patches, {summary['n_templates']} templates, "
-        f"{time.perf_counter() - t0:.0f} s -> {where}"
+        f"{time.perf_counter() - t0:.0f} s{calls} -> {where}"
     )
     return 0

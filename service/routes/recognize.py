@@ -18,12 +18,17 @@ router = APIRouter(tags=["recognition"])
 @router.post(
     "/recognize",
     response_model=RecognizeOut,
-    summary="Nearest templates of a patch, or of the object at (u, v) in a full frame",
+    summary="The k nearest distinct poses of a patch, or of the object at (u, v) in a full frame",
     description=(
         "Send `rgb` (PNG/JPEG) and/or `depth` (16-bit PNG, mm x `depth_scale`): the modality picks the "
         "model. Either a square patch already centred on the object and spanning the model's metric "
         "window, or a full frame with intrinsics `fx`, `fy`, `cx`, `cy` and the object's centre `u`, `v` "
-        "(pixels); a colour-only frame also needs `distance_mm`."
+        "(pixels, where the object's origin projects). `distance_mm` is the distance from the camera "
+        "centre to the object's origin along the ray through (u, v) (‖t‖ of a BOP pose); a colour-only "
+        "frame needs it. With depth and no `distance_mm`, the service measures the distance of the "
+        "surface at (u, v) in the depth image. The answer holds `k` distinct (object, viewpoint) "
+        "matches, nearest first, each with its azimuth, elevation and estimated in-plane angle (roll, "
+        "counter-clockwise in the image, in (-180, 180]; 0 when the templates are upright only)."
     ),
     responses=responses(400, 413, 422),
 )
@@ -51,9 +56,16 @@ async def recognize(
     ] = None,
     distance_mm: Annotated[
         float | None,
-        Form(ge=MIN_DISTANCE_MM, le=MAX_DISTANCE_MM, description="object distance, mm (optional with depth)"),
+        Form(
+            ge=MIN_DISTANCE_MM,
+            le=MAX_DISTANCE_MM,
+            description="from the camera centre to the object's origin along the ray through (u, v), mm "
+            "(optional with depth: then the surface at (u, v) is measured)",
+        ),
     ] = None,
-    k: Annotated[int, Form(ge=1, description="how many matches", examples=[5])] = 5,
+    k: Annotated[
+        int, Form(ge=1, description="how many distinct (object, viewpoint) answers", examples=[5])
+    ] = 5,
 ) -> RecognizeOut:
     async with state.recognition_gate:  # bounds the memory of decoded images; waiting ones stay spooled
         q = Query(

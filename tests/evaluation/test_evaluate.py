@@ -1,5 +1,6 @@
 """`posedesc evaluate` end to end on a dataset the tests write: the JSON contract, the report, both
-baselines on two tiny rendered shapes, synthetic depth scenes, the full protocol."""
+baselines on two tiny rendered shapes, synthetic depth scenes, the full protocol, the service protocol's
+plumbing (its numbers on real data: test_served.py)."""
 
 import json
 from pathlib import Path
@@ -36,7 +37,8 @@ def test_json_contract_and_report(tiny_bop, untrained_models, tmp_path):
         "--model",
         str(untrained_models["rgb"]),
     ]
-    args += ["--unseen", "2", "--frames", "0-3", "--json", str(out), "--report", str(tmp_path / "report")]
+    args += ["--protocol", "paper", "--unseen", "2", "--frames", "0-3", "--json", str(out)]
+    args += ["--report", str(tmp_path / "report")]
     args += ["--model-3d", str(untrained_models["rgb3"])]
     assert main(args) == 0
     summary = json.loads(out.read_text())
@@ -60,7 +62,7 @@ def test_json_contract_and_report(tiny_bop, untrained_models, tmp_path):
 
 def test_baselines_on_two_tiny_shapes(tiny_bop, untrained_models):
     """Clean renders of two distinct shapes: both baselines find the object and, mostly, the view."""
-    cfg = Config(tiny_bop, untrained_models["rgb"], "rgb", methods=("hog", "linemod"))
+    cfg = Config(tiny_bop, untrained_models["rgb"], "rgb", protocol="paper", methods=("hog", "linemod"))
     summary = evaluate(cfg).summary()
     assert summary["n_samples"] == 2 * N_FRAMES
     for name in ("hog", "linemod"):
@@ -124,3 +126,56 @@ def test_heldout_frames_come_from_the_models_metadata(tiny_bop, untrained_models
     ]
     assert main([*args, "--frames", "heldout", "--json", str(tmp_path / "x.json")]) == 2
     assert "names no held-out frames" in capsys.readouterr().err
+    assert main([*args, "--frames", "test", "--json", str(tmp_path / "x.json")]) == 2
+    assert "names no test frames" in capsys.readouterr().err
+
+
+def test_split_frames_come_from_the_models_metadata(tiny_bop):
+    from posedesc.commands.evaluate import split_frames
+
+    splits = {f"{tiny_bop.name}/000002": {"train": [0, 1], "val": [3], "test": [5, 4]}}
+    meta = {"split_frames": json.dumps(splits)}
+    assert split_frames(meta, tiny_bop, 2, "test") == [4, 5]
+    assert split_frames(meta, tiny_bop, 2, "val") == [3]
+    assert split_frames(meta, tiny_bop, 5, "test") is None
+    assert split_frames({}, tiny_bop, 2, "test") is None
+
+
+def test_service_protocol_plumbing(tiny_bop, untrained_models, tmp_path):
+    """The default protocol registers the objects with the service's registration and asks the
+    service's `recognise`: both errors, timing, the settings it ran with, every method."""
+    out = tmp_path / "service.json"
+    args = ["evaluate", "--dataset", str(tiny_bop), "--modality", "rgb"]
+    args += ["--model", str(untrained_models["rgb"]), "--frames", "0-3", "--unseen", "2"]
+    args += ["--inplane-step", "90", "--inplane-max", "180", "--query-turns", "2", "--json", str(out)]
+    args += ["--report", str(tmp_path / "report")]
+    assert main(args) == 0
+    summary = json.loads(out.read_text())
+    assert summary["protocol"] == "service" and summary["n_samples"] == 8
+    assert summary["service"]["templates_per_viewpoint"] == 4 and summary["service"]["query_turns"] == 2
+    assert summary["n_templates"] == 2 * 301 * 4
+    assert summary["timing_ms"]["calls"] == 8 and summary["timing_ms"]["recognise_median"] > 0
+    for key in ("methods", "view_direction"):
+        assert set(summary[key]) == {"ours", "hog", "linemod"}
+        for table in summary[key].values():
+            check_table(table)
+    for per in (*summary["per_object"].values(), summary["seen_objects"], summary["unseen_objects"]):
+        assert set(per) == {"ours", "hog", "linemod", "view_direction", "n_samples"}
+    assert summary["unseen_objects"]["n_samples"] == 4
+    assert "| ours | 1 |" in (tmp_path / "report" / "report.md").read_text()
+
+
+def test_the_true_view_scores_zero(tiny_bop):
+    """The service protocol's scoring: an answer giving the annotated view, placed along the ray through
+    the object's centre, is the annotated pose (both errors ~0); another object counts 180°."""
+    from evaluation.served import score
+    from index.bop import BopDataset
+
+    instances = list(BopDataset(tiny_bop).instances(2))[:4]
+    views = np.array([[[i.view.azimuth, i.view.elevation, i.view.inplane]] * 2 for i in instances])
+    obj = np.array([[i.obj_id, 3 - i.obj_id] for i in instances])
+    rot, view, same = score(obj, views, instances, {1: "none", 2: "none"})
+    assert same[:, 0].all() and not same[:, 1].any()
+    np.testing.assert_allclose(rot[:, 0], 0, atol=1e-3)
+    np.testing.assert_allclose(view[:, 0], 0, atol=1e-3)
+    assert (rot[:, 1] == 180).all() and (view[:, 1] == 180).all()

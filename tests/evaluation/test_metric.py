@@ -1,4 +1,5 @@
-"""The paper's metric on hand-made poses: symmetric objects, a wrong object = 180°, the k = 1…22 table."""
+"""The paper's metric on hand-made poses: symmetric objects, a wrong object = 180°, the k = 1…22 table,
+"within t°" strictly below t."""
 
 import numpy as np
 import pytest
@@ -38,13 +39,14 @@ def test_full_protocol_counts_in_plane():
     assert errors_of([View(130, 30, 0)], View(10, 30, 0), "full", "full")[0] == pytest.approx(0, abs=1e-5)
 
 
-def test_vectorised_errors_agree_with_index_symmetry():
+def test_the_metric_is_index_symmetrys_one_pose_error():
     rng = np.random.default_rng(0)
     views = [View(rng.uniform(0, 360), rng.uniform(0, 90), rng.uniform(-180, 180)) for _ in range(40)]
     gt = views[0]
     for symmetry in ("none", "180", "full"):
         paper = errors_of(views, gt, symmetry, "paper")
         full = errors_of(views, gt, symmetry, "full")
+        assert np.array_equal(full, errors_of(views, gt, symmetry, "service"))
         R_gt = view_to_pose(gt)[0]
         for v, p, f in zip(views, paper, full, strict=True):
             assert p == pytest.approx(
@@ -81,3 +83,12 @@ def test_accuracy_table_on_known_errors():
     assert table["k1"] == {"5": 0.25, "20": 0.25, "40": 0.5, "180": 0.5}
     assert table["k2"] == {"5": 0.25, "20": 0.5, "40": 0.5, "180": 0.5}
     assert table["k22"] == {"5": 0.25, "20": 0.5, "40": 0.5, "180": 0.75}
+
+
+def test_within_is_strictly_below_the_threshold():
+    """A pose exactly 20° off is not within 20° (BOP's `<`); a hair less is."""
+    errors = np.full((3, K_MAX), 180.0)
+    same = np.zeros((3, K_MAX), bool)
+    errors[:, 0], same[:, 0] = [20.0, np.nextafter(20.0, 0.0), 5.0], True
+    k1 = accuracy(errors, same)["k1"]
+    assert k1 == {"5": 0.0, "20": 2 / 3, "40": 1.0, "180": 1.0}

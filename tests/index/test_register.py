@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from index.embed import fingerprint, load_models
+from index.embed import Embedder, ModelInfo, fingerprint, load_models
 from index.mesh import MeshError
 from index.pose import View
 from index.register import TemplateConfig, embed_templates, reembed, register, template_views
@@ -100,3 +100,56 @@ def test_reembed_after_a_model_changed(tmp_path, l_shape, render_worker, embedde
     assert store.missing() == {"rgb": [], "depth": [], "rgbd": []}
     n = len(template_views("180", CFG))
     assert store.snapshot.objects[reg.record.object_id].templates == {"rgb": n, "depth": n, "rgbd": n}
+
+
+def test_template_in_plane_angles_follow_the_model_unless_overridden():
+    legacy, rolled = 0.0, 30.0
+    assert TemplateConfig().inplane(legacy).tolist() == [0.0]
+    assert TemplateConfig().inplane(rolled).tolist() == [float(a) for a in range(-150, 181, 30)]
+    assert len(TemplateConfig(inplane_step=15).inplane(legacy)) == 7  # +-45, as the setting always was
+    assert len(TemplateConfig(inplane_step=15).inplane(rolled)) == 24  # the whole turn, finer
+    assert TemplateConfig(inplane_step=0).inplane(rolled).tolist() == [0.0]
+    assert len(TemplateConfig(inplane_step=30, inplane_max=180).inplane(legacy)) == 12
+    assert TemplateConfig(inplane_max=60).inplane(rolled).tolist() == [-60.0, -30.0, 0.0, 30.0, 60.0]
+    assert TemplateConfig().inplane_spacing(rolled) == 30.0 and TemplateConfig().inplane_spacing(legacy) == 0
+    assert len(template_views("none", CFG, rolled)) == 12 * len(template_views("none", CFG, legacy))
+
+
+@pytest.fixture(scope="module")
+def rolled_rgb(posedesc_models, tmp_path_factory):
+    """The untrained rgb model saying it was trained with the whole turn of roll, every 90°."""
+    onnx = pytest.importorskip("onnx")
+    model = onnx.load(str(posedesc_models / "posedesc-rgb.onnx"))
+    model.metadata_props.add(key="inplane_step", value="90")
+    path = tmp_path_factory.mktemp("rolled") / "posedesc-rgb.onnx"
+    onnx.save(model, str(path))
+    return Embedder(path)
+
+
+def test_each_model_gets_its_own_in_plane_templates(tmp_path, l_shape, render_worker, embedders, rolled_rgb):
+    """A model trained with roll and a legacy one in one registration: one render per viewpoint, the
+    first model's templates over the whole turn, the second's upright."""
+    assert rolled_rgb.info.inplane_step == 90.0 and embedders["depth"].info.inplane_step == 0.0
+    models = {"rgb": rolled_rgb, "depth": embedders["depth"]}
+    store = Store(tmp_path, keys(models))
+    cfg = TemplateConfig(level=1)
+    reg = register(l_shape, "L", "none", worker=render_worker, embedders=models, store=store, cfg=cfg)
+    n = len(template_views("none", cfg))
+    assert reg.record.templates == {"rgb": 4 * n, "depth": n}
+    rgb, depth = store.snapshot.models["rgb"], store.snapshot.models["depth"]
+    assert sorted(set(rgb.poses[:, 2].tolist())) == [-90.0, 0.0, 90.0, 180.0]
+    assert set(depth.poses[:, 2].tolist()) == {0.0}
+    view = View(float(rgb.poses[5, 0]), float(rgb.poses[5, 1]), float(rgb.poses[5, 2]))
+    rendered = render_worker.submit(lambda r: {200.0: r.render(l_shape, [view])}).result()
+    (match,) = store.search("rgb", embed_templates(rolled_rgb, rendered).descriptors, 1)[0]
+    assert (match.azimuth, match.elevation, match.inplane) == (view.azimuth, view.elevation, view.inplane)
+    assert match.distance < 1e-3
+
+
+def test_model_metadata_in_plane_step():
+    base = {"modality": "rgb", "window_mm": "200", "size": "64", "descriptor_dim": "16"}
+    assert ModelInfo.from_metadata(base).inplane_step == 0.0
+    assert ModelInfo.from_metadata({**base, "inplane_step": "30"}).inplane_step == 30.0
+    for bad in ("-5", "360", "often"):
+        with pytest.raises(ValueError, match="not a posedesc model"):
+            ModelInfo.from_metadata({**base, "inplane_step": bad})

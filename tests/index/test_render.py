@@ -62,6 +62,21 @@ def test_off_axis_frame_crops_to_the_template(renderer, l_shape):
     assert np.abs(tmpl.rgb[0][a & b].astype(float) - crgb[a & b]).mean() < 12
 
 
+@pytest.mark.parametrize("phi, a", [(70.0, 40.0), (-100.0, 60.0)])
+def test_crop_undoes_a_roll_the_query_turns_sign(renderer, l_shape, phi, a):
+    """crop(inplane=a) of an object rolled by phi shows it rolled phi - a: a template of in-plane θ found
+    on the turn by a says the object is rolled θ + a (what `/recognize` answers with query turns)."""
+    ray = [-0.2, 0.1, 1.0]
+    R, t = view_to_pose(View(200, 50, phi, 700), ray=ray)
+    rgb, depth = renderer.render_frame([(l_shape, R, t)], K, 640, 480)
+    u, w = (K @ t)[:2] / t[2]
+    _, cdepth = crop(rgb, depth, K, (u, w), np.linalg.norm(t), PatchSpec(), inplane=a)
+    right = renderer.render(l_shape, [View(200, 50, phi - a, 700)]).depth[0] > 0
+    wrong = renderer.render(l_shape, [View(200, 50, phi + a, 700)]).depth[0] > 0
+    assert (right != (cdepth > 0)).mean() < 0.03
+    assert (wrong != (cdepth > 0)).mean() > 0.1
+
+
 def test_colours_come_through(renderer, l_shape):
     t = renderer.render(l_shape, [View(0, 90, 0, 400)])
     obj = t.rgb[0][t.depth[0] > 0].astype(int)

@@ -225,3 +225,20 @@ def test_readers_never_see_half_an_object(tmp_path):
         t.join()
     assert errors == []
     assert len(store.snapshot.objects) == 20
+
+
+def test_answers_are_distinct_viewpoints_at_their_best(tmp_path):
+    """Three in-plane variants of each of four viewpoints: k answers are k viewpoints, each at its nearest
+    variant; a turn of the query adds its offset to the template's in-plane angle (wrapped)."""
+    store = Store(tmp_path, {"rgb": (2, "fp")})
+    poses = np.array([(az, 30.0, ip) for az in (0.0, 90.0, 180.0, 270.0) for ip in (-120.0, 0.0, 120.0)])
+    desc = np.array([[az / 90.0, ip / 1000.0] for az, _, ip in poses], np.float32)
+    store.add_object("a", "none", {"rgb": TemplateSet(poses, desc)})
+    snap = store.snapshot
+    q = np.array([[1.0, 0.121]], np.float32)  # nearest: azimuth 90, in-plane 120
+    answers = snap.answers("rgb", q, 3, variants=3)
+    assert [(m.azimuth, m.inplane) for m in answers] == [(90.0, 120.0), (0.0, 120.0), (180.0, 120.0)]
+    assert [m.distance for m in answers] == sorted(m.distance for m in answers)
+    assert len(snap.answers("rgb", q, 10, variants=1)) == 4  # searches further for distinct ones
+    turned = snap.answers("rgb", np.array([[5.0, 0.0], [1.0, 0.12]], np.float32), 1, np.array([0.0, 90.0]))
+    assert (turned[0].azimuth, turned[0].inplane) == (90.0, -150.0)  # 120 + 90, wrapped

@@ -1,0 +1,292 @@
+"""The service protocol (`posedesc evaluate --protocol service`): the evaluation that is the service.
+
+Every object of the dataset (or of `--objects`) is registered by the service's own registration
+(`index.register.register` into a real store in a temporary folder, with the service's settings:
+`POSEDESC_*` variables, overridden by the command's options). Every test instance is then sent to
+`service.recognition.recognise`, the function `POST /recognize` runs, as a user sends it: the frame as
+image bytes (the dataset's own PNG/JPEG file; a synthetic frame encoded as PNG), the camera's fx, fy, cx,
+cy, the centre (u, v) where the object's origin projects, and for colour the distance to the origin
+along that ray (‖t‖); with depth, the frame's depth image and no distance (the service measures it).
+
+Each of the k = 22 distinct answers gives a pose: view_to_pose(View(azimuth, elevation, in-plane)) along
+the ray through (u, v). It is scored by the 3-D rotation error against the annotated R (symmetry-aware,
+in-plane included) and by the viewing-direction error (`index.symmetry`); a wrong object counts 180°.
+
+HOG and LineMOD see what the service sees: the patch the service's own `cut` makes (the unturned query)
+and the very template views it registered for the model (in-plane variants included), rendered again;
+their rankings collapse in-plane variants to distinct (object, viewpoint) answers as the service does."""
+
+from __future__ import annotations
+
+import tempfile
+import time
+from collections.abc import Iterator, Sequence
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from evaluation import ours
+from evaluation.metric import K_MAX, WRONG_OBJECT
+from evaluation.neighbours import distinct_rows
+from evaluation.run import SYNTHETIC_NOTE, Config, Evaluation, MethodResult, bar, instances_of, rank
+from evaluation.samples import Samples, by_frame, needs_synthetic, synthetic_frames
+from evaluation.templates import render_templates, service_symmetry
+from index.bop import BopDataset, Instance
+from index.embed import Embedder
+from index.pose import View, view_to_pose
+from index.register import register, template_views
+from index.symmetry import rotation_errors, view_errors
+from service.errors import ApiError
+from service.recognition import Query, cut, decode, recognise
+from service.settings import Settings
+from service.state import AppState, close_state, load_state
+
+#: what a user may send as an image file; anything else is encoded as PNG first
+SENDABLE = (".png", ".jpg", ".jpeg")
+
+
+def evaluate_served(cfg: Config) -> Evaluation:
+    dataset = BopDataset(cfg.dataset)
+    obj_ids = list(cfg.objects) if cfg.objects else dataset.obj_ids
+    instances = instances_of(cfg, dataset, obj_ids)
+    synthetic = needs_synthetic(cfg.modality, instances) if cfg.synthetic is None else cfg.synthetic
+    options = {
+        "inplane_step": cfg.inplane_step,
+        "inplane_max": cfg.inplane_max,
+        "query_turns": cfg.query_turns,
+    }
+    symmetries = {o: dataset.symmetry(o) for o in obj_ids}
+    seconds: dict[str, float] = {}
+    with tempfile.TemporaryDirectory(prefix="posedesc-evaluate-") as tmp:
+        settings = Settings(
+            data_dir=Path(tmp), demo_objects=False, **{k: v for k, v in options.items() if v is not None}
+        )
+        embedder = Embedder(cfg.model, settings.threads)  # as the service loads it
+        if embedder.modality != cfg.modality:
+            raise ValueError(f"{cfg.model} is a {embedder.modality} model, not {cfg.modality}")
+        state = load_state(settings, {cfg.modality: embedder})
+        try:
+            t0 = time.perf_counter()
+            meshes, dataset_ids = _register(state, dataset, obj_ids)
+            seconds["register"] = time.perf_counter() - t0
+            t0 = time.perf_counter()
+            samples, answers, call_ms, refused = _ask(state, dataset, instances, synthetic, cfg, dataset_ids)
+            seconds["ours"] = time.perf_counter() - t0
+            n_templates = state.store.snapshot.models[cfg.modality].size
+        finally:
+            close_state(state)
+
+    step = embedder.info.inplane_step
+    variants = len(state.templates.inplane(step))
+    notes = [SYNTHETIC_NOTE] if synthetic else []
+    if refused:
+        notes.append(f"the service refused {len(refused)} queries (counted as wrong): {sorted(set(refused))}")
+    ev = Evaluation(cfg, samples, None, symmetries, seconds=seconds, notes=notes)
+    ev.extra = {
+        "n_templates": n_templates,
+        "service": {
+            "model_inplane_step": step,
+            "inplane_step": settings.inplane_step,
+            "inplane_max": settings.inplane_max,
+            "templates_per_viewpoint": variants,
+            "query_turns": settings.query_turns,
+            "level": settings.level,
+        },
+        "timing_ms": {
+            "recognise_median": round(float(np.median(call_ms)), 2),
+            "recognise_p90": round(float(np.percentile(call_ms, 90)), 2),
+            "calls": len(call_ms),
+        },
+    }
+    obj, views = answers
+    rot, view, same = score(obj, views, instances, symmetries)
+    ev.results["ours"] = MethodResult(
+        rot, same, seconds["ours"], view_errors=view, call_ms=np.asarray(call_ms)
+    )
+
+    baselines = [m for m in cfg.methods if m != "ours"]
+    if baselines:
+        t0 = time.perf_counter()
+        views_of = {
+            o: template_views(service_symmetry(symmetries[o]), state.templates, step) for o in obj_ids
+        }
+        with bar(sum(map(len, views_of.values())), "render templates", "template") as b:
+            ev.templates = render_templates(
+                meshes, views_of, cfg.modality, embedder.info.window_mm, progress=b.update
+            )
+        seconds["render_templates"] = time.perf_counter() - t0
+        t = ev.templates
+        keys = (t.obj_ids, np.array([v.azimuth for v in t.views]), np.array([v.elevation for v in t.views]))
+        t_views = np.array([(v.azimuth, v.elevation, v.inplane) for v in t.views]).reshape(-1, 3)
+        for name in baselines:
+            t0 = time.perf_counter()
+            r = rank(name, cfg, embedder, ev, min(len(t), K_MAX * variants))
+            ev.notes += r.notes
+            idx, scores = distinct_rows(r.neighbours, r.scores, keys, K_MAX)
+            obj = np.where(idx >= 0, t.obj_ids[np.maximum(idx, 0)], -1)
+            rot, view, same = score(obj, t_views[np.maximum(idx, 0)], instances, symmetries)
+            seconds[name] = time.perf_counter() - t0
+            ev.results[name] = MethodResult(
+                rot,
+                same,
+                seconds[name],
+                neighbours=idx,
+                scores=scores,
+                view_errors=view,
+                separation=r.separation,
+            )
+    return ev
+
+
+def _register(state: AppState, dataset: BopDataset, obj_ids: Sequence[int]):
+    """Every object through the service's registration; its meshes and the dataset id of each store id."""
+    meshes, dataset_ids = {}, {}
+    with bar(len(obj_ids), "register", "object") as b:
+        for o in obj_ids:
+            meshes[o] = dataset.mesh(o, max_faces=state.settings.max_faces)  # as POST /objects loads it
+            reg = register(
+                meshes[o],
+                f"obj_{o:06d}",
+                service_symmetry(dataset.symmetry(o)),
+                worker=state.worker,
+                embedders=state.embedders,
+                store=state.store,
+                cfg=state.templates,
+                pool=state.embed_pool,
+            )
+            dataset_ids[reg.record.object_id] = o
+            b.update()
+    return meshes, dataset_ids
+
+
+def _frames(
+    dataset: BopDataset, instances: Sequence[Instance], modality: str, synthetic: bool, seed: int
+) -> Iterator[tuple[list[Instance], bytes | None, bytes | None, float]]:
+    """Per frame: its instances, and the rgb and depth files a user would send, with the depth scale."""
+    colour, ranged = modality in ("rgb", "rgbd"), modality in ("depth", "rgbd")
+    if synthetic:
+        for group, rgb, depth in synthetic_frames(dataset, instances, seed):
+            depth16 = np.clip(np.round(depth), 0, 65535).astype(np.uint16)
+            yield group, _png(rgb[..., ::-1]) if colour else None, _png(depth16) if ranged else None, 1.0
+        return
+    for group in by_frame(instances).values():
+        first = group[0]
+        rgb = depth = None
+        if colour:
+            rgb = _sendable(first.rgb_path) or _png(first.load_rgb()[..., ::-1])  # type: ignore[index]
+        if ranged:
+            depth = _sendable(first.depth_path) or _png(_depth16(first))
+        yield group, rgb, depth, first.depth_scale
+
+
+def _sendable(path: Path | None) -> bytes | None:
+    """The file itself when it is what a user may send (PNG, JPEG)."""
+    return path.read_bytes() if path is not None and path.suffix.lower() in SENDABLE else None
+
+
+def _depth16(inst: Instance) -> np.ndarray:
+    d = inst.load_depth() / inst.depth_scale  # type: ignore[operator]
+    return np.clip(np.round(d), 0, 65535).astype(np.uint16)
+
+
+def _png(image: np.ndarray) -> bytes:
+    ok, buf = cv2.imencode(".png", image)
+    if not ok:
+        raise ValueError("could not encode a frame as PNG")
+    return buf.tobytes()
+
+
+def query(inst: Instance, rgb: bytes | None, depth: bytes | None, depth_scale: float) -> Query:
+    """What a user sends about one instance: the frame, the camera, where the object's origin projects,
+    and, without depth, its distance along that ray (‖t‖)."""
+    K, (u, v) = inst.K, inst.centre_uv
+    return Query(
+        rgb=rgb,
+        depth=depth,
+        depth_scale=depth_scale,
+        fx=K[0, 0],
+        fy=K[1, 1],
+        cx=K[0, 2],
+        cy=K[1, 2],
+        u=u,
+        v=v,
+        distance_mm=float(np.linalg.norm(inst.t)) if depth is None else None,
+        k=K_MAX,
+    )
+
+
+def _ask(state, dataset, instances, synthetic: bool, cfg: Config, dataset_ids: dict[int, int]):
+    """Every instance through `recognise`; the unturned patches the service cut (for the baselines),
+    its answers, each call's milliseconds, and the reasons of the queries it refused."""
+    embedder = state.embedders[cfg.modality]
+    spec = embedder.info.spec
+    ordered, views, rgbs, depths, cut_mm, call_ms, refused = [], [], [], [], [], [], []
+    obj = np.full((len(instances), K_MAX), -1, int)
+    answer_views = np.zeros((len(instances), K_MAX, 3))
+    with bar(len(instances), "recognise") as b:
+        for group, rgb, depth, scale in _frames(dataset, instances, cfg.modality, synthetic, cfg.seed):
+            try:
+                decoded = decode(state, Query(rgb=rgb, depth=depth, depth_scale=scale))
+            except ApiError:
+                decoded = None  # `recognise` says why, for every instance of the frame
+            for inst in group:
+                q, i = query(inst, rgb, depth, scale), len(ordered)
+                t0 = time.perf_counter()
+                try:
+                    result = recognise(state, q)
+                    call_ms.append(1000 * (time.perf_counter() - t0))
+                    obj[i], answer_views[i], _ = ours.answers(result.matches, dataset_ids, K_MAX)
+                    p = cut(q, decoded.rgb, decoded.depth, spec) if decoded is not None else None
+                except ApiError as e:
+                    refused.append(e.detail)
+                    p = None
+                ordered.append(inst)
+                views.append(inst.view)
+                rgbs.append(None if p is None or p.rgb is None else p.rgb[0])
+                depths.append(None if p is None or p.depth is None else p.depth[0])
+                cut_mm.append(np.nan if p is None else p.distance)
+                b.update()
+    size = (spec.size, spec.size)
+    samples = Samples(
+        obj_ids=np.array([i.obj_id for i in ordered], int),
+        frame_ids=np.array([i.frame_id for i in ordered], int),
+        visib=np.array([i.visib_fract for i in ordered]),
+        views=views,
+        rgb=_stack(rgbs, (*size, 3), np.uint8) if cfg.modality in ("rgb", "rgbd") else None,
+        depth=_stack(depths, size, np.float32) if cfg.modality in ("depth", "rgbd") else None,
+        source="synthetic" if synthetic else "real",
+        cut_mm=np.nan_to_num(np.array(cut_mm), nan=400.0),
+    )
+    return samples, (obj, answer_views), call_ms, refused
+
+
+def _stack(images: list, shape: tuple[int, ...], dtype) -> np.ndarray:
+    """The patches; an empty one where the service refused the query."""
+    return np.stack([np.zeros(shape, dtype) if a is None else a for a in images]).astype(dtype)
+
+
+def score(
+    obj: np.ndarray,
+    answers: np.ndarray,
+    instances: Sequence[Instance],
+    symmetries: dict[int, object],
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The errors of each instance's answers: obj (N, K) dataset object ids, -1 = none; answers (N, K, 3)
+    azimuth, elevation, in-plane. Each answer's pose is its view along the ray through the instance's
+    centre. Returns (3-D rotation errors, viewing-direction errors, same object), each (N, K);
+    a wrong object or none counts 180°."""
+    same = obj == np.array([i.obj_id for i in instances])[:, None]
+    rot = np.full(obj.shape, WRONG_OBJECT)
+    view = np.full(obj.shape, WRONG_OBJECT)
+    for i, inst in enumerate(instances):
+        hit = np.flatnonzero(same[i])
+        if not len(hit):
+            continue
+        u, v = inst.centre_uv
+        ray = np.linalg.inv(inst.K) @ np.array([u, v, 1.0])
+        R_est = np.stack([view_to_pose(View(*answers[i, j]), ray)[0] for j in hit])
+        symmetry = symmetries[inst.obj_id]
+        rot[i, hit] = rotation_errors(R_est, inst.R, symmetry)[:, 0]
+        view[i, hit] = view_errors(R_est, inst.R, symmetry, ray)[:, 0]
+    return rot, view, same

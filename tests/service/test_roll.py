@@ -1,0 +1,118 @@
+"""Roll: `/recognize` estimates the in-plane angle of a rolled object and answers k distinct poses.
+
+The shipped rgb model (trained on upright views: templates over the whole turn come from the settings
+here), two procedurally made objects registered through the API, queries rendered as full frames."""
+
+from __future__ import annotations
+
+import shutil
+
+import numpy as np
+import pytest
+from fastapi.testclient import TestClient
+from service_helpers import ROOT, frame, frame_fields, png, register, service_settings, wait_ready
+
+from index.pose import View, wrap_degrees
+from index.viewpoints import hemisphere
+from service.main import create_app
+
+UV = (360.0, 260.0)
+LEVEL = 1  # 16 viewpoints: every query below is at one of them
+AZ, EL = (float(x) for x in hemisphere(LEVEL)[7])
+
+
+@pytest.fixture(scope="module")
+def shipped_rgb(tmp_path_factory):
+    src = ROOT / "models" / "posedesc-rgb.onnx"
+    if not src.is_file():
+        pytest.skip("no shipped rgb model")
+    folder = tmp_path_factory.mktemp("shipped")
+    shutil.copy(src, folder)
+    return folder
+
+
+def serve(tmp_path_factory, models, l_shape, t_shape, **settings):
+    data = tmp_path_factory.mktemp("data")
+    client = TestClient(create_app(service_settings(data, models, level=LEVEL, **settings)))
+    client.__enter__()
+    wait_ready(client)
+    for mesh, name in ((l_shape, "L"), (t_shape, "T")):
+        register(client, mesh, name)
+    return client
+
+
+@pytest.fixture(scope="module")
+def whole_turn(tmp_path_factory, shipped_rgb, l_shape, t_shape):
+    """Templates every 30° over the whole turn (a setting: the shipped model's metadata has no step)."""
+    c = serve(tmp_path_factory, shipped_rgb, l_shape, t_shape, inplane_step=30, inplane_max=180)
+    yield c
+    c.__exit__(None, None, None)
+
+
+def ask(client, renderer, mesh, view: View, **data) -> dict:
+    rgb, _ = frame(renderer, mesh, view, UV, wall_mm=1500.0)
+    fields = frame_fields(UV, distance_mm=view.distance, **data)
+    r = client.post("/recognize", files={"rgb": ("f.png", png(rgb))}, data=fields)
+    assert r.status_code == 200, r.text
+    return r.json()
+
+
+def roll_error(match: dict, phi: float) -> float:
+    return abs(float(wrap_degrees(match["inplane"] - phi)))
+
+
+@pytest.mark.parametrize("phi", [60.0, -120.0, 75.0])
+def test_the_answer_carries_the_roll(whole_turn, renderer, l_shape, phi):
+    best = ask(whole_turn, renderer, l_shape, View(AZ, EL, phi, 600.0))["best"]
+    assert best["name"] == "L"
+    assert (best["azimuth"], best["elevation"]) == pytest.approx((AZ, EL), abs=1e-3)
+    assert roll_error(best, phi) < 30.0, best  # within the templates' step
+    assert -180.0 < best["inplane"] <= 180.0
+
+
+def test_k_answers_are_distinct_viewpoints(whole_turn, renderer, l_shape):
+    body = ask(whole_turn, renderer, l_shape, View(AZ, EL, 40.0, 600.0), k=20)
+    keys = [(m["object_id"], m["azimuth"], m["elevation"]) for m in body["matches"]]
+    assert len(keys) == 20 and len(set(keys)) == 20  # 12 in-plane variants each: 240 templates searched
+    distances = [m["distance"] for m in body["matches"]]
+    assert distances == sorted(distances)
+
+
+def test_query_turns_refine_the_roll(tmp_path_factory, shipped_rgb, renderer, l_shape, t_shape):
+    """Templates every 30°, the query also turned by 10° and 20°: a roll between templates is found
+    on the turn that brings it onto one, and answered as that template's angle plus the turn."""
+    c = serve(
+        tmp_path_factory, shipped_rgb, l_shape, t_shape, inplane_step=30, inplane_max=180, query_turns=3
+    )
+    try:
+        for phi in (70.0, -40.0):
+            best = ask(c, renderer, l_shape, View(AZ, EL, phi, 600.0))["best"]
+            assert best["name"] == "L" and roll_error(best, phi) < 10.0, (phi, best)
+    finally:
+        c.__exit__(None, None, None)
+
+
+def test_turns_of_an_upright_store_span_the_whole_turn(
+    tmp_path_factory, shipped_rgb, renderer, l_shape, t_shape
+):
+    """Upright templates only (a legacy model's default) and 4 turns of the query (0, 90, 180, 270°):
+    an object rolled by 90° is found upright on the turn by 90°, so the answer says +90, not -90."""
+    c = serve(tmp_path_factory, shipped_rgb, l_shape, t_shape, inplane_step=0, query_turns=4)
+    try:
+        assert c.get("/readyz").json()["templates"]["rgb"] == 2 * 16
+        for phi in (90.0, -90.0):
+            best = ask(c, renderer, l_shape, View(AZ, EL, phi, 600.0))["best"]
+            assert best["name"] == "L" and roll_error(best, phi) < 1e-3, (phi, best)
+    finally:
+        c.__exit__(None, None, None)
+
+
+def test_upright_answers_say_inplane_zero(tmp_path_factory, shipped_rgb, renderer, l_shape, t_shape):
+    c = serve(tmp_path_factory, shipped_rgb, l_shape, t_shape, inplane_step=0)
+    try:
+        body = ask(c, renderer, l_shape, View(AZ, EL, 0.0, 600.0), k=10)
+        assert {m["inplane"] for m in body["matches"]} == {0.0}
+        assert body["best"]["name"] == "L"
+        assert np.allclose((body["best"]["azimuth"], body["best"]["elevation"]), (AZ, EL), atol=1e-3)
+    finally:
+        c.__exit__(None, None, None)
