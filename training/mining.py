@@ -27,7 +27,7 @@ class TemplateBank:
     """Descriptors of all templates: (objects, templates, D), possibly a few hundred steps old."""
 
     def __init__(self, template_inputs: np.ndarray, dim: int, refresh_every: int = 300, parts: int = 1):
-        self.inputs = template_inputs  # (O, T, C, S, S), float16 is fine
+        self.inputs = template_inputs  # (O, T, ...) what `refresh`'s embed takes (templates' stems), float16
         o, t = template_inputs.shape[:2]
         self.f = np.zeros((o, t, dim), np.float32)
         self.refresh_every = refresh_every
@@ -90,23 +90,14 @@ class TemplateBank:
         return out
 
 
-def mine(
-    bank: TemplateBank,
-    net: torch.nn.Module,
-    batch: Batch,
-    x: torch.Tensor,
-    template_input: Callable[[int, int], np.ndarray],
-) -> tuple[Batch, torch.Tensor]:
-    """The batch and its inputs with the bank's hard templates for its samples appended."""
-    rows = torch.from_numpy(batch.sample_rows)
+def mine(bank: TemplateBank, net: torch.nn.Module, batch: Batch, x: torch.Tensor) -> Batch:
+    """The batch with the bank's hard templates for its samples appended as rows. x: the samples'
+    inputs, in the order of `batch.sample_rows`."""
     was_training = net.training
     with torch.no_grad():
-        f = net.eval()(x[rows]).numpy()
+        f = net.eval()(x).numpy()
     net.train(was_training)
     objects = batch.objects[batch.sample_rows]
     dists = [batch.sample_dists[int(s)] for s in batch.sample_rows]
-    batch, new = with_templates(batch, bank.hard(f, objects, dists))
-    if not new:
-        return batch, x
-    extra = torch.from_numpy(np.stack([template_input(it[1], it[2]) for it in new]))
-    return batch, torch.cat([x, extra.to(x.dtype)])
+    batch, _ = with_templates(batch, bank.hard(f, objects, dists))
+    return batch

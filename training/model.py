@@ -8,6 +8,7 @@
 
 from __future__ import annotations
 
+from collections import OrderedDict
 from dataclasses import dataclass
 
 import torch
@@ -32,17 +33,20 @@ class NetConfig:
 
 
 class DescriptorNet(nn.Module):
-    """Patch -> descriptor. Shape: (B, C, S, S) -> (B, D)."""
+    """Patch -> descriptor: `body(stem(x))`. The stem is what training never changes (the frozen trunk;
+    nothing for the paper's network), so training computes the templates' stems once and runs only the
+    body on them. Shape: (B, C, S, S) -> (B, D)."""
 
     def __init__(self, cfg: NetConfig, pretrained: bool = True):
         super().__init__()
         self.cfg = cfg
+        self.stem: nn.Module = nn.Identity()
         if cfg.arch == "trunk":
             if cfg.modality != "rgb":
                 raise ValueError("the pretrained trunk takes colour only: use --arch paper for depth/rgbd")
             side = cfg.size // 16  # /4 in the trunk, /4 in the head
-            self.features: nn.Module = nn.Sequential(
-                Trunk(pretrained),
+            self.stem = Trunk(pretrained)
+            features: nn.Module = nn.Sequential(
                 nn.Conv2d(TRUNK_CHANNELS, 48, 3, 2, 1, bias=False),
                 nn.BatchNorm2d(48),
                 nn.ReLU(),
@@ -52,7 +56,7 @@ class DescriptorNet(nn.Module):
             )
             flat = 64 * side * side
         elif cfg.arch == "paper":
-            self.features = nn.Sequential(
+            features = nn.Sequential(
                 nn.Conv2d(cfg.channels, 16, kernel_size=8),  # 64 -> 57
                 nn.MaxPool2d(2),  # -> 28
                 nn.ReLU(),
@@ -64,12 +68,13 @@ class DescriptorNet(nn.Module):
             flat = 7 * side * side
         else:
             raise ValueError(f"unknown arch {cfg.arch!r}; use one of {', '.join(ARCHS)}")
-        self.head = nn.Sequential(
+        head = nn.Sequential(
             nn.Flatten(),
             nn.Linear(flat, 256),
             nn.ReLU(),
             nn.Linear(256, cfg.descriptor_dim),
         )
+        self.body = nn.Sequential(OrderedDict(features=features, head=head))
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return self.head(self.features(x))
+        return self.body(self.stem(x))

@@ -22,7 +22,6 @@ from tqdm import tqdm
 
 from training.batches import Batch, BatchBuilder, bootstrap_triplets
 from training.data import DataConfig, TrainingData
-from training.export import torch_descriptors
 from training.losses import DescriptorLoss
 from training.mining import TemplateBank, mine
 from training.model import DescriptorNet, NetConfig
@@ -56,7 +55,9 @@ class TrainConfig:
 
 
 class BatchProducer:
-    """A thread that draws samples, builds batches and their network inputs, ahead of the optimiser."""
+    """A thread that draws samples, builds batches and the samples' network inputs, ahead of the optimiser.
+    A batch's first rows are its samples (`x`, in row order); the rest are templates, whose stems the
+    training loop takes from `template_stems`."""
 
     def __init__(self, data: TrainingData, cfg: TrainConfig, depth: int = 3, start: bool = True):
         self.data, self.cfg = data, cfg
@@ -85,14 +86,8 @@ class BatchProducer:
         drawn = [d.draw(o, rng, c.modality, c.real_fraction) for o in objs]
         samples = [s for s, _ in drawn]
         batch = self.builder.make(range(len(objs)), objs, np.stack([R for _, R in drawn]), rng)
-        x = np.stack(
-            [
-                d.sample_input(samples[it[2]], c.modality, rng)
-                if it[0] == "sample"
-                else d.template_input(it[1], it[2], c.modality)
-                for it in batch.items
-            ]
-        )
+        assert list(batch.sample_rows) == list(range(len(objs)))  # samples first, then templates
+        x = np.stack([d.sample_input(samples[batch.items[r][2]], c.modality, rng) for r in batch.sample_rows])
         return batch, torch.from_numpy(x)
 
     def _run(self) -> None:
@@ -112,6 +107,46 @@ class BatchProducer:
         self._stop.set()
 
 
+def template_stems(net: DescriptorNet, inputs: np.ndarray, chunk: int = 512) -> np.ndarray:
+    """The stems of all templates (their inputs when the stem is nothing), computed once: a frozen trunk
+    never changes. Shape: (O, T, C, S, S) -> (O, T, C', S', S') float16."""
+    if isinstance(net.stem, torch.nn.Identity):
+        return inputs
+    flat = inputs.reshape(-1, *inputs.shape[2:])
+    with torch.no_grad():
+        first = net.stem(torch.from_numpy(flat[:1].astype(np.float32)))
+        out = np.zeros((len(flat), *first.shape[1:]), np.float16)
+        for i in tqdm(range(0, len(flat), chunk), desc="template stems", unit="chunk", leave=False):
+            x = torch.from_numpy(flat[i : i + chunk].astype(np.float32)).contiguous(
+                memory_format=torch.channels_last
+            )
+            out[i : i + chunk] = net.stem(x).numpy()
+    return out.reshape(*inputs.shape[:2], *out.shape[1:])
+
+
+def body_descriptors(net: DescriptorNet, stems: np.ndarray, chunk: int = 2048) -> np.ndarray:
+    """Descriptors from stems (eval mode). Shape: (N, C', S', S') -> (N, D)."""
+    was = net.training
+    net.eval()
+    out = []
+    with torch.no_grad():
+        for i in range(0, len(stems), chunk):
+            x = torch.from_numpy(stems[i : i + chunk].astype(np.float32))
+            out.append(net.body(x.contiguous(memory_format=torch.channels_last)).numpy())
+    net.train(was)
+    return np.concatenate(out) if out else np.zeros((0, net.cfg.descriptor_dim), np.float32)
+
+
+def batch_descriptors(net: DescriptorNet, batch: Batch, x: torch.Tensor, stems: np.ndarray) -> torch.Tensor:
+    """Descriptors of every row of a batch: the samples (inputs x) through the whole network, the
+    templates from their cached stems through the body; one body call, so BatchNorm sees the batch as
+    one. Shape: (B, D)."""
+    s = net.stem(x.contiguous(memory_format=torch.channels_last))
+    rows = batch.items[len(x) :]
+    t = torch.from_numpy(np.stack([stems[it[1], it[2]] for it in rows]).astype(np.float32))
+    return net.body(torch.cat([s, t.to(s.dtype)]).contiguous(memory_format=torch.channels_last))
+
+
 def lr_at(cfg: TrainConfig, progress: float) -> float:
     return cfg.lr * (cfg.lr_end + (1 - cfg.lr_end) * 0.5 * (1 + math.cos(math.pi * min(progress, 1.0))))
 
@@ -124,7 +159,8 @@ def train(
     command: str = "",
 ) -> DescriptorNet:
     """Trains a network on `data`, writing `out/checkpoint.pt` every epoch and `out/log.jsonl`.
-    `validate(net) -> dict` (optional) is called after every epoch and logged."""
+    `validate(net, template_f) -> dict` (optional) is called after every epoch and logged; template_f(o)
+    gives the descriptors of object o's templates (from their cached stems)."""
     torch.manual_seed(cfg.seed)
     torch.set_num_threads(cfg.threads)
     out.mkdir(parents=True, exist_ok=True)
@@ -135,8 +171,15 @@ def train(
     loss_fn = DescriptorLoss(cfg.margin, cfg.pair_weight, cfg.weight_decay)
     opt = torch.optim.Adam([p for p in net.parameters() if p.requires_grad], lr=cfg.lr)
     # normalised once, here, before the producer thread would do it too
-    templates = data.template_inputs(cfg.modality)
-    bank = TemplateBank(templates, cfg.descriptor_dim, cfg.mine_refresh, cfg.mine_parts) if cfg.mine else None
+    stems = template_stems(net, data.template_inputs(cfg.modality))
+    bank = TemplateBank(stems, cfg.descriptor_dim, cfg.mine_refresh, cfg.mine_parts) if cfg.mine else None
+
+    def embed_stems(a: np.ndarray) -> np.ndarray:
+        return body_descriptors(net, a)
+
+    def template_f(o: int) -> np.ndarray:
+        return embed_stems(stems[o])
+
     producer = BatchProducer(data, cfg)
     budget = cfg.minutes * 60.0
     t0 = time.monotonic()
@@ -162,10 +205,10 @@ def train(
                 boot = progress >= cfg.bootstrap_after
                 if boot and bank is not None:
                     if bank.due(step):
-                        bank.refresh(lambda a: torch_descriptors(net, a), step)
-                    batch, x = mine(bank, net, batch, x, lambda o, t: data.template_input(o, t, cfg.modality))
+                        bank.refresh(embed_stems, step)
+                    batch = mine(bank, net, batch, x)
                 net.train()
-                f = net(x.contiguous(memory_format=torch.channels_last))
+                f = batch_descriptors(net, batch, x, stems)
                 triplets = batch.triplets
                 if boot:
                     triplets = np.concatenate([triplets, bootstrap_triplets(batch, f.detach().numpy())])
@@ -192,7 +235,7 @@ def train(
                 **{k: v / n for k, v in sums.items()},
             }
             if validate is not None:
-                record["val"] = validate(net)
+                record["val"] = validate(net, template_f)
             ckpt = {
                 "net": net.state_dict(),
                 "config": asdict(cfg),

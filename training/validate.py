@@ -99,12 +99,21 @@ def template_descriptors(
 
 
 def validate_real(
-    data: TrainingData, embed: Embed, modality: str, seed: int = 0, split: str = "val"
+    data: TrainingData,
+    embed: Embed,
+    modality: str,
+    seed: int = 0,
+    split: str = "val",
+    template_f: Callable[[int], np.ndarray] | None = None,
 ) -> tuple[Accuracy, dict]:
     """Real instances of the `split` frames (visibility >= min_visib_test), rolled as seen, against the
-    templates of the BOP objects. Also returns accuracies by visibility band."""
+    templates of the BOP objects (`template_f(o)`: their descriptors, when the caller has them cheaper).
+    Also returns accuracies by visibility band."""
     objects = list(range(data.real_objects))
-    tf = template_descriptors(data, embed, modality, objects)
+    if template_f is None:
+        tf = template_descriptors(data, embed, modality, objects)
+    else:
+        tf = np.concatenate([template_f(o) for o in objects])
     t_obj = np.repeat(objects, data.n_templates)
     t_views = data.template_views * len(objects)
     idx = data.test_instances(split)

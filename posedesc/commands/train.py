@@ -141,10 +141,12 @@ def run(args: argparse.Namespace) -> int:
     )
     has_real = bool(data.test_instances())
 
-    def validate(net):
+    def validate(net, template_f):
         from training.export import torch_descriptors
 
-        acc, _ = validate_real(data, lambda x: torch_descriptors(net, x), args.modality)
+        acc, _ = validate_real(
+            data, lambda x: torch_descriptors(net, x), args.modality, template_f=template_f
+        )
         return acc.as_dict()
 
     t1 = time.perf_counter()

@@ -44,9 +44,9 @@ def test_mined_templates_join_the_batch_and_bootstrapping_uses_them():
     net = torch.nn.Sequential(torch.nn.Flatten(), torch.nn.Linear(4, 4, bias=False))
     with torch.no_grad():
         net[1].weight.zero_()  # every input -> descriptor 0
-    x = torch.zeros(n, 1, 2, 2)
-    grown, x2 = mine(bank, net, batch, x, lambda o, t: np.zeros((1, 2, 2), np.float32))
-    assert ("template", 4, 17) in grown.items and len(grown.items) == len(x2) > n
+    x = torch.zeros(len(batch.sample_rows), 1, 2, 2)  # the samples' inputs
+    grown = mine(bank, net, batch, x)
+    assert ("template", 4, 17) in grown.items and len(grown.items) > n
     assert grown.items[:n] == batch.items and (grown.triplets == batch.triplets).all()
     f = np.full((len(grown.items), 4), 5.0)
     f[grown.sample_rows] = 0.0
