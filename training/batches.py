@@ -84,7 +84,7 @@ class BatchBuilder:
     def make(
         self,
         sample_ids: Sequence[int],
-        sample_objects: Sequence[int],
+        sample_objects: Sequence[int] | np.ndarray,
         sample_R: np.ndarray,
         rng: np.random.Generator,
     ) -> Batch:

@@ -214,6 +214,10 @@ class TrainingData:
             self._template_inputs[modality] = out
         return self._template_inputs[modality]
 
+    def drop_template_inputs(self, modality: str) -> None:
+        """Frees the normalised templates (they are made again when asked for)."""
+        self._template_inputs.pop(modality, None)
+
     def template_input(self, obj: int, t: int, modality: str) -> np.ndarray:
         return self.template_inputs(modality)[obj, t].astype(np.float32)
 
@@ -246,7 +250,7 @@ class TrainingData:
         """A random training render moved lo..hi px from the patch centre in a random direction."""
         j = int(rng.integers(len(self.s_rgb)))
         a, r = rng.uniform(0, 2 * np.pi), rng.uniform(lo, hi)
-        M = np.float32([[1, 0, r * np.cos(a)], [0, 1, r * np.sin(a)]])
+        M: np.ndarray = np.float32([[1, 0, r * np.cos(a)], [0, 1, r * np.sin(a)]])  # type: ignore[arg-type, assignment]  # numpy's stub: np.float32(list) is an array
         s = self.spec.size
         o_rgb = cv2.warpAffine(self.s_rgb[j], M, (s, s), flags=cv2.INTER_NEAREST)
         o_depth = cv2.warpAffine(self.s_depth[j].astype(np.float32), M, (s, s), flags=cv2.INTER_NEAREST)
@@ -304,7 +308,7 @@ class TrainingData:
             n, d = support_plane(self.s_R[i], t, self.z_min[int(self.s_obj[i])])
             plane = plane_depth(patch_camera(self.spec, self.cfg.distance), n, d, depth.shape)
         bg_rgb, bg_depth = self._scene(rng, plane)
-        return self.sensor.apply(rgb, depth, rng, bg_rgb, bg_depth)  # type: ignore[return-value]
+        return self.sensor.apply(rgb, depth, rng, bg_rgb, bg_depth)
 
     def _real(self, i: int, roll: float, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
         """Real instance i cut so that it appears turned `roll` degrees in-plane."""
@@ -325,7 +329,7 @@ class TrainingData:
             depth = np.where(m[..., 0] > 0.5, depth, 0.0).astype(np.float32)
         rgb, _ = self.sensor.apply(colour_jitter(rgb, rng, 0.5 * self.cfg.colour_jitter), None, rng)
         _, depth = self.sensor.apply(None, depth, rng, None, bg_depth)
-        return rgb, depth  # type: ignore[return-value]
+        return rgb, depth
 
 
 def test_input(

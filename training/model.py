@@ -4,7 +4,11 @@
   descriptor. Kept as the reproducible baseline row.
 - `trunk`: a frozen ImageNet MobileNetV2 trunk (`training/trunk.py`, colour only) and a small trained
   head: two stride-2 3x3 convolutions 24 -> 48 -> 64 with BatchNorm, FC 1024 -> 256 -> D. The head keeps
-  the map's layout until the last layers (pooling it away destroys the pose, measured in issue 11)."""
+  the map's layout until the last layers (pooling it away destroys the pose, measured in issue 11).
+- `pca`: the same frozen trunk and nothing trained by the metric loss: its map average-pooled `pool` x
+  `pool`, L2-normalised and projected on the principal components of the templates of procedural
+  shapes (`training/pca.py`). Template matching on early pretrained features, made compact enough for
+  the index; it never sees a BOP object, so every object is one it was never trained on."""
 
 from __future__ import annotations
 
@@ -17,7 +21,7 @@ from torch import nn
 from index.patches import MODALITY_CHANNELS
 from training.trunk import TRUNK_CHANNELS, Trunk
 
-ARCHS = ("paper", "trunk")
+ARCHS = ("paper", "trunk", "pca")
 
 
 @dataclass
@@ -26,6 +30,7 @@ class NetConfig:
     descriptor_dim: int = 16  # 3 for pictures, 32 as in the paper's table
     size: int = 64  # input side, px
     arch: str = "paper"  # see the module docstring
+    pool: int = 2  # pca: average pooling of the trunk's map before the projection
 
     @property
     def channels(self) -> int:
@@ -41,6 +46,22 @@ class DescriptorNet(nn.Module):
         super().__init__()
         self.cfg = cfg
         self.stem: nn.Module = nn.Identity()
+        if cfg.arch == "pca":
+            if cfg.modality != "rgb":
+                raise ValueError("the pretrained trunk takes colour only: use --arch paper for depth/rgbd")
+            self.stem = Trunk(pretrained)
+            side = cfg.size // 4 // cfg.pool
+            self.body = nn.Sequential(
+                OrderedDict(
+                    pool=nn.AvgPool2d(cfg.pool),
+                    flat=nn.Flatten(),
+                    unit=UnitLength(),
+                    project=nn.Linear(TRUNK_CHANNELS * side * side, cfg.descriptor_dim),
+                )
+            )
+            for p in self.body.parameters():
+                p.requires_grad_(False)  # fitted by `training.pca.fit`, not by gradients
+            return
         if cfg.arch == "trunk":
             if cfg.modality != "rgb":
                 raise ValueError("the pretrained trunk takes colour only: use --arch paper for depth/rgbd")
@@ -78,3 +99,10 @@ class DescriptorNet(nn.Module):
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         return self.body(self.stem(x))
+
+
+class UnitLength(nn.Module):
+    """Rows scaled to unit L2 norm. Shape: (B, N) -> (B, N)."""
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return x / torch.sqrt((x * x).sum(dim=1, keepdim=True) + 1e-12)

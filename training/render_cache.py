@@ -50,7 +50,7 @@ def build(roots: list[Path], cfg: DataConfig, cache_dir: Path | None = None) -> 
     arrays, meta = _render_all(roots, cfg)
     if cache_dir is not None:
         cache_dir.mkdir(parents=True, exist_ok=True)
-        np.savez(npz, **arrays)
+        np.savez(npz, **arrays)  # type: ignore[arg-type]  # numpy's stub: a key could be allow_pickle
         js.write_text(json.dumps(meta))
     return TrainingData(arrays, meta, cfg)
 
@@ -102,6 +102,7 @@ def _render_all(roots: list[Path], cfg: DataConfig) -> tuple[dict[str, np.ndarra
             s_depth.append(r.depth.astype(np.float16))
             s_obj += [o] * len(chunk)
             s_R.append(rotations(chunk))
+    frames: list[np.ndarray]
     frames, labels, frame_depth, real, real_split, splits = [], [], [], [], [], {}
     for ds in datasets:
         obj_index = {
@@ -121,7 +122,7 @@ def _render_all(roots: list[Path], cfg: DataConfig) -> tuple[dict[str, np.ndarra
                 by_frame.setdefault(inst.frame_id, []).append(inst)
             for fid in tqdm(frame_ids, desc=f"masks {scene.name}", unit="frame", disable=False):
                 group = by_frame[fid]
-                rgb = group[0].load_rgb()
+                rgb: np.ndarray = group[0].load_rgb()  # type: ignore[assignment]  # BOP frames have images
                 h, w = rgb.shape[:2]
                 depths = []
                 for inst in group:

@@ -34,6 +34,7 @@ class TrainConfig:
     modality: str = "rgb"
     arch: str = "paper"  # "paper" (the baseline) or "trunk" (frozen pretrained MobileNetV2 stages + head)
     descriptor_dim: int = 16  # the paper's default; 32 in its table
+    pool: int = 2  # arch pca: average pooling of the trunk's map
     minutes: float = 25.0  # wall-clock budget for the optimisation (data rendering not included)
     max_steps: int = 0  # stop after this many steps too (0: only the budget); makes --seed runs repeat
     steps_per_epoch: int = 150  # an "epoch" is this many batches: a checkpoint and a validation each
@@ -169,11 +170,13 @@ def train(
     net = DescriptorNet(NetConfig(cfg.modality, cfg.descriptor_dim, data.spec.size, cfg.arch))
     # channels_last: the 57x57x16 max-pool after the first convolution runs ~8x faster on this CPU,
     # and a whole step ~1.8x (measured on 285-patch batches).
-    net = net.to(memory_format=torch.channels_last)
+    net = net.to(memory_format=torch.channels_last)  # type: ignore[call-overload]  # torch's stub lacks it
     loss_fn = DescriptorLoss(cfg.margin, cfg.pair_weight, cfg.weight_decay)
     opt = torch.optim.Adam([p for p in net.parameters() if p.requires_grad], lr=cfg.lr)
     # normalised once, here, before the producer thread would do it too
     stems = template_stems(net, data.template_inputs(cfg.modality))
+    if stems is not data.template_inputs(cfg.modality):
+        data.drop_template_inputs(cfg.modality)  # 2 GB: the trunk's maps are all training needs now
     bank = TemplateBank(stems, cfg.descriptor_dim, cfg.mine_refresh, cfg.mine_parts) if cfg.mine else None
 
     def embed_stems(a: np.ndarray) -> np.ndarray:
@@ -230,7 +233,7 @@ def train(
                 )
             bar.close()
             n = max(sums.pop("n", 0), 1)
-            record = {
+            record: dict = {
                 "epoch": epoch,
                 "step": step,
                 "minutes": round((time.monotonic() - t0) / 60, 2),
@@ -275,8 +278,7 @@ def load_checkpoint(run_dir: Path, which: str = "checkpoint") -> tuple[Descripto
     """The run's last checkpoint (`checkpoint`) or the one chosen on validation frames (`best`)."""
     ckpt = torch.load(run_dir / f"{which}.pt", map_location="cpu", weights_only=False)
     c = ckpt["config"]
-    net = DescriptorNet(
-        NetConfig(c["modality"], c["descriptor_dim"], ckpt["size"], c.get("arch", "paper")), False
-    )
+    arch, pool = c.get("arch", "paper"), c.get("pool", 2)
+    net = DescriptorNet(NetConfig(c["modality"], c["descriptor_dim"], ckpt["size"], arch, pool), False)
     net.load_state_dict(ckpt["net"])
     return net.eval(), ckpt

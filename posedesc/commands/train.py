@@ -32,9 +32,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--minutes", type=float, default=25.0, help="wall-clock budget of the optimisation")
     p.add_argument("--max-steps", type=int, default=0, help="also stop after this many batches (0: no limit)")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--arch", choices=("paper", "trunk"), default="trunk",
+    p.add_argument("--arch", choices=("paper", "trunk", "pca"), default="trunk",
                    help="trunk: frozen ImageNet MobileNetV2 stages + trained head (colour only); "
+                   "pca: the same stages' map, pooled and projected on principal components of "
+                   "procedural shapes' templates, no metric training (colour only); "
                    "paper: the paper's network (the baseline; depth and rgbd)")  # fmt: skip
+    p.add_argument("--pool", type=int, default=2, help="pca: average pooling of the trunk's map")
     p.add_argument("--dim", type=int, default=None, help="descriptor dimension (default: 32 trunk, 16 paper)")
     p.add_argument("--roll", type=float, default=180.0, help="samples turn in-plane within +-this, deg")
     p.add_argument("--inplane-step", type=float, default=30.0,
@@ -92,7 +95,7 @@ def run(args: argparse.Namespace) -> int:
     from training.validate import validate_real, validate_synthetic
 
     arch = args.arch if args.modality == "rgb" else "paper"  # the pretrained trunk takes colour only
-    dim = args.dim or (32 if arch == "trunk" else 16)
+    dim = args.dim or {"trunk": 32, "pca": 64}.get(arch, 16)
 
     try:
         exclude = tuple(int(x) for x in args.exclude_objects.split(",") if x.strip())
@@ -111,6 +114,7 @@ def run(args: argparse.Namespace) -> int:
     cfg = TrainConfig(
         modality=args.modality,
         arch=arch,
+        pool=args.pool,
         descriptor_dim=dim,
         minutes=args.minutes,
         max_steps=args.max_steps,
@@ -150,7 +154,12 @@ def run(args: argparse.Namespace) -> int:
         return acc.as_dict()
 
     t1 = time.perf_counter()
-    net = train(cfg, data, args.out, None if args.no_validate or not has_real else validate, command)
+    if arch == "pca":
+        from training.pca import run as fit_pca
+
+        net = fit_pca(cfg, data, args.out, command)
+    else:
+        net = train(cfg, data, args.out, None if args.no_validate or not has_real else validate, command)
     train_minutes = (time.perf_counter() - t1) / 60
     report = {
         "command": command,
@@ -179,7 +188,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"synthetic, objects never trained on (demo shapes): {acc.line()}")
         from index.bop import BopDataset
 
-        seen = {}
+        seen: dict = {}
         for root in args.data:
             ds = BopDataset(root)
             seen |= {f"{root.name}/{o}": (ds.mesh(o, max_faces=20000), ds.symmetry(o)) for o in ds.obj_ids}
