@@ -28,6 +28,7 @@ $(STAMP): requirements.lock requirements-weights.txt pyproject.toml
 lint: setup
 	$(BIN)/ruff check .
 	$(BIN)/ruff format --check .
+	$(BIN)/mypy
 
 test: setup lint
 	$(BIN)/pytest -q
@@ -39,4 +40,4 @@ bench: setup
 	$(BIN)/posedesc bench --json out/bench.json
 
 clean:
-	rm -rf $(VENV) .pytest_cache .ruff_cache
+	rm -rf $(VENV) .pytest_cache .ruff_cache .mypy_cache

@@ -27,9 +27,9 @@ def run(objects: ObjectSet, embedder: Embedder, cfg: DescriptorConfig) -> dict:
     from evaluation.hog import describe_inputs, hog_descriptor, hog_descriptors
 
     modality, window = embedder.modality, embedder.info.window_mm
-    rgb, depth = objects.patches(cfg.patches)
-    rgb = rgb if modality in ("rgb", "rgbd") else None
-    depth = depth if modality in ("depth", "rgbd") else None
+    all_rgb, all_depth = objects.patches(cfg.patches)
+    rgb = all_rgb if modality in ("rgb", "rgbd") else None
+    depth = all_depth if modality in ("depth", "rgbd") else None
     nominal = 400.0
     x = batch_inputs(modality, rgb, depth, nominal, window, fill=True)
     n, n1 = len(x), min(cfg.patches_b1, len(x))
@@ -61,7 +61,7 @@ def run(objects: ObjectSet, embedder: Embedder, cfg: DescriptorConfig) -> dict:
     hog = measure(lambda: hog_descriptors(modality, rgb, depth, nominal, window, True), cfg.repeats)
     cv_hog = hog_descriptor()
     hog_only = measure(lambda: describe_inputs(x, cv_hog), cfg.repeats)
-    out = {
+    out: dict = {
         "modality": modality,
         "patches": n,
         "patches_b1": n1,

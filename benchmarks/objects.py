@@ -7,15 +7,21 @@ of 48 exact image transforms (4 quarter turns x mirror x 6 orders of the colour 
 the geometric part). Every object then has templates of its own, as a new mesh would: the network sees
 different patches, LineMOD extracts different features, and neither method's cost depends on where the
 templates came from. A template's pose label is the view it was rendered from (poses do not enter
-the timing)."""
+the timing).
+
+Templates with in-plane variants (`inplane_template_sets`, the roll section) are made as registration
+makes them: each viewpoint rendered once, turned about the patch centre for every in-plane angle. There
+the objects are the shapes through the 12 transforms without a quarter turn (a quarter turn of a whole
+turn of in-plane variants would give the same templates again, only labelled 90 degrees apart)."""
 
 from __future__ import annotations
 
 import itertools
-from collections.abc import Callable
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
+import trimesh
 
 from index.embed import Embedder
 from index.patches import batch_inputs
@@ -25,9 +31,12 @@ from index.render import Renderer, Templates
 from index.sensor import SensorModel, random_background
 from index.shapes import random_shape
 from index.store import TemplateSet
+from index.viewpoints import template_views as all_template_views
 
 PERMUTATIONS = list(itertools.permutations(range(3)))
 VARIANTS = 8 * len(PERMUTATIONS)  # dihedral group of the square x channel orders
+#: the variants without a quarter turn (mirror x channel orders): distinct objects with in-plane variants
+TURN_FREE_VARIANTS = tuple(k for k in range(VARIANTS) if k % 4 == 0)
 QUERY_VIEW = View(azimuth=37.0, elevation=33.0, inplane=0.0, distance=400.0)  # between template views
 
 
@@ -96,7 +105,7 @@ class ObjectSet:
             self._sets[key] = embed_templates(embedder, {self.window_mm: self.templates(j)})
         return self._sets[key]
 
-    def embed_all(self, embedder: Embedder, n: int, progress: Callable[[int], None] | None = None) -> None:
+    def embed_all(self, embedder: Embedder, n: int, progress: Callable[[int], object] | None = None) -> None:
         """Descriptors of objects 0..n-1 into the cache, shape by shape: each shape's network inputs are
         made once and transformed for its variants (`variant_inputs`), as `template_set` would make them."""
         m, colour = len(self.rgb), embedder.modality in ("rgb", "rgbd")
@@ -145,8 +154,7 @@ def _through_sensor(
     rgb: np.ndarray, depth: np.ndarray, rng: np.random.Generator, sensor: SensorModel
 ) -> tuple[np.ndarray, np.ndarray]:
     bg_rgb, bg_depth = random_background(depth.shape, rng, QUERY_VIEW.distance)
-    out_rgb, out_depth = sensor.apply(rgb, depth, rng, bg_rgb, bg_depth)
-    return out_rgb, out_depth  # type: ignore[return-value]
+    return sensor.apply(rgb, depth, rng, bg_rgb, bg_depth)
 
 
 def render_objects(
@@ -155,11 +163,11 @@ def render_objects(
     window_mm: float = 200.0,
     level: int = 3,
     seed: int = 0,
-    progress: Callable[[int], None] | None = None,
+    progress: Callable[[int], object] | None = None,
 ) -> ObjectSet:
     """Renders `distinct` random shapes from the service's template views (icosphere `level`)."""
     rng = np.random.default_rng(seed)
-    meshes = [random_shape(rng) for _ in range(distinct)]
+    meshes = [random_shape(rng) for _ in range(distinct)]  # as `shapes(distinct, seed)`
     views = template_views("none", TemplateConfig(level=level))
     renderer = Renderer(size=size, window_mm=window_mm)
     try:
@@ -177,3 +185,62 @@ def render_objects(
         query_depth=q_depth,
         seed=seed,
     )
+
+
+def shapes(count: int, seed: int = 0) -> list[trimesh.Trimesh]:
+    """The first `count` shapes of `render_objects(..., seed)`: shape 0 is its query's."""
+    rng = np.random.default_rng(seed)
+    return [random_shape(rng) for _ in range(count)]
+
+
+def inplane_template_sets(
+    n: int,
+    models: Mapping[str, tuple[Embedder, Sequence[float] | np.ndarray]],
+    level: int = 3,
+    size: int = 64,
+    window_mm: float = 200.0,
+    seed: int = 0,
+    progress: Callable[[int], object] | None = None,
+) -> dict[str, list[TemplateSet]]:
+    """Templates of objects 0..n-1 for every model in `models` (a name -> its embedder and its in-plane
+    angles, degrees), viewpoint-major as `index.register` orders them: each model's views are
+    `index.viewpoints.template_views(level, its angles)`, and each viewpoint is rendered once for the
+    union of the angles and turned (`Renderer.render`, the registration's renderer). Object j is shape
+    j % m (`shapes(m, seed)`, m = ceil(n / 12)) through transform `TURN_FREE_VARIANTS[j // m]`, applied
+    to the network inputs (`variant_inputs`). Renders are kept for one shape at a time. `progress`
+    counts objects x models."""
+    m = -(-n // len(TURN_FREE_VARIANTS))
+    angles = {name: np.round(np.asarray(a, float), 6) for name, (_, a) in models.items()}
+    union = np.unique(np.concatenate(list(angles.values()))) if angles else np.zeros(1)
+    views = all_template_views(level, union)
+    inplane = np.round(np.array([v.inplane for v in views]), 6)
+    out: dict[str, list[TemplateSet]] = {name: [] for name in models}
+    per_shape: dict[str, list[TemplateSet]] = {}
+    renderer = Renderer(size=size, window_mm=window_mm)
+    try:
+        for a, mesh in enumerate(shapes(m, seed)):
+            t = renderer.render(mesh, views)
+            for name, (e, _) in models.items():
+                keep = np.flatnonzero(np.isin(inplane, angles[name]))
+                colour = e.modality in ("rgb", "rgbd")
+                base = batch_inputs(
+                    e.modality,
+                    t.rgb[keep] if colour else None,
+                    t.depth[keep] if e.modality in ("depth", "rgbd") else None,
+                    np.array([views[i].distance for i in keep]),
+                    window_mm,
+                    fill=False,  # a render's zeros are background, as in `index.register.embed_templates`
+                )
+                poses = np.array([(views[i].azimuth, views[i].elevation, views[i].inplane) for i in keep])
+                per_shape[name] = [
+                    TemplateSet(poses.astype(np.float32), e(variant_inputs(base, k, colour), batch=128))
+                    for k in TURN_FREE_VARIANTS[: len(range(a, n, m))]
+                ]
+                if progress:
+                    progress(len(per_shape[name]))
+            for name in models:
+                out[name].extend(per_shape[name])
+    finally:
+        renderer.close()
+    order = [a + m * v for a in range(m) for v in range(len(range(a, n, m)))]  # object id of each set
+    return {name: [sets[i] for i in np.argsort(order)] for name, sets in out.items()}

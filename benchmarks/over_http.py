@@ -119,9 +119,9 @@ def run(url: str, objects: ObjectSet, modality: str, cfg: HttpConfig) -> dict:
     for c, _ in tqdm(levels, desc="HTTP: /recognize", unit="round", disable=None):
         results.setdefault(c, []).append(load(url, patch, c, cfg.requests))
     for c, rounds in results.items():
-        lat = Timing(tuple(x for r in rounds for x in r[0]))
+        latency = Timing(tuple(x for r in rounds for x in r[0]))
         inner = [x for r in rounds for x in r[1]]
-        out["by_concurrency"][str(c)] = lat.ms() | {
+        out["by_concurrency"][str(c)] = latency.ms() | {
             "requests_per_s": statistics.median(len(r[0]) / r[2] for r in rounds),
             "server_total_median_ms": statistics.median(inner) if inner else None,
             "failed": sum(r[3] for r in rounds),

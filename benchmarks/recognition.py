@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
+from functools import partial
 
 import numpy as np
 from tqdm import tqdm
@@ -19,6 +20,7 @@ from benchmarks.objects import ObjectSet
 from benchmarks.stores import flat_snapshot
 from benchmarks.timing import measure, ratio
 from index.embed import Embedder
+from index.store import Snapshot
 
 
 @dataclass(frozen=True)
@@ -63,14 +65,17 @@ def run(objects: ObjectSet, embedder: Embedder, embed_setup: Embedder, cfg: Reco
             None if rgb is None else rgb[None], None if depth is None else depth[None], nominal, fill=True
         )
 
+    def embed_and_search(snap: Snapshot) -> object:
+        return snap.search(modality, embed_query(), cfg.k)
+
     t_embed = measure(embed_query, cfg.queries, warmup=3)  # the same at every store size
     query = embed_query()
     lm = LineModIndex(modality, objects.window_mm)
     lm_added, lm_build_s = 0, 0.0
     for n in counts:
         snap = flat_snapshot(modality, sets[:n])
-        t_ours = measure(lambda snap=snap: snap.search(modality, embed_query(), cfg.k), cfg.queries, warmup=3)
-        t_search = measure(lambda snap=snap: snap.search(modality, query, cfg.k), cfg.queries)
+        t_ours = measure(partial(embed_and_search, snap), cfg.queries, warmup=3)
+        t_search = measure(partial(snap.search, modality, query, cfg.k), cfg.queries)
         (best, *_), *_ = snap.search(modality, query, cfg.k)
         row: dict = {
             "templates": int(snap.models[modality].size),

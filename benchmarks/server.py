@@ -9,6 +9,7 @@ import socket
 import subprocess
 import sys
 import time
+from collections.abc import Mapping
 from pathlib import Path
 from types import TracebackType
 
@@ -24,9 +25,10 @@ def free_port() -> int:
 
 
 class Server:
-    """`with Server(data_dir, models, env) as url:` serves until the block ends. `env`: POSEDESC_* settings."""
+    """`with Server(data_dir, models, env) as url:` serves until the block ends. `env`: POSEDESC_* settings
+    over this process's environment; None removes a variable (the setting's default)."""
 
-    def __init__(self, data_dir: Path, models: Path, env: dict[str, str], timeout_s: float = 300.0):
+    def __init__(self, data_dir: Path, models: Path, env: Mapping[str, str | None], timeout_s: float = 300.0):
         self.data_dir, self.models, self.env, self.timeout_s = data_dir, models, env, timeout_s
         self.port = free_port()
         self.url = f"http://127.0.0.1:{self.port}"
@@ -38,10 +40,14 @@ class Server:
         cmd += ["--data-dir", str(self.data_dir), "--models", str(self.models), "--log-level", "warning"]
         with open(self.log, "wb") as out:  # the child keeps its own descriptor
             self.proc = subprocess.Popen(
-                cmd, cwd=ROOT, env={**os.environ, **self.env}, stdout=out, stderr=subprocess.STDOUT
+                cmd, cwd=ROOT, env=self._environment(), stdout=out, stderr=subprocess.STDOUT
             )
         self._wait_ready()
         return self.url
+
+    def _environment(self) -> dict[str, str]:
+        merged: dict[str, str | None] = {**os.environ, **self.env}
+        return {k: v for k, v in merged.items() if v is not None}
 
     def _wait_ready(self) -> None:
         end = time.monotonic() + self.timeout_s

@@ -35,7 +35,9 @@ def mesh_20k() -> trimesh.Trimesh:
     m.vertices[:, 2] *= 1.6
     rng = np.random.default_rng(0)
     m.visual = trimesh.visual.ColorVisuals(m, vertex_colors=rng.integers(0, 255, (len(m.vertices), 4)))
-    return trimesh.util.concatenate([m, demo_shapes()["robot"]])
+    mesh = trimesh.util.concatenate([m, demo_shapes()["robot"]])
+    assert isinstance(mesh, trimesh.Trimesh)  # meshes concatenate to a mesh
+    return mesh
 
 
 def png(a: np.ndarray) -> bytes:

@@ -4,12 +4,13 @@
 one with the default index kind (`IndexIDMap2(IndexFlatL2)`), as an `index.store.Snapshot`, whose
 `search` is the very call a recognition makes. Registering 1,000 objects through `Store.add_object`
 instead would rewrite every model's index snapshot file once per object (quadratic in the store size).
-`fill_data_dir` does go through `Store.add_object`, for a data dir the real service then serves."""
+`fill_data_dir` and `fill_store` do go through `Store.add_object`, for a data dir the real service (or
+`service.state.load_state`) then serves."""
 
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 
 import faiss
@@ -41,18 +42,33 @@ def fill_data_dir(
     embedders: Mapping[str, Embedder],
     objects: ObjectSet,
     n: int,
-    progress: Callable[[int], None] | None = None,
+    progress: Callable[[int], object] | None = None,
 ) -> None:
     """Registers objects 0..n-1 of `objects` into a new data dir for every model, as the service would
     (one transaction per object); no mesh is kept, so they cannot be re-embedded. `progress` counts
     n x (models + 1) steps: embedding per model, then storing."""
     for e in embedders.values():
         objects.embed_all(e, n, progress)
-    store = Store(data_dir, {m: (e.dim, fingerprint(e.path)) for m, e in embedders.items()})
+    sets = {m: [objects.template_set(e, j) for j in range(n)] for m, e in embedders.items()}
+    fill_store(data_dir, {m: (e.dim, fingerprint(e.path)) for m, e in embedders.items()}, sets, progress)
+
+
+def fill_store(
+    data_dir: Path,
+    models: Mapping[str, tuple[int, str]],
+    sets: Mapping[str, Sequence[TemplateSet]],
+    progress: Callable[[int], object] | None = None,
+) -> None:
+    """Adds object j with `sets[model][j]` for every model to the store of `data_dir` (`models`: each
+    model's descriptor dim and fingerprint, as `Store` takes them) through `Store.add_object`, one
+    transaction per object as a registration; no mesh is kept. `progress` counts objects."""
+    n = min(len(s) for s in sets.values())
+    store = Store(data_dir, models)
     try:
         for j in range(n):
-            sets = {m: objects.template_set(e, j) for m, e in embedders.items()}
-            store.add_object(f"object-{j + 1}", "none", sets, extra={"benchmark": True})
+            store.add_object(
+                f"object-{j + 1}", "none", {m: s[j] for m, s in sets.items()}, extra={"benchmark": True}
+            )
             if progress:
                 progress(1)
     finally:

@@ -21,6 +21,66 @@ def _table(title: str, header: list[str], rows: list[list[str]]) -> list[str]:
     return ["", title, fmt.format(*header), *(fmt.format(*r) for r in rows)]
 
 
+def _roll(ro: dict, summary: dict) -> list[str]:
+    """The roll section: in-process per model and set-up, then the served set-up."""
+    n_obj = ro["objects"]
+    rows = []
+    for label, setups in ro["in_process"].items():
+        fp = ro["models"][label]["fingerprint"][:8]
+        for setup in ("upright", "roll"):
+            r = setups[setup]
+            for n, row in r["by_turns"].items():
+                st = row["stages_median_ms"]
+                rows.append(
+                    [
+                        f"{label} ({fp}), {'upright' if setup == 'upright' else 'in-plane'}",
+                        f"{r['templates']:,}",
+                        n,
+                        *(_num(row[f"{q}_ms"], 2) for q in ("p50", "p90", "p99")),
+                        _num(st["embed"], 2),
+                        _num(st["search"], 2),
+                    ]
+                )
+    runs = [row["runs"] for s in ro["in_process"].values() for row in s["roll"]["by_turns"].values()][:1]
+    lines = _table(
+        f"from a decoded patch to the answer (service.recognition.recognise_decoded), {ro['modality']}, "
+        f"{n_obj} objects, k = {ro['k']} ({runs[0] if runs else 0} calls each)",
+        ["model, set-up", "templates", "turns", "p50 ms", "p90", "p99", "embed", "k-NN"],
+        rows,
+    )
+    if (lm := summary.get(f"linemod_median_ms_{n_obj}")) is not None:
+        lines.append(f"LineMOD, same objects count, upright templates (recognition section): {_num(lm)} ms")
+    if sv := ro.get("server"):
+        rows = [
+            [
+                "640x480 frame" if req == "frame_640x480" else "64 px patch",
+                *(_num(sv[req][f"{q}_ms"]) for q in ("p50", "p90", "p99")),
+                _num(sv[req]["server_total_median_ms"]),
+            ]
+            for req in ("frame_640x480", "patch")
+        ]
+        per = ", ".join(f"{m} {n:,}" for m, n in sv["templates_per_object"].items())
+        lines += _table(
+            f"POST /recognize over HTTP, 1 client, {sv['objects']} objects, served model {sv['model']} "
+            f"({sv['fingerprint'][:8]}), query turns {sv['query_turns']}; templates per object: {per}",
+            ["request", "p50 ms", "p90 ms", "p99 ms", "in service ms"],
+            rows,
+        )
+        g = sv["register"]
+        lines += _table(
+            f"POST /objects, {g['faces']:,}-face mesh, models {', '.join(g['models'])}, store of "
+            f"{g['store_objects_before']} objects (median of {g['repeats']}; first one {g['cold_s']:.2f} s)",
+            ["request s", "render s", "embed s", "store s", "in service s"],
+            [
+                [
+                    _num(g["wall_s"], 2),
+                    *(_num(g.get(k), 2) for k in ("render_s", "embed_s", "store_s", "total_s")),
+                ]
+            ],
+        )
+    return lines
+
+
 def render(result: dict) -> str:
     m, th, sec = result["machine"], result["threads"], result["sections"]
     lines = [
@@ -124,6 +184,8 @@ def render(result: dict) -> str:
                 ]
             ],
         )
+    if ro := sec.get("roll"):
+        lines += _roll(ro, result.get("summary", {}))
     if t := sec.get("train"):
         lines += _table(
             f"training step, {t['modality']}, {t['torch_threads']} torch threads, batch of "

@@ -35,10 +35,11 @@ class Timing:
         return float(np.percentile(self.seconds, q))
 
     def ms(self) -> dict[str, float]:
-        """Median, p50, p99 and min in milliseconds, and how many runs: the JSON form of a latency."""
+        """Median, p50, p90, p99 and min in milliseconds, and how many runs: the JSON form of a latency."""
         return {
             "median_ms": self.median * 1e3,
             "p50_ms": self.percentile(50) * 1e3,
+            "p90_ms": self.percentile(90) * 1e3,
             "p99_ms": self.percentile(99) * 1e3,
             "min_ms": min(self.seconds) * 1e3,
             "runs": len(self.seconds),

@@ -47,7 +47,7 @@ def run(modality: str, cfg: TrainStepConfig, seed: int = 0) -> dict:
     picks = rng.integers(len(train_R), size=samples)
     batch = builder.make(range(samples), rng.integers(cfg.objects, size=samples), train_R[picks], rng)
     # channels_last, as `training.train` sets it (its first max-pool is much faster so on CPUs)
-    net = DescriptorNet(NetConfig(modality, tc.descriptor_dim)).to(memory_format=torch.channels_last)
+    net = DescriptorNet(NetConfig(modality, tc.descriptor_dim)).to(memory_format=torch.channels_last)  # type: ignore[call-overload]
     x = torch.randn(len(batch.items), net.cfg.channels, net.cfg.size, net.cfg.size)
     x = x.contiguous(memory_format=torch.channels_last)
     loss_fn = DescriptorLoss(tc.margin, tc.pair_weight, tc.weight_decay)

@@ -40,7 +40,7 @@ def describe_inputs(x: np.ndarray, hog: cv2.HOGDescriptor | None = None) -> np.n
     hog = hog if hog is not None else hog_descriptor()
     out = np.zeros((len(x), HOG_DIM_PER_CHANNEL * x.shape[1]), np.float16)
     for i, patch in enumerate(x):
-        d = np.concatenate([hog.compute(_to_u8(ch)).ravel() for ch in patch])
+        d = np.concatenate([np.asarray(hog.compute(_to_u8(ch))).ravel() for ch in patch])
         out[i] = d / max(float(np.linalg.norm(d)), 1e-12)
     return out
 
@@ -53,7 +53,7 @@ def hog_descriptors(
     window_mm: float,
     fill: bool,
     batch: int = 1024,
-    progress: Callable[[int], None] | None = None,
+    progress: Callable[[int], object] | None = None,
 ) -> np.ndarray:
     """Patches (rgb (N, 64, 64, 3) uint8, depth (N, 64, 64) mm) -> (N, 1764 x channels) float16, unit L2.
 
@@ -85,7 +85,7 @@ def rank(
     templates: RenderedTemplates,
     samples: Samples,
     n: int,
-    progress: Callable[[int], None] | None = None,
+    progress: Callable[[int], object] | None = None,
 ) -> Ranking:
     """The n nearest templates of every test patch by HOG (on the inputs `embedder`'s model takes)."""
     t, s, m, w = templates, samples, embedder.modality, embedder.info.window_mm

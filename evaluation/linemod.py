@@ -62,11 +62,11 @@ class LineModIndex:
     def __init__(self, modality: str, window_mm: float, size: int = 64, threshold: float = 50.0):
         self.modality = modality
         self.threshold = threshold
-        mods = []
+        mods: list[cv2.linemod.Modality] = []
         if modality in ("rgb", "rgbd"):
-            mods.append(cv2.linemod.ColorGradient_create(10.0, COLOUR_FEATURES, 55.0))
+            mods.append(cv2.linemod.ColorGradient.create(10.0, COLOUR_FEATURES, 55.0))
         if modality in ("depth", "rgbd"):
-            mods.append(cv2.linemod.DepthNormal_create(10_000, 50, DEPTH_FEATURES, 2))
+            mods.append(cv2.linemod.DepthNormal.create(10_000, 50, DEPTH_FEATURES, 2))
         self.detector = cv2.linemod.Detector(mods, list(T_PYRAMID))
         # LineMOD computes normals from depth with a fixed focal length in mind, but a patch's pixel spans
         # window/size mm whatever the object's distance. Shifting every patch's depth so the object
@@ -96,7 +96,7 @@ class LineModIndex:
         depth: np.ndarray | None,
         mask: np.ndarray,
         nominal_mm: float | np.ndarray,
-        progress: Callable[[int], None] | None = None,
+        progress: Callable[[int], object] | None = None,
     ) -> None:
         """Adds T templates: rgb (T, S, S, 3), depth (T, S, S) mm, mask (T, S, S); `nominal_mm`: their
         render distance. Our indices are 0..T-1 on the first call and continue from there on later ones."""
@@ -151,7 +151,7 @@ def rank(
     samples: Samples,
     n: int,
     threshold: float = 50.0,
-    progress: Callable[[int], None] | None = None,
+    progress: Callable[[int], object] | None = None,
 ) -> Ranking:
     """The n most similar templates of every test patch by LineMOD; scores are 100 - similarity.
     `progress` counts templates added, then patches matched."""

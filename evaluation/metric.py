@@ -10,13 +10,13 @@ Views are those of patches seen along their own optical axis (index/pose.py)."""
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
 from index.pose import View, view_to_pose
-from index.symmetry import rotation_errors, view_errors, within
+from index.symmetry import Symmetry, rotation_errors, view_errors, within
 
 THRESHOLDS = (5, 20, 40, 180)  # degrees; 180 = the right object, whatever the pose
 K_MAX = 22
@@ -39,7 +39,7 @@ class Poses:
         return Poses(self.R[idx])
 
 
-def pose_errors(est: Poses, gt: Poses, symmetry, protocol: str) -> np.ndarray:
+def pose_errors(est: Poses, gt: Poses, symmetry: Symmetry, protocol: str) -> np.ndarray:
     """Degrees between each estimated pose and the one true pose `gt` (a Poses of length 1). Shape: (M,)."""
     if protocol == "paper":
         return view_errors(est.R, gt.R[:1], symmetry)[:, 0]
@@ -54,7 +54,7 @@ def neighbour_errors(
     template_poses: Poses,
     sample_obj: np.ndarray,
     sample_poses: Poses,
-    symmetries: dict[int, object],
+    symmetries: Mapping[int, Symmetry],
     protocol: str,
 ) -> np.ndarray:
     """Pose error of every retrieved template. neighbours: (N, K) template indices, -1 = nothing

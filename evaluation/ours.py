@@ -29,7 +29,7 @@ def embed(
     nominal_mm: float | np.ndarray,
     fill: bool,
     batch: int = 2048,
-    progress: Callable[[int], None] | None = None,
+    progress: Callable[[int], object] | None = None,
 ) -> np.ndarray:
     """Descriptors (N, D) float32 of patches, in batches (network inputs of 76k templates would not fit)."""
     n = len(rgb if rgb is not None else depth)  # type: ignore[arg-type]
@@ -53,7 +53,7 @@ def rank(
     templates: RenderedTemplates,
     samples: Samples,
     n: int,
-    progress: Callable[[int], None] | None = None,
+    progress: Callable[[int], object] | None = None,
 ) -> Ranking:
     """The n nearest templates of every test patch by our descriptor."""
     t, s = templates, samples

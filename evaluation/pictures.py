@@ -77,7 +77,7 @@ def class_separation(ev: Evaluation, path: Path) -> Path:
         if len(ratio):
             frac = np.mean(ratio > 1)
             ax.hist(
-                np.clip(np.log10(ratio), -1, 1), bins=bins, histtype="step", lw=1.6,
+                np.clip(np.log10(ratio), -1, 1), bins=bins, histtype="step", lw=1.6,  # type: ignore[arg-type]
                 color=COLOURS[name], label=f"{LABELS[name]} ({100 * frac:.0f}% > 1)",
             )  # fmt: skip
     ax.axvline(0, color="k", lw=0.8)

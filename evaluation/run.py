@@ -8,7 +8,7 @@ need is kept on the returned `Evaluation`."""
 from __future__ import annotations
 
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -22,6 +22,7 @@ from evaluation.samples import Samples, needs_synthetic, real_samples, select_in
 from evaluation.templates import RenderedTemplates, full_inplane, object_views, render_templates
 from index.bop import BopDataset
 from index.embed import Embedder
+from index.symmetry import Symmetry
 
 METHODS = ("ours", "hog", "linemod")
 #: Test patches per picture of descriptor distance against pose angle (all templates of their object).
@@ -77,7 +78,7 @@ class Evaluation:
     config: Config
     samples: Samples
     templates: RenderedTemplates | None
-    symmetries: dict[int, object]
+    symmetries: Mapping[int, Symmetry]
     results: dict[str, MethodResult] = field(default_factory=dict)
     descriptors: dict[str, np.ndarray] = field(default_factory=dict)  # "templates" / "samples" (ours)
     seconds: dict[str, float] = field(default_factory=dict)

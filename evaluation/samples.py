@@ -11,6 +11,7 @@ from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 
 import numpy as np
+import trimesh
 
 from index.bop import BopDataset, Instance, instance_patch, table_depth
 from index.patches import PatchSpec
@@ -72,7 +73,7 @@ def real_samples(
     modality: str,
     spec: PatchSpec,
     rectify: bool,
-    progress: Callable[[int], None] | None = None,
+    progress: Callable[[int], object] | None = None,
 ) -> Samples:
     """Patches from the real frames; each frame is read once."""
     rgbs, depths, views = [], [], []
@@ -98,7 +99,7 @@ def synthetic_samples(
     spec: PatchSpec,
     rectify: bool,
     seed: int = 0,
-    progress: Callable[[int], None] | None = None,
+    progress: Callable[[int], object] | None = None,
 ) -> Samples:
     """Patches from synthetic frames (`synthetic_frames`)."""
     rgbs, depths, views, ordered = [], [], [], []
@@ -126,7 +127,7 @@ def synthetic_frames(
 
     rng = np.random.default_rng(seed)
     sensor = SensorModel()
-    meshes: dict[int, object] = {}
+    meshes: dict[int, trimesh.Trimesh] = {}
     renderer = Renderer()
     # Every annotated object of a frame occludes, not only the selected ones.
     scenes = {i.scene_id for i in instances}

@@ -20,8 +20,9 @@ from __future__ import annotations
 
 import tempfile
 import time
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
+from typing import TypedDict
 
 import cv2
 import numpy as np
@@ -36,7 +37,7 @@ from index.bop import BopDataset, Instance
 from index.embed import Embedder
 from index.pose import View, view_to_pose
 from index.register import register, template_views
-from index.symmetry import rotation_errors, view_errors
+from index.symmetry import Symmetry, rotation_errors, view_errors
 from service.errors import ApiError
 from service.recognition import Query, cut, decode, recognise
 from service.settings import Settings
@@ -46,22 +47,28 @@ from service.state import AppState, close_state, load_state
 SENDABLE = (".png", ".jpg", ".jpeg")
 
 
+class _Options(TypedDict, total=False):
+    inplane_step: float
+    inplane_max: float
+    query_turns: int
+
+
 def evaluate_served(cfg: Config) -> Evaluation:
     dataset = BopDataset(cfg.dataset)
     obj_ids = list(cfg.objects) if cfg.objects else dataset.obj_ids
     instances = instances_of(cfg, dataset, obj_ids)
     synthetic = needs_synthetic(cfg.modality, instances) if cfg.synthetic is None else cfg.synthetic
-    options = {
-        "inplane_step": cfg.inplane_step,
-        "inplane_max": cfg.inplane_max,
-        "query_turns": cfg.query_turns,
-    }
+    options: _Options = {}  # the command's options override the settings only where given
+    if cfg.inplane_step is not None:
+        options["inplane_step"] = cfg.inplane_step
+    if cfg.inplane_max is not None:
+        options["inplane_max"] = cfg.inplane_max
+    if cfg.query_turns is not None:
+        options["query_turns"] = cfg.query_turns
     symmetries = {o: dataset.symmetry(o) for o in obj_ids}
     seconds: dict[str, float] = {}
     with tempfile.TemporaryDirectory(prefix="posedesc-evaluate-") as tmp:
-        settings = Settings(
-            data_dir=Path(tmp), demo_objects=False, **{k: v for k, v in options.items() if v is not None}
-        )
+        settings = Settings(data_dir=Path(tmp), demo_objects=False, **options)
         embedder = Embedder(cfg.model, settings.threads)  # as the service loads it
         if embedder.modality != cfg.modality:
             raise ValueError(f"{cfg.model} is a {embedder.modality} model, not {cfg.modality}")
@@ -172,12 +179,12 @@ def _frames(
         return
     for group in by_frame(instances).values():
         first = group[0]
-        rgb = depth = None
+        rgb_file = depth_file = None
         if colour:
-            rgb = _sendable(first.rgb_path) or _png(first.load_rgb()[..., ::-1])  # type: ignore[index]
+            rgb_file = _sendable(first.rgb_path) or _png(first.load_rgb()[..., ::-1])  # type: ignore[index]
         if ranged:
-            depth = _sendable(first.depth_path) or _png(_depth16(first))
-        yield group, rgb, depth, first.depth_scale
+            depth_file = _sendable(first.depth_path) or _png(_depth16(first))
+        yield group, rgb_file, depth_file, first.depth_scale
 
 
 def _sendable(path: Path | None) -> bytes | None:
@@ -221,7 +228,8 @@ def _ask(state, dataset, instances, synthetic: bool, cfg: Config, dataset_ids: d
     its answers, each call's milliseconds, and the reasons of the queries it refused."""
     embedder = state.embedders[cfg.modality]
     spec = embedder.info.spec
-    ordered, views, rgbs, depths, cut_mm, call_ms, refused = [], [], [], [], [], [], []
+    ordered: list[Instance] = []
+    views, rgbs, depths, cut_mm, call_ms, refused = [], [], [], [], [], []
     obj = np.full((len(instances), K_MAX), -1, int)
     answer_views = np.zeros((len(instances), K_MAX, 3))
     with bar(len(instances), "recognise") as b:
@@ -270,7 +278,7 @@ def score(
     obj: np.ndarray,
     answers: np.ndarray,
     instances: Sequence[Instance],
-    symmetries: dict[int, object],
+    symmetries: Mapping[int, Symmetry],
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The errors of each instance's answers: obj (N, K) dataset object ids, -1 = none; answers (N, K, 3)
     azimuth, elevation, in-plane. Each answer's pose is its view along the ray through the instance's

@@ -72,26 +72,32 @@ def render_templates(
     views: dict[int, list[View]],
     modality: str,
     window_mm: float,
-    progress: Callable[[int], None] | None = None,
+    progress: Callable[[int], object] | None = None,
 ) -> RenderedTemplates:
     """Renders every object's template `views` (a render per viewpoint, in-plane variants turned)."""
     renderer = Renderer(window_mm=window_mm)
-    obj_ids, rgbs, depths, masks, all_views = [], [], [], [], []
+    obj_ids: list[np.ndarray] = []
+    rgbs: list[np.ndarray] = []
+    depths: list[np.ndarray] = []
+    masks: list[np.ndarray] = []
+    all_views: list[View] = []
     try:
         for obj_id, mesh in meshes.items():
             t = renderer.render(mesh, views[obj_id], progress=progress)
             obj_ids.append(np.full(len(t.views), obj_id))
             all_views += t.views
-            rgbs.append(t.rgb if modality in ("rgb", "rgbd") else None)
-            depths.append(t.depth if modality in ("depth", "rgbd") else None)
+            if modality in ("rgb", "rgbd"):
+                rgbs.append(t.rgb)
+            if modality in ("depth", "rgbd"):
+                depths.append(t.depth)
             masks.append(t.depth > 0)
     finally:
         renderer.close()
     return RenderedTemplates(
         obj_ids=np.concatenate(obj_ids),
         views=all_views,
-        rgb=np.concatenate(rgbs) if rgbs and rgbs[0] is not None else None,
-        depth=np.concatenate(depths) if depths and depths[0] is not None else None,
+        rgb=np.concatenate(rgbs) if rgbs else None,
+        depth=np.concatenate(depths) if depths else None,
         mask=np.concatenate(masks),
         window_mm=window_mm,
     )

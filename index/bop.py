@@ -149,7 +149,7 @@ def scene_instances(scene_dir: Path, min_visib: float = 0.0) -> Iterator[Instanc
                 depth_path=depth_path,
                 depth_scale=float(cam.get("depth_scale", 1.0)),
                 visib_fract=visib,
-                bbox_visib=tuple(int(v) for v in bbox) if bbox else None,
+                bbox_visib=(int(bbox[0]), int(bbox[1]), int(bbox[2]), int(bbox[3])) if bbox else None,
             )
 
 

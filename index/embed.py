@@ -15,6 +15,9 @@ import onnxruntime as ort
 from index.patches import MODALITY_CHANNELS, PatchSpec, batch_inputs
 
 INPUT_NAME, OUTPUT_NAME = "patch", "descriptor"
+#: A second output some models have: the L2-normalised feature map of their pretrained trunk, flattened,
+#: for re-ranking the nearest answers by local similarity (`service.recognition`, `index.store`).
+LOCAL_NAME = "local"
 
 
 @dataclass(frozen=True)
@@ -84,6 +87,7 @@ class Embedder:
         except Exception as e:
             raise ValueError(f"cannot load ONNX model {self.path}: {e}") from None
         self.info = ModelInfo.from_metadata(self.session.get_modelmeta().custom_metadata_map)
+        self.has_local = LOCAL_NAME in {o.name for o in self.session.get_outputs()}
         if self.info.modality not in MODALITY_CHANNELS:
             raise ValueError(f"model {self.path} has unknown modality {self.info.modality!r}")
 
@@ -105,16 +109,28 @@ class Embedder:
         ]
         return np.concatenate(out) if out else np.zeros((0, self.dim), np.float32)
 
+    def local(self, inputs: np.ndarray, batch: int = 256) -> np.ndarray:
+        """Network inputs (N, C, S, S) -> the model's local features (N, F) float16 (`LOCAL_NAME`)."""
+        out = [
+            self.session.run(
+                [LOCAL_NAME], {INPUT_NAME: np.ascontiguousarray(inputs[i : i + batch], np.float32)}
+            )[0].astype(np.float16)
+            for i in range(0, len(inputs), batch)
+        ]
+        return np.concatenate(out) if out else np.zeros((0, 0), np.float16)
+
     def embed_patches(
         self,
         rgb: np.ndarray | None,
         depth: np.ndarray | None,
         nominal_mm: float | np.ndarray,
         fill: bool = True,
+        local: bool = False,
     ) -> np.ndarray:
-        """Cropped patches (rgb (N, S, S, 3) uint8, depth (N, S, S) mm) -> descriptors (N, D)."""
+        """Cropped patches (rgb (N, S, S, 3) uint8, depth (N, S, S) mm) -> descriptors (N, D), or with
+        `local` the local features (N, F) instead."""
         x = batch_inputs(self.modality, rgb, depth, nominal_mm, self.info.window_mm, fill)
-        return self(x)
+        return self.local(x) if local else self(x)
 
 
 #: The shipped models' file names, by modality; a models folder holds any of them.

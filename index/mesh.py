@@ -92,9 +92,11 @@ def _as_single_mesh(loaded: object) -> trimesh.Trimesh:
         if len(parts) == 1:
             return parts[0]
         for p in parts:  # mixed textures cannot be merged: bake each part to vertex colours first
-            if p.visual.kind == "texture":
+            if isinstance(p.visual, trimesh.visual.TextureVisuals):
                 p.visual = p.visual.to_color()
-        return trimesh.util.concatenate(parts)
+        merged = trimesh.util.concatenate(parts)
+        assert isinstance(merged, trimesh.Trimesh)  # meshes concatenate to a mesh
+        return merged
     if not isinstance(loaded, trimesh.Trimesh):
         raise MeshError(f"the file holds a {type(loaded).__name__}, not a triangle mesh")
     return loaded
@@ -121,9 +123,13 @@ def _check_indices(mesh: trimesh.Trimesh) -> None:
 def simplify(mesh: trimesh.Trimesh, max_faces: int) -> trimesh.Trimesh:
     """Quadric decimation to at most `max_faces`, colours carried over from the nearest old vertex."""
     simple = mesh.simplify_quadric_decimation(face_count=max_faces)
-    if mesh.visual.kind in ("vertex", "texture"):
-        colors = mesh.visual.to_color().vertex_colors if mesh.visual.kind == "texture" else None
-        colors = mesh.visual.vertex_colors if colors is None else colors
+    visual = mesh.visual
+    colors = None
+    if isinstance(visual, trimesh.visual.TextureVisuals):
+        colors = visual.to_color().vertex_colors
+    elif isinstance(visual, trimesh.visual.ColorVisuals) and visual.kind == "vertex":
+        colors = visual.vertex_colors
+    if colors is not None:
         _, nearest = cKDTree(mesh.vertices).query(simple.vertices)
         simple.visual = trimesh.visual.ColorVisuals(simple, vertex_colors=colors[nearest])
     log.info("simplified mesh from %d to %d faces", len(mesh.faces), len(simple.faces))

@@ -17,6 +17,7 @@ work on the whole batch at once: a single patch goes through the same code with 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import overload
 
 import cv2
 import numpy as np
@@ -52,6 +53,47 @@ def _homography(
     return H / H[2, 2], rot, Kv_inv
 
 
+# What is given comes back cut, what is None stays None.
+@overload
+def crop(
+    rgb: np.ndarray,
+    depth: np.ndarray,
+    K: np.ndarray,
+    centre_uv: tuple[float, float],
+    distance_mm: float,
+    spec: PatchSpec = PatchSpec(),
+    inplane: float = 0.0,
+) -> tuple[np.ndarray, np.ndarray]: ...
+@overload
+def crop(
+    rgb: np.ndarray,
+    depth: None,
+    K: np.ndarray,
+    centre_uv: tuple[float, float],
+    distance_mm: float,
+    spec: PatchSpec = PatchSpec(),
+    inplane: float = 0.0,
+) -> tuple[np.ndarray, None]: ...
+@overload
+def crop(
+    rgb: None,
+    depth: np.ndarray,
+    K: np.ndarray,
+    centre_uv: tuple[float, float],
+    distance_mm: float,
+    spec: PatchSpec = PatchSpec(),
+    inplane: float = 0.0,
+) -> tuple[None, np.ndarray]: ...
+@overload
+def crop(
+    rgb: np.ndarray | None,
+    depth: np.ndarray | None,
+    K: np.ndarray,
+    centre_uv: tuple[float, float],
+    distance_mm: float,
+    spec: PatchSpec = PatchSpec(),
+    inplane: float = 0.0,
+) -> tuple[np.ndarray | None, np.ndarray | None]: ...
 def crop(
     rgb: np.ndarray | None,
     depth: np.ndarray | None,

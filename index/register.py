@@ -142,7 +142,26 @@ def embed_templates(
     nominal = np.array([v.distance for v in views])
     desc = embedder.embed_patches(rgb, depth, nominal, fill=False)  # a render's zeros are background
     poses = np.array([(v.azimuth, v.elevation, v.inplane) for v in views], np.float32).reshape(-1, 3)
-    return TemplateSet(poses, desc)
+    if not embedder.has_local:
+        return TemplateSet(poses, desc)
+    # local features of the upright templates only: the service turns the query to a candidate's roll
+    up = np.flatnonzero(np.abs(poses[:, 2]) < 1e-3)
+    local = embedder.embed_patches(
+        None if rgb is None else rgb[up], None if depth is None else depth[up], nominal[up], False, local=True
+    )
+    return TemplateSet(poses, desc, up, local)
+
+
+def _concatenate(parts: Sequence[TemplateSet]) -> TemplateSet:
+    """One set from the sets of consecutive chunks of views."""
+    starts = np.cumsum([0] + [len(p.poses) for p in parts[:-1]])
+    has_local = all(p.local_rows is not None and p.local is not None for p in parts)
+    return TemplateSet(
+        np.concatenate([p.poses for p in parts]),
+        np.concatenate([p.descriptors for p in parts]),
+        np.concatenate([p.local_rows + s for p, s in zip(parts, starts, strict=True)]) if has_local else None,
+        np.concatenate([p.local for p in parts]) if has_local else None,
+    )
 
 
 def make_templates(
@@ -197,10 +216,7 @@ def make_templates(
             parts[m].append(ts)
     if not visible:
         raise MeshError("the object is invisible in every template: check its units")
-    out = {
-        m: TemplateSet(np.concatenate([p.poses for p in ps]), np.concatenate([p.descriptors for p in ps]))
-        for m, ps in parts.items()
-    }
+    out = {m: _concatenate(ps) for m, ps in parts.items()}
     return out, seconds
 
 
@@ -226,6 +242,7 @@ def register(
     sets, timings = make_templates(worker, embedders, mesh, views, pool)
     t1 = time.perf_counter()
     glb = mesh.export(file_type="glb")  # kept so templates can be made again when a model changes
+    assert isinstance(glb, bytes)  # glb is binary
     record = store.add_object(name, symmetry, sets, faces=len(mesh.faces), mesh=glb, extra=extra)
     t2 = time.perf_counter()
     # render and embed overlap (chunks), so they add up to more than the time until the last descriptor

@@ -96,7 +96,7 @@ class Renderer:
         mesh: trimesh.Trimesh,
         views: Sequence[View],
         lighting: Lighting | None = None,
-        progress: Callable[[int], None] | None = None,
+        progress: Callable[[int], object] | None = None,
     ) -> Templates:
         """RGB and depth patches (size x size) of `mesh` from `views`, each centred on the object origin.
 

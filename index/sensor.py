@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import overload
 
 import cv2
 import numpy as np
@@ -46,6 +47,43 @@ class SensorModel:
     channel_gain: float = 0.12  # +- per-channel colour cast
     blur_prob: float = 0.3  # chance of a slight defocus blur
 
+    # What is given comes back, what is None stays None.
+    @overload
+    def apply(
+        self,
+        rgb: np.ndarray,
+        depth: np.ndarray,
+        rng: np.random.Generator,
+        background_rgb: np.ndarray | None = None,
+        background_depth: np.ndarray | None = None,
+    ) -> tuple[np.ndarray, np.ndarray]: ...
+    @overload
+    def apply(
+        self,
+        rgb: np.ndarray,
+        depth: None,
+        rng: np.random.Generator,
+        background_rgb: np.ndarray | None = None,
+        background_depth: np.ndarray | None = None,
+    ) -> tuple[np.ndarray, None]: ...
+    @overload
+    def apply(
+        self,
+        rgb: None,
+        depth: np.ndarray,
+        rng: np.random.Generator,
+        background_rgb: np.ndarray | None = None,
+        background_depth: np.ndarray | None = None,
+    ) -> tuple[None, np.ndarray]: ...
+    @overload
+    def apply(
+        self,
+        rgb: np.ndarray | None,
+        depth: np.ndarray | None,
+        rng: np.random.Generator,
+        background_rgb: np.ndarray | None = None,
+        background_depth: np.ndarray | None = None,
+    ) -> tuple[np.ndarray | None, np.ndarray | None]: ...
     def apply(
         self,
         rgb: np.ndarray | None,
@@ -63,7 +101,7 @@ class SensorModel:
             rgb = self._rgb(rgb, rng)
         if depth is not None:
             depth = depth.astype(np.float32)
-            if background_depth is not None:
+            if background_depth is not None and mask is not None:
                 depth = np.where(mask, depth, background_depth.astype(np.float32))
             depth = self._depth(depth, rng)
         return rgb, depth
@@ -108,7 +146,7 @@ def random_background(
     (RGB uint8 of any size), and depth (H, W) mm: a slanted, bumpy surface behind the object."""
     h, w = shape
     if images and rng.random() < 0.6:
-        img = images[rng.integers(len(images))]
+        img = images[int(rng.integers(len(images)))]
         scale = max(h / img.shape[0], w / img.shape[1]) * rng.uniform(1.0, 2.0)
         img = cv2.resize(
             img, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA if scale < 1 else cv2.INTER_LINEAR
@@ -160,6 +198,18 @@ def fit_plane(points: np.ndarray) -> tuple[np.ndarray, float, float]:
     return n, float(n @ c), float(np.abs((p - c) @ n).max())
 
 
+@overload
+def with_support(
+    depth: np.ndarray, rgb: np.ndarray, plane: np.ndarray, texture: np.ndarray | None
+) -> tuple[np.ndarray, np.ndarray]: ...
+@overload
+def with_support(
+    depth: np.ndarray, rgb: None, plane: np.ndarray, texture: np.ndarray | None
+) -> tuple[np.ndarray, None]: ...
+@overload
+def with_support(
+    depth: np.ndarray, rgb: np.ndarray | None, plane: np.ndarray, texture: np.ndarray | None
+) -> tuple[np.ndarray, np.ndarray | None]: ...
 def with_support(
     depth: np.ndarray, rgb: np.ndarray | None, plane: np.ndarray, texture: np.ndarray | None
 ) -> tuple[np.ndarray, np.ndarray | None]:

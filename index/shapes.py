@@ -102,6 +102,7 @@ def random_shape(
         texture = str(rng.choice(TEXTURES, p=[0.4, 0.15, 0.15, 0.15, 0.15]))
         parts.append(_paint(part, rng, texture))
     mesh = trimesh.util.concatenate(parts)
+    assert isinstance(mesh, trimesh.Trimesh)  # meshes concatenate to a mesh
     return _normalise(mesh, float(rng.uniform(*diameter_mm)))
 
 
@@ -114,7 +115,9 @@ def _fixed(
             mesh, vertex_colors=np.tile([*rgb, 255], (len(mesh.vertices), 1)).astype(np.uint8)
         )
         parts.append(mesh)
-    return _normalise(trimesh.util.concatenate(parts), diameter)
+    merged = trimesh.util.concatenate(parts)
+    assert isinstance(merged, trimesh.Trimesh)
+    return _normalise(merged, diameter)
 
 
 def _mug() -> list[tuple[trimesh.Trimesh, tuple[int, int, int]]]:

@@ -67,7 +67,8 @@ CREATE TABLE IF NOT EXISTS templates (
     azimuth REAL NOT NULL,
     elevation REAL NOT NULL,
     inplane REAL NOT NULL,
-    descriptor BLOB NOT NULL
+    descriptor BLOB NOT NULL,
+    local BLOB
 );
 CREATE INDEX IF NOT EXISTS templates_model ON templates(model, object_id);
 INSERT OR IGNORE INTO meta VALUES ('generation', '0');
@@ -108,10 +109,19 @@ class Match:
 
 @dataclass(frozen=True)
 class TemplateSet:
-    """What one model adds for an object. poses: (N, 3) azimuth, elevation, in-plane; descriptors: (N, D)."""
+    """What one model adds for an object. poses: (N, 3) azimuth, elevation, in-plane; descriptors: (N, D).
+    A model with local features (`index.embed.LOCAL_NAME`) also gives them for some templates (its
+    upright ones): `local_rows` (L,) indices into poses, `local` (L, F) float16."""
 
     poses: np.ndarray
     descriptors: np.ndarray
+    local_rows: np.ndarray | None = None
+    local: np.ndarray | None = None
+
+
+def local_key(object_id: int, azimuth: float, elevation: float) -> tuple[int, float, float]:
+    """How a viewpoint's local features are found: object and viewpoint, to 1e-3 degrees."""
+    return int(object_id), round(float(azimuth), 3), round(float(elevation), 3)
 
 
 @dataclass(frozen=True)
@@ -122,6 +132,8 @@ class ModelIndex:
     ids: np.ndarray
     object_ids: np.ndarray
     poses: np.ndarray
+    #: local features of the viewpoints that have them, by `local_key` (F,) float16
+    local: Mapping[tuple[int, float, float], np.ndarray] = field(default_factory=dict)
 
     @property
     def size(self) -> int:
@@ -276,6 +288,9 @@ class Store:
             self._db.execute("PRAGMA foreign_keys=ON")
             _check(self._db, path)
             self._db.executescript(SCHEMA)
+            columns = {row[1] for row in self._db.execute("PRAGMA table_info(templates)")}
+            if "local" not in columns:  # a store made before local features existed
+                self._db.execute("ALTER TABLE templates ADD COLUMN local BLOB")
             self._forget_changed_models(models)
             self._snap = self._load()
         except sqlite3.DatabaseError as e:  # damage quick_check cannot see: a bad row, a bad descriptor
@@ -422,14 +437,18 @@ class Store:
     def _insert_templates(self, cur: sqlite3.Cursor, oid: int, model: str, ts: TemplateSet) -> np.ndarray:
         desc = np.ascontiguousarray(ts.descriptors, np.float32)
         poses = np.asarray(ts.poses, float)
+        local: list[bytes | None] = [None] * len(desc)
+        if ts.local_rows is not None and ts.local is not None:
+            for r, f in zip(ts.local_rows, np.asarray(ts.local, np.float16), strict=True):
+                local[int(r)] = f.tobytes()
         first = cur.execute("SELECT COALESCE(MAX(id), 0) + 1 FROM templates").fetchone()[0]
         ids = np.arange(first, first + len(desc), dtype=np.int64)
         cur.executemany(
-            "INSERT INTO templates (id, object_id, model, azimuth, elevation, inplane, descriptor) "
-            "VALUES (?, ?, ?, ?, ?, ?, ?)",
+            "INSERT INTO templates (id, object_id, model, azimuth, elevation, inplane, descriptor, local) "
+            "VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
             (
-                (int(i), oid, model, float(p[0]), float(p[1]), float(p[2]), d.tobytes())
-                for i, p, d in zip(ids, poses, desc, strict=True)
+                (int(i), oid, model, float(p[0]), float(p[1]), float(p[2]), d.tobytes(), f)
+                for i, p, d, f in zip(ids, poses, desc, local, strict=True)
             ),
         )
         return ids
@@ -453,16 +472,23 @@ class Store:
                 if gone.any():
                     index = faiss.clone_index(mi.index)
                     index.remove_ids(mi.ids[gone])
-                    models[m] = ModelIndex(index, mi.ids[~gone], mi.object_ids[~gone], mi.poses[~gone])
+                    local = {k: v for k, v in mi.local.items() if k[0] != remove}
+                    models[m] = ModelIndex(index, mi.ids[~gone], mi.object_ids[~gone], mi.poses[~gone], local)
         for m, (oid, ids, ts) in (add or {}).items():
             mi = old.models[m]
             index = faiss.clone_index(mi.index)
             index.add_with_ids(np.ascontiguousarray(ts.descriptors, np.float32), ids)
+            local = dict(mi.local)
+            if ts.local_rows is not None and ts.local is not None:
+                for r, f in zip(ts.local_rows, np.asarray(ts.local, np.float16), strict=True):
+                    p = ts.poses[int(r)]
+                    local[local_key(oid, p[0], p[1])] = f
             models[m] = ModelIndex(
                 index,
                 np.concatenate([mi.ids, ids]),  # new ids are larger than all old ones: still ascending
                 np.concatenate([mi.object_ids, np.full(len(ids), oid, np.int64)]),
                 np.concatenate([mi.poses, np.asarray(ts.poses, np.float32)]),
+                local,
             )
         if put is not None:
             objects[put.object_id] = put
@@ -527,11 +553,19 @@ class Store:
         meta = np.array(rows, dtype=float).reshape(-1, 5)
         ids, object_ids = meta[:, 0].astype(np.int64), meta[:, 1].astype(np.int64)
         poses = meta[:, 2:].astype(np.float32)
+        local = {
+            local_key(oid, az, el): np.frombuffer(blob, np.float16)
+            for oid, az, el, blob in self._db.execute(
+                "SELECT object_id, azimuth, elevation, local FROM templates "
+                "WHERE model = ? AND local IS NOT NULL",
+                (model,),
+            )
+        }
         index = self._read_snapshot(model, generation, len(ids))
         if index is None:
             index = self._build(model, ids)
             self._save_index(model, ModelIndex(index, ids, object_ids, poses), generation)
-        return ModelIndex(index, ids, object_ids, poses)
+        return ModelIndex(index, ids, object_ids, poses, local)
 
     def _paths(self, model: str) -> tuple[Path, Path]:
         p = self.dir / f"{model}.faiss"

@@ -20,6 +20,7 @@ import numpy as np
 from index.pose import lookat_rotation
 
 SYMMETRIES = ("none", "180", "full")
+Symmetry = str | Sequence[np.ndarray]  # one of SYMMETRIES, or BOP's discrete rotations
 
 
 def _rot_z(deg: float) -> np.ndarray:
@@ -27,7 +28,7 @@ def _rot_z(deg: float) -> np.ndarray:
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
-def symmetry_rotations(symmetry: str | Sequence[np.ndarray]) -> list[np.ndarray]:
+def symmetry_rotations(symmetry: Symmetry) -> list[np.ndarray]:
     """Object-frame rotations S that leave the object looking the same (identity first).
 
     "full" is sampled every 1°; the errors below treat it exactly."""
@@ -63,9 +64,7 @@ def _degrees(cos: np.ndarray) -> np.ndarray:
     return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
 
 
-def rotation_errors(
-    R_est: np.ndarray, R_gt: np.ndarray, symmetry: str | Sequence[np.ndarray] = "none"
-) -> np.ndarray:
+def rotation_errors(R_est: np.ndarray, R_gt: np.ndarray, symmetry: Symmetry = "none") -> np.ndarray:
     """3-D rotation error, in-plane included: the smallest angle (degrees) between each R_est and any
     pose R_gt @ S that looks the same (S a symmetry of the object). Under "full" only where the two
     poses put the object's z axis is observable. Shape: (N, 3, 3), (M, 3, 3) -> (N, M)."""
@@ -80,7 +79,7 @@ def rotation_errors(
 def view_errors(
     R_est: np.ndarray,
     R_gt: np.ndarray,
-    symmetry: str | Sequence[np.ndarray] = "none",
+    symmetry: Symmetry = "none",
     ray: np.ndarray | Sequence[float] = (0.0, 0.0, 1.0),
 ) -> np.ndarray:
     """Viewing-direction error (the paper's pose error): the angle (degrees) between where the two poses
@@ -102,15 +101,13 @@ def within(errors: np.ndarray, threshold: float) -> np.ndarray:
     return np.asarray(errors) < threshold
 
 
-def rotation_error(
-    R_est: np.ndarray, R_gt: np.ndarray, symmetry: str | Sequence[np.ndarray] = "none"
-) -> float:
+def rotation_error(R_est: np.ndarray, R_gt: np.ndarray, symmetry: Symmetry = "none") -> float:
     """`rotation_errors` of one pair of poses, degrees."""
     return float(rotation_errors(R_est, R_gt, symmetry)[0, 0])
 
 
 def view_error(
-    az_est: float, el_est: float, az_gt: float, el_gt: float, symmetry: str | Sequence[np.ndarray] = "none"
+    az_est: float, el_est: float, az_gt: float, el_gt: float, symmetry: Symmetry = "none"
 ) -> float:
     """`view_errors` of two viewpoints given as azimuth and elevation (degrees), degrees."""
     return float(view_errors(lookat_rotation(az_est, el_est), lookat_rotation(az_gt, el_gt), symmetry)[0, 0])

@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 from pydantic import BaseModel, ConfigDict, Field
+from pydantic.config import JsonDict
 
-MATCH_EXAMPLE = {
+MATCH_EXAMPLE: JsonDict = {
     "object_id": 3,
     "name": "robot",
     "azimuth": 126.0,

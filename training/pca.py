@@ -38,6 +38,7 @@ def fit(net: DescriptorNet, data: TrainingData, per_object: int = 200, seed: int
     d = net.cfg.descriptor_dim
     basis = vt[:d]  # (D, N)
     project = net.body[-1]
+    assert isinstance(project, torch.nn.Linear)
     with torch.no_grad():
         project.weight.copy_(torch.from_numpy(basis.astype(np.float32)))
         project.bias.copy_(torch.from_numpy((-basis @ mean).astype(np.float32)))

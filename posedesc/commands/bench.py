@@ -26,7 +26,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--only",
         default=None,
-        help="comma-separated sections: descriptor,recognition,knn,http,register,train",
+        help="comma-separated sections: descriptor,recognition,knn,http,register,roll,train",
     )
     p.add_argument("--models", type=Path, default=Path("models"), help="folder of posedesc-*.onnx models")
     p.add_argument("--modality", choices=("rgb", "depth", "rgbd"), default="rgb", help="the model measured")
@@ -46,6 +46,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default=None,
         help="timed repetitions of slow measurements (throughput passes, LineMOD, registrations)",
     )
+    p.add_argument(
+        "--roll-models",
+        default=None,
+        help="models of the roll section, comma-separated: shipped (the --models folder's), untrained "
+        "(a stand-in exported now: the coming design, 32-d, inplane_step in its metadata) or .onnx paths "
+        "(default shipped,untrained)",
+    )
+    p.add_argument(
+        "--roll-objects", type=int, default=None, help="objects in the roll section's stores (100)"
+    )
+    p.add_argument("--query-turns", default=None, help="query turns of the roll section (1,2,3)")
     p.add_argument("--seed", type=int, default=0)  # fmt: skip
 
 
@@ -83,6 +94,20 @@ def run(args: argparse.Namespace) -> int:
             descriptor=replace(cfg.descriptor, repeats=n),
             recognition=replace(cfg.recognition, linemod_repeats=n),
         )
+    if args.roll_models:
+        specs = tuple(x.strip() for x in args.roll_models.split(",") if x.strip())
+        if not specs:
+            raise UserError(f"--roll-models {args.roll_models!r}: no model given")
+        cfg = replace(cfg, roll=replace(cfg.roll, models=specs))
+    if args.roll_objects is not None:
+        if args.roll_objects <= 0:
+            raise UserError(f"--roll-objects {args.roll_objects}: must be positive")
+        cfg = replace(cfg, roll=replace(cfg.roll, objects=args.roll_objects))
+    if args.query_turns:
+        turns = _ints(args.query_turns)
+        if max(turns) > 36:
+            raise UserError(f"--query-turns {args.query_turns}: at most 36 (the service's limit)")
+        cfg = replace(cfg, roll=replace(cfg.roll, query_turns=turns))
     if cfg.distinct is not None:  # --quick: few shapes, but enough for the largest count
         needed = max(cfg.recognition.counts) if "recognition" in cfg.sections else 0
         cfg = replace(cfg, distinct=max(cfg.distinct, -(-needed // VARIANTS)))

@@ -41,3 +41,28 @@ def test_embed_all_equals_the_service_path(posedesc_models):
                 got.descriptors, slow.descriptors, rtol=1e-4, atol=1e-4, err_msg=modality
             )
             np.testing.assert_array_equal(got.poses, slow.poses)
+
+
+def test_inplane_sets_are_what_registration_makes(posedesc_models, renderer):
+    """Templates with in-plane variants: object j is shape j % m through a transform without a quarter
+    turn; its descriptors are `index.register.embed_templates` of the turned renders, in its order."""
+    from benchmarks.objects import TURN_FREE_VARIANTS, inplane_template_sets, shapes
+    from index.register import embed_templates
+    from index.render import Templates
+    from index.viewpoints import inplane_steps, template_views
+
+    models = load_models(posedesc_models)
+    angles = inplane_steps(90.0, 180.0)  # -90, 0, 90, 180
+    sets = inplane_template_sets(14, {"a": (models["rgb"], angles), "b": (models["depth"], [0.0])}, level=0)
+    assert len(sets["a"]) == len(sets["b"]) == 14  # 2 shapes x 7 transforms
+    views = template_views(0, angles)
+    assert sets["a"][0].poses.shape == (6 * 4, 3) and sets["b"][0].poses.shape == (6, 3)
+    np.testing.assert_array_equal(sets["b"][5].poses[:, 2], 0.0)
+    first, second = shapes(2)
+    for j, mesh, k in ((0, first, 0), (13, second, TURN_FREE_VARIANTS[6])):
+        t = renderer.render(mesh, views)
+        rgb, depth = variant(t.rgb, t.depth, k)
+        expect = embed_templates(models["rgb"], {200.0: Templates(views, rgb, depth, 200.0)})
+        np.testing.assert_allclose(sets["a"][j].descriptors, expect.descriptors, rtol=1e-4, atol=1e-4)
+        np.testing.assert_array_equal(sets["a"][j].poses, expect.poses)
+    assert not np.allclose(sets["a"][0].descriptors, sets["a"][2].descriptors)  # a mirror is another object

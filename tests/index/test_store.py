@@ -242,3 +242,42 @@ def test_answers_are_distinct_viewpoints_at_their_best(tmp_path):
     assert len(snap.answers("rgb", q, 10, variants=1)) == 4  # searches further for distinct ones
     turned = snap.answers("rgb", np.array([[5.0, 0.0], [1.0, 0.12]], np.float32), 1, np.array([0.0, 90.0]))
     assert (turned[0].azimuth, turned[0].inplane) == (90.0, -150.0)  # 120 + 90, wrapped
+
+
+def test_local_features_persist_and_leave_with_their_object(tmp_path):
+    from index.store import local_key
+
+    ts = templates(1.0, n=4)
+    rows = np.array([0, 2])
+    local = np.random.default_rng(0).normal(size=(2, 6)).astype(np.float16)
+    with_local = TemplateSet(ts.poses, ts.descriptors, rows, local)
+    store = Store(tmp_path, MODELS)
+    oid = store.add_object("a", "none", {"rgb": with_local, "depth": ts}).object_id
+    plain = add(store, "b", 5.0)
+    keys = {local_key(oid, *ts.poses[r, :2]) for r in rows}
+    assert set(store.snapshot.models["rgb"].local) == keys
+    assert not store.snapshot.models["depth"].local
+    store.close()
+    again = Store(tmp_path, MODELS)
+    got = again.snapshot.models["rgb"].local
+    assert set(got) == keys
+    np.testing.assert_array_equal(got[local_key(oid, *ts.poses[2, :2])], local[1])
+    assert again.remove_object(oid)
+    assert not again.snapshot.models["rgb"].local and plain in again.snapshot.objects
+    again.close()
+
+
+def test_a_store_from_before_local_features_opens(tmp_path):
+    import sqlite3
+
+    from index.store import SCHEMA
+
+    db = sqlite3.connect(tmp_path / "store.sqlite")
+    db.executescript(
+        SCHEMA.replace("    descriptor BLOB NOT NULL,\n    local BLOB\n", "    descriptor BLOB NOT NULL\n")
+    )
+    db.close()
+    store = Store(tmp_path, MODELS)
+    oid = add(store, "a", 1.0)
+    assert oid in store.snapshot.objects and not store.snapshot.models["rgb"].local
+    store.close()

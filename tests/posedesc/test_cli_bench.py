@@ -46,6 +46,28 @@ def test_bench_quick(tmp_path, posedesc_models, capsys):
     assert result["threads"]["onnxruntime_intra_op"] == 1 and result["machine"]["cores"] >= 1
     assert result["config"]["quick"] is True
     assert result["sections"]["recognition"]["by_objects"]["100"]["templates"] == 100 * 16
+    # roll: the test folder's rgb model has no inplane_step (settings give it 12 per viewpoint); the
+    # untrained stand-in has its own and is served
+    ro = result["sections"]["roll"]
+    assert ro["primary"] == "untrained" and ro["models"]["untrained"]["metadata_inplane_step"] == 30.0
+    assert ro["models"]["shipped"]["roll_settings"] == {
+        "POSEDESC_INPLANE_STEP": 30.0,
+        "POSEDESC_INPLANE_MAX": 180.0,
+    }
+    for label in ("shipped", "untrained"):
+        assert ro["in_process"][label]["roll"]["templates"] == 8 * 16 * 12
+        assert ro["in_process"][label]["upright"]["templates"] == 8 * 16
+    assert ro["server"]["templates_per_object"] == {"rgb": 16 * 12, "depth": 16, "rgbd": 16}
+    assert ro["server"]["frame_640x480"]["failed"] == 0
+    for n in (1, 2, 3):
+        for key in ("decoded_to_answer", "decoded_to_answer_upright"):
+            assert positive(s[f"{key}_p50_ms_8_q{n}"]) and positive(s[f"{key}_p99_ms_8_q{n}"])
+        assert positive(s[f"decoded_to_answer_vs_linemod_speedup_8_q{n}"])
+        assert f"decoded_to_answer_p50_ms_100_q{n}" in result["targets"]
+    for key in ("roll_http_frame_p50_ms", "roll_register_20k_faces_s", "roll_register_embed_s"):
+        assert positive(s[key]), key
+    assert s["roll_model_fingerprint"] == ro["models"]["untrained"]["fingerprint"]
+    assert "from a decoded patch to the answer" in printed
 
 
 def test_bench_errors(tmp_path, capsys):
@@ -53,6 +75,8 @@ def test_bench_errors(tmp_path, capsys):
     assert "sections are descriptor" in capsys.readouterr().err
     assert main(["bench", "--objects", "8,x", "--json", str(tmp_path / "b.json")]) == 2
     assert "not a list of numbers" in capsys.readouterr().err
+    assert main(["bench", "--query-turns", "1,40", "--json", str(tmp_path / "b.json")]) == 2
+    assert "at most 36" in capsys.readouterr().err
     empty = tmp_path / "models"
     empty.mkdir()
     assert main(["bench", "--quick", "--models", str(empty), "--json", str(tmp_path / "b.json")]) == 2

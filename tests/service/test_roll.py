@@ -116,3 +116,39 @@ def test_upright_answers_say_inplane_zero(tmp_path_factory, shipped_rgb, rendere
         assert np.allclose((body["best"]["azimuth"], body["best"]["elevation"]), (AZ, EL), atol=1e-3)
     finally:
         c.__exit__(None, None, None)
+
+
+@pytest.fixture(scope="module")
+def trunk_model(tmp_path_factory):
+    """A model with local features (a pretrained trunk: `index.embed.LOCAL_NAME`) and templates every
+    30° over the whole turn in its metadata; its head untrained (re-ranking does not use it)."""
+    torch = pytest.importorskip("torch")
+    from training.export import export_onnx
+    from training.model import DescriptorNet, NetConfig
+
+    torch.manual_seed(0)
+    folder = tmp_path_factory.mktemp("trunk")
+    export_onnx(DescriptorNet(NetConfig("rgb", 32, arch="trunk")), folder / "posedesc-rgb.onnx", 200.0,
+                {"inplane_step": "30.0"})  # fmt: skip
+    return folder
+
+
+def test_answers_are_reranked_by_local_features(tmp_path_factory, trunk_model, renderer, l_shape, t_shape):
+    c = serve(tmp_path_factory, trunk_model, l_shape, t_shape, rerank=50)
+    try:
+        for phi in (60.0, -150.0):
+            body = ask(c, renderer, l_shape, View(AZ, EL, phi, 600.0), k=5)
+            best = body["best"]
+            assert "rerank" in body["timings_ms"]
+            assert best["name"] == "L" and roll_error(best, phi) < 1e-3, (phi, best)
+            assert (best["azimuth"], best["elevation"]) == pytest.approx((AZ, EL), abs=1e-3)
+            distances = [m["distance"] for m in body["matches"]]
+            assert distances == sorted(distances) and len(body["matches"]) == 5
+    finally:
+        c.__exit__(None, None, None)
+    off = serve(tmp_path_factory, trunk_model, l_shape, t_shape, rerank=0)
+    try:
+        body = ask(off, renderer, l_shape, View(AZ, EL, 60.0, 600.0), k=5)
+        assert "rerank" not in body["timings_ms"]
+    finally:
+        off.__exit__(None, None, None)

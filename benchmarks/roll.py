@@ -1,0 +1,388 @@
+"""The roll-estimating set-up against the issue's "still fast" targets, each beside its baseline in the
+same run (`posedesc bench`, section "roll"):
+
+1. In-process, from a decoded patch to the answer at `objects` objects:
+   `service.recognition.recognise_decoded`, the call `POST /recognize` makes after decoding (the patch
+   and its query turns, their descriptors in one batch, the k-NN over every in-plane variant, the
+   collapse to k distinct answers), on a service state loaded as `posedesc serve` loads it
+   (`service.state.load_state`) from a data dir filled through `Store.add_object`. For every model:
+   templates over the whole turn (query turns 1, 2, 3) and, the baseline, upright templates
+   (inplane_step 0, the existing set-up). LineMOD's figure is the "recognition" section's (upright
+   templates, same run): `suite.py` puts the ratio beside.
+2. Over HTTP, one client: a 640x480 PNG frame (and the 64 px patch) to the real service (`posedesc
+   serve` on loopback) serving that data dir with the first model that has its own `inplane_step`,
+   query turns `http_query_turns`. Baseline: the "http" section's frame (the shipped models, upright).
+3. `POST /objects` of the 20k-face mesh to that service: the default models (the other modalities of the
+   models folder, with their own templates) and that model with its in-plane templates. Baseline: the
+   "register" section.
+
+Models (`models`): "shipped" is the models folder's model of the modality; "untrained" a stand-in
+exported into a temporary folder (`training.model.DescriptorNet`, arch "trunk" for rgb, the paper's for
+depth and rgbd, 32-d, metadata `inplane_step`): timing does not depend on trained weights; anything
+else is a path to an .onnx. The JSON names each by its fingerprint. A model without `inplane_step` in
+its metadata (trained upright) gets its in-plane templates from the settings (POSEDESC_INPLANE_STEP =
+`inplane_step`, POSEDESC_INPLANE_MAX = 180), as the service would with them; it is not served in 2-3.
+
+The objects: `benchmarks.objects.inplane_template_sets` (procedural shapes through exact image
+transforms, rendered and turned as registration does); the query: the "recognition" section's patch.
+Threads: onnxruntime one intra-op thread for timed calls (the service's), `setup_threads` for making
+templates; FAISS and OpenCV one (`pin_threads`, and the service's `THREADS=1`); torch only exports the
+stand-in, untimed."""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import shutil
+import statistics
+import tempfile
+import time
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from benchmarks import over_http, registration
+from benchmarks.objects import TURN_FREE_VARIANTS, ObjectSet, inplane_template_sets
+from benchmarks.server import Server
+from benchmarks.stores import fill_store
+from benchmarks.timing import Timing, measure
+from index.embed import MODEL_FILES, Embedder, fingerprint, load_models
+from index.register import TemplateConfig
+from index.store import TemplateSet
+
+MODEL_KINDS = ("shipped", "untrained")
+
+
+@dataclass(frozen=True)
+class RollConfig:
+    models: tuple[str, ...] = MODEL_KINDS  # "shipped", "untrained" or paths to .onnx models
+    objects: int = 100
+    inplane_step: float = 30.0  # the stand-in's metadata, and the settings for a model without its own
+    query_turns: tuple[int, ...] = (1, 2, 3)
+    queries: int = 200  # timed recognitions per set-up
+    warmup: int = 5
+    k: int = 5
+    http_requests: int = 100  # frame requests over HTTP, one client
+    http_warmup: int = 5
+    http_query_turns: int = 1  # POSEDESC_QUERY_TURNS of the served set-up
+
+
+@dataclass
+class Model:
+    label: str
+    path: Path
+    timed: Embedder  # one intra-op thread, as the service
+    setup: Embedder  # makes the templates
+    settings: dict[str, float | None]  # the in-plane settings of its roll set-up (None: its own)
+    angles: np.ndarray  # its templates' in-plane angles in that set-up
+
+    @property
+    def own_step(self) -> float:
+        return self.timed.info.inplane_step
+
+
+def run(
+    cfg: RollConfig,
+    objects: ObjectSet,
+    models_dir: Path,
+    modality: str,
+    level: int = 3,
+    seed: int = 0,
+    setup_threads: int = 2,
+    register_repeats: int = 3,
+) -> dict:
+    with tempfile.TemporaryDirectory(prefix="posedesc-bench-roll-") as tmp_name:
+        tmp = Path(tmp_name)
+        models = _models(cfg, models_dir, modality, level, tmp, setup_threads, objects.window_mm, seed)
+        served = next((m for m in models if m.own_step > 0), None)
+        # the default models of the other modalities, with their own templates, for the served set-up
+        others = {
+            m: e
+            for m, e in load_models(models_dir, threads=setup_threads).items()
+            if m != modality and served is not None
+        }
+        out: dict = {
+            "modality": modality,
+            "objects": cfg.objects,
+            "k": cfg.k,
+            "level": level,
+            "query": f"the recognition section's patch (64 px PNG, decoded once), k = {cfg.k}; "
+            "`recognise_decoded` timed from the decoded patch to the answer",
+            "threads": {
+                "onnxruntime_intra_op": 1,
+                "onnxruntime_setup": setup_threads,
+                "faiss_omp": 1,
+                "opencv": 1,
+                "torch": "the stand-in's export only (untimed)",
+            },
+            "models": {m.label: _describe(m, level) for m in models},
+            # the model of the issue's figures: the served one, else the first
+            "primary": (served or models[0]).label,
+            "in_process": {},
+            "server": None,
+            "notes": [],
+            "capped": [],
+        }
+        todo = {m.label: (m.setup, m.angles) for m in models}
+        todo |= {
+            f"default {m}": (e, TemplateConfig(level).inplane(e.info.inplane_step)) for m, e in others.items()
+        }
+        t0 = time.perf_counter()
+        total = cfg.objects * len(todo)
+        with tqdm(total=total, desc="roll: embed templates", unit="object", disable=None) as bar:
+            sets = inplane_template_sets(
+                cfg.objects, todo, level, objects.rgb.shape[2], objects.window_mm, seed, bar.update
+            )
+        out["embed_templates_s"] = time.perf_counter() - t0
+        out["template_objects"] = (
+            f"shapes 0..{-(-cfg.objects // len(TURN_FREE_VARIANTS)) - 1} (benchmarks.objects.shapes, seed {seed}) "
+            f"through {len(TURN_FREE_VARIANTS)} transforms without a quarter turn"
+        )
+        query = _query(objects, modality, cfg.k)
+        for i, m in enumerate(models):
+            data, upright = tmp / f"roll-{i}", tmp / f"upright-{i}"
+            stores = {modality: (m.timed.dim, fingerprint(m.path))}
+            roll_sets: dict[str, list[TemplateSet]] = {modality: sets[m.label]}
+            if m is served:
+                stores |= {o: (e.dim, fingerprint(e.path)) for o, e in others.items()}
+                roll_sets |= {o: sets[f"default {o}"] for o in others}
+            with tqdm(
+                total=2 * cfg.objects, desc=f"roll: stores ({m.label})", unit="object", disable=None
+            ) as b:
+                fill_store(data, stores, roll_sets, b.update)
+                fill_store(
+                    upright, {modality: stores[modality]}, {modality: _upright(sets[m.label])}, b.update
+                )
+            out["in_process"][m.label] = {
+                "upright": _in_process(
+                    upright, m, {"inplane_step": 0.0, "inplane_max": None}, query, cfg, level
+                ),
+                "roll": _in_process(data, m, m.settings, query, cfg, level),
+            }
+            shutil.rmtree(upright)
+            if m is served:  # the real service on the same data dir
+                out["server"] = _served(cfg, m, others, data, tmp, objects, modality, level, register_repeats)
+            shutil.rmtree(data)
+        if served is None:
+            out["notes"].append(
+                "no model has its own inplane_step: the served set-up (HTTP frame, registration) is not measured"
+            )
+    return out
+
+
+def _models(
+    cfg: RollConfig,
+    models_dir: Path,
+    modality: str,
+    level: int,
+    tmp: Path,
+    setup_threads: int,
+    window_mm: float,
+    seed: int,
+) -> list[Model]:
+    out: list[Model] = []
+    seen: set[str] = set()
+    for spec in cfg.models:
+        if spec == "shipped":
+            path = models_dir / MODEL_FILES[modality]
+            if not path.is_file():
+                raise FileNotFoundError(f"no {modality} model: {path} is missing")
+        elif spec == "untrained":
+            path = stand_in(
+                modality, tmp / "untrained" / MODEL_FILES[modality], cfg.inplane_step, window_mm, seed
+            )
+        else:
+            path = Path(spec)
+            if not path.is_file():
+                raise FileNotFoundError(f"roll model {spec}: no such file")
+        if fingerprint(path) in seen:
+            continue
+        seen.add(fingerprint(path))
+        timed = Embedder(path, threads=1)
+        if timed.modality != modality:
+            raise ValueError(f"{path} is a {timed.modality} model, not {modality}")
+        own = timed.info.inplane_step
+        settings: dict[str, float | None] = (
+            {"inplane_step": None, "inplane_max": None}
+            if own > 0
+            else {"inplane_step": cfg.inplane_step, "inplane_max": 180.0}
+        )
+        tc = TemplateConfig(level, settings["inplane_step"], settings["inplane_max"])
+        out.append(Model(spec, path, timed, Embedder(path, threads=setup_threads), settings, tc.inplane(own)))
+    return out
+
+
+def stand_in(modality: str, out: Path, inplane_step: float, window_mm: float, seed: int = 0) -> Path:
+    """An untrained model of the coming design (rgb: the frozen MobileNetV2 trunk and its head; depth and
+    rgbd: the paper's network), 32-d, its metadata saying `inplane_step`: a stand-in for timing."""
+    import torch
+
+    from training.export import export_onnx
+    from training.model import DescriptorNet, NetConfig
+
+    torch.manual_seed(seed)
+    net = DescriptorNet(NetConfig(modality, 32, arch="trunk" if modality == "rgb" else "paper"))
+    extra = {"inplane_step": str(float(inplane_step)), "note": "untrained stand-in for posedesc bench"}
+    with contextlib.redirect_stdout(io.StringIO()):  # the exporter's progress lines
+        return export_onnx(net, out, window_mm, extra)
+
+
+def _describe(m: Model, level: int) -> dict:
+    return {
+        "file": str(m.path),
+        "fingerprint": fingerprint(m.path),
+        "descriptor_dim": m.timed.dim,
+        "metadata_inplane_step": m.own_step,
+        "stand_in": m.label == "untrained",
+        "roll_settings": {f"POSEDESC_{k.upper()}": v for k, v in m.settings.items() if v is not None}
+        or "none: the model's own inplane_step",
+        "templates_per_viewpoint": len(m.angles),
+        "templates_per_object": _viewpoints(level) * len(m.angles),
+    }
+
+
+def _viewpoints(level: int) -> int:
+    from index.viewpoints import hemisphere
+
+    return len(hemisphere(level))
+
+
+def _upright(sets: list[TemplateSet]) -> list[TemplateSet]:
+    """The in-plane 0 templates: what an upright registration makes (the same renders, unturned)."""
+    out = []
+    for s in sets:
+        keep = s.poses[:, 2] == 0
+        out.append(TemplateSet(s.poses[keep], s.descriptors[keep]))
+    return out
+
+
+def _query(objects: ObjectSet, modality: str, k: int):
+    from service.recognition import Query
+
+    req = over_http.patch_request(objects, modality)
+    return Query(
+        rgb=req.files["rgb"][1] if "rgb" in req.files else None,
+        depth=req.files["depth"][1] if "depth" in req.files else None,
+        k=k,
+    )
+
+
+def _in_process(
+    data: Path, m: Model, inplane: dict[str, float | None], q, cfg: RollConfig, level: int
+) -> dict:
+    """`recognise_decoded` on the state `posedesc serve` would load from `data`, per query-turn count."""
+    from service.recognition import decode
+    from service.settings import Settings
+    from service.state import close_state, load_state
+
+    settings = Settings(
+        data_dir=data,
+        demo_objects=False,
+        threads=1,
+        level=level,
+        index_kind="flat",
+        query_turns=1,
+        inplane_step=inplane["inplane_step"],
+        inplane_max=inplane["inplane_max"],
+    )
+    state = load_state(settings, {m.timed.modality: m.timed})
+    try:
+        d = decode(state, q)
+        mi = state.store.snapshot.models[m.timed.modality]
+        out: dict = {
+            "templates": mi.size,
+            "templates_per_viewpoint": len(state.templates.inplane(m.own_step)),
+            "settings": {k: v for k, v in inplane.items() if v is not None},
+            "by_turns": {},
+        }
+        for n in cfg.query_turns:
+            st = replace(state, settings=state.settings.model_copy(update={"query_turns": n}))
+            out["by_turns"][str(n)] = _time_calls(st, q, d, cfg)
+    finally:
+        close_state(state)
+    return out
+
+
+def _time_calls(state, q, d, cfg: RollConfig) -> dict:
+    from service.recognition import Result, recognise_decoded
+
+    results: list[Result] = []
+
+    def call() -> None:
+        results.append(recognise_decoded(state, q, d))
+
+    t = measure(call, cfg.queries, warmup=cfg.warmup)
+    timed = results[cfg.warmup :]
+    stages = {s: statistics.median(r.timings_ms[s] for r in timed) for s in ("patch", "embed", "search")}
+    best = timed[-1].matches[0] if timed[-1].matches else None
+    return t.ms() | {
+        "stages_median_ms": stages,
+        "top1_object": None if best is None else best.object_id - 1,  # object 0 is the query's shape
+        "top1_inplane": None if best is None else best.inplane,
+    }
+
+
+def _served(
+    cfg: RollConfig,
+    m: Model,
+    others: dict[str, Embedder],
+    data: Path,
+    tmp: Path,
+    objects: ObjectSet,
+    modality: str,
+    level: int,
+    register_repeats: int,
+) -> dict:
+    served_models = tmp / "served-models"
+    served_models.mkdir()
+    shutil.copyfile(m.path, served_models / MODEL_FILES[modality])
+    for o, e in others.items():
+        shutil.copyfile(e.path, served_models / MODEL_FILES[o])
+    env: dict[str, str | None] = {
+        "POSEDESC_DEMO_OBJECTS": "false",
+        "POSEDESC_SYNC_SECONDS": "600",  # registrations answer 201 with their timings
+        "POSEDESC_THREADS": "1",
+        "POSEDESC_LEVEL": str(level),
+        "POSEDESC_INDEX_KIND": "flat",
+        "POSEDESC_API_KEY": "",
+        "POSEDESC_QUERY_TURNS": str(cfg.http_query_turns),
+        "POSEDESC_INPLANE_STEP": None,  # each model's own
+        "POSEDESC_INPLANE_MAX": None,
+    }
+    per_object = {modality: _viewpoints(level) * len(m.angles)}
+    per_object |= {
+        o: _viewpoints(level) * len(TemplateConfig(level).inplane(e.info.inplane_step))
+        for o, e in others.items()
+    }
+    out: dict = {
+        "model": m.label,
+        "fingerprint": fingerprint(m.path),
+        "models": {
+            o: fingerprint(served_models / f) for o, f in MODEL_FILES.items() if (served_models / f).is_file()
+        },
+        "templates_per_object": per_object,
+        "objects": cfg.objects,
+        "query_turns": cfg.http_query_turns,
+        "settings": {k: v for k, v in env.items() if v is not None},
+    }
+    frame = over_http.frame_request(modality)
+    patch = over_http.patch_request(objects, modality)
+    with Server(data, served_models, env) as url:
+        out["frame_640x480"] = _http(url, frame, cfg) | {
+            "request": "README's demo frame: " + "+".join(frame.files) + " PNGs, camera fields, k = 5",
+        }
+        out["patch"] = _http(url, patch, cfg) | {"request": "the query patch as PNG, k = 5"}
+        out["register"] = registration.run(url, register_repeats) | {"store_objects_before": cfg.objects}
+    return out
+
+
+def _http(url: str, req: over_http.Request, cfg: RollConfig) -> dict:
+    over_http.load(url, req, 1, cfg.http_warmup)
+    lat, inner, wall, failed = over_http.load(url, req, 1, cfg.http_requests)
+    return Timing(tuple(lat)).ms() | {
+        "requests_per_s": len(lat) / wall,
+        "server_total_median_ms": statistics.median(inner) if inner else None,
+        "failed": failed,
+    }
