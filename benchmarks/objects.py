@@ -31,7 +31,7 @@ from index.render import Renderer, Templates
 from index.sensor import SensorModel, random_background
 from index.shapes import random_shape
 from index.store import TemplateSet
-from index.viewpoints import template_views as all_template_views
+from index.viewpoints import sphere_views
 
 PERMUTATIONS = list(itertools.permutations(range(3)))
 VARIANTS = 8 * len(PERMUTATIONS)  # dihedral group of the square x channel orders
@@ -204,7 +204,7 @@ def inplane_template_sets(
 ) -> dict[str, list[TemplateSet]]:
     """Templates of objects 0..n-1 for every model in `models` (a name -> its embedder and its in-plane
     angles, degrees), viewpoint-major as `index.register` orders them: each model's views are
-    `index.viewpoints.template_views(level, its angles)`, and each viewpoint is rendered once for the
+    `index.viewpoints.sphere_views(level, its angles)`, and each viewpoint is rendered once for the
     union of the angles and turned (`Renderer.render`, the registration's renderer). Object j is shape
     j % m (`shapes(m, seed)`, m = ceil(n / 12)) through transform `TURN_FREE_VARIANTS[j // m]`, applied
     to the network inputs (`variant_inputs`). Renders are kept for one shape at a time. `progress`
@@ -212,7 +212,7 @@ def inplane_template_sets(
     m = -(-n // len(TURN_FREE_VARIANTS))
     angles = {name: np.round(np.asarray(a, float), 6) for name, (_, a) in models.items()}
     union = np.unique(np.concatenate(list(angles.values()))) if angles else np.zeros(1)
-    views = all_template_views(level, union)
+    views = sphere_views(level, union)
     inplane = np.round(np.array([v.inplane for v in views]), 6)
     out: dict[str, list[TemplateSet]] = {name: [] for name in models}
     per_shape: dict[str, list[TemplateSet]] = {}

@@ -16,7 +16,7 @@ import trimesh
 
 from index.mesh import load_mesh
 from index.render import Renderer
-from index.viewpoints import template_views
+from index.viewpoints import sphere_views
 
 
 def mesh_20k(path: str | None) -> trimesh.Trimesh:
@@ -37,7 +37,7 @@ def main() -> None:
     p.add_argument("--repeats", type=int, default=5)
     args = p.parse_args()
     mesh = mesh_20k(args.mesh)
-    views = template_views(3)
+    views = sphere_views(3)
     results = {}
     for name, max_faces in (("lod", 6000), ("full", 10**9)):
         r = Renderer(max_faces=max_faces)

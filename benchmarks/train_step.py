@@ -29,7 +29,7 @@ class TrainStepConfig:
 def run(modality: str, cfg: TrainStepConfig, seed: int = 0) -> dict:
     import torch
 
-    from index.viewpoints import template_views
+    from index.viewpoints import sphere_views
     from training.batches import BatchBuilder, bootstrap_triplets
     from training.losses import DescriptorLoss
     from training.model import DescriptorNet, NetConfig
@@ -42,8 +42,8 @@ def run(modality: str, cfg: TrainStepConfig, seed: int = 0) -> dict:
     torch.set_num_threads(threads)
     torch.manual_seed(seed)
     rng = np.random.default_rng(seed)
-    builder = BatchBuilder(rotations(template_views(3)), ["none"] * cfg.objects)
-    train_R = rotations(template_views(4))
+    builder = BatchBuilder(rotations(sphere_views(3)), ["none"] * cfg.objects)
+    train_R = rotations(sphere_views(4))
     picks = rng.integers(len(train_R), size=samples)
     batch = builder.make(range(samples), rng.integers(cfg.objects, size=samples), train_R[picks], rng)
     # channels_last, as `training.train` sets it (its first max-pool is much faster so on CPUs)

@@ -19,7 +19,7 @@ from evaluation import hog, linemod, ours
 from evaluation.metric import K_MAX, Poses, accuracy, neighbour_errors, pose_errors, same_object
 from evaluation.neighbours import Ranking
 from evaluation.samples import Samples, needs_synthetic, real_samples, select_instances, synthetic_samples
-from evaluation.templates import RenderedTemplates, full_inplane, object_views, render_templates
+from evaluation.templates import RenderedTemplates, full_inplane, object_views, render_template_set
 from index.bop import BopDataset
 from index.embed import Embedder
 from index.symmetry import Symmetry
@@ -203,7 +203,7 @@ def _evaluate_templates(cfg: Config, embedder: Embedder) -> Evaluation:
     inplane = full_inplane(cfg.inplane_step or 20.0) if cfg.protocol == "full" else None
     views = {o: object_views(symmetries[o], inplane) for o in obj_ids}
     with bar(sum(map(len, views.values())), "render templates", "template") as b:
-        templates = render_templates(meshes, views, cfg.modality, spec.window_mm, progress=b.update)
+        templates = render_template_set(meshes, views, cfg.modality, spec.window_mm, progress=b.update)
     seconds["render_templates"] = time.perf_counter() - t0
 
     ev = Evaluation(cfg, samples, templates, symmetries, seconds=seconds, notes=notes)

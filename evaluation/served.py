@@ -32,7 +32,7 @@ from evaluation.metric import K_MAX, WRONG_OBJECT
 from evaluation.neighbours import distinct_rows
 from evaluation.run import SYNTHETIC_NOTE, Config, Evaluation, MethodResult, bar, instances_of, rank
 from evaluation.samples import Samples, by_frame, needs_synthetic, synthetic_frames
-from evaluation.templates import render_templates, service_symmetry
+from evaluation.templates import render_template_set, service_symmetry
 from index.bop import BopDataset, Instance
 from index.embed import Embedder
 from index.pose import View, view_to_pose
@@ -119,7 +119,7 @@ def evaluate_served(cfg: Config) -> Evaluation:
             o: template_views(service_symmetry(symmetries[o]), state.templates, step) for o in obj_ids
         }
         with bar(sum(map(len, views_of.values())), "render templates", "template") as b:
-            ev.templates = render_templates(
+            ev.templates = render_template_set(
                 meshes, views_of, cfg.modality, embedder.info.window_mm, progress=b.update
             )
         seconds["render_templates"] = time.perf_counter() - t0

@@ -67,7 +67,7 @@ def object_views(symmetry: object, inplane: np.ndarray | None = None) -> list[Vi
     return [View(v.azimuth, v.elevation, float(ip), v.distance) for v in views for ip in inplane]
 
 
-def render_templates(
+def render_template_set(
     meshes: dict[int, trimesh.Trimesh],
     views: dict[int, list[View]],
     modality: str,

@@ -39,8 +39,7 @@ from index.pose import View
 from index.render import Renderer, RenderWorker, Templates
 from index.store import ObjectRecord, Store, TemplateSet
 from index.symmetry import SYMMETRIES
-from index.viewpoints import inplane_steps
-from index.viewpoints import template_views as all_template_views
+from index.viewpoints import inplane_steps, sphere_views
 
 log = logging.getLogger(__name__)
 
@@ -83,7 +82,7 @@ def template_views(
     (viewpoint-major: the in-plane variants of a viewpoint are adjacent)."""
     if symmetry not in SYMMETRIES:
         raise MeshError(f"unknown symmetry {symmetry!r}; use one of {', '.join(SYMMETRIES)}")
-    views = all_template_views(cfg.level, cfg.inplane(model_step), cfg.distance_mm)
+    views = sphere_views(cfg.level, cfg.inplane(model_step), cfg.distance_mm)
     if symmetry == "none":
         return views
     wedge = {"180": 180.0, "full": 72.0}[symmetry]

@@ -79,7 +79,7 @@ def inplane_steps(step_deg: float = 0.0, max_deg: float = 45.0) -> np.ndarray:
     return np.arange(-n, n + 1) * float(step_deg)
 
 
-def template_views(level: int = 3, inplane: np.ndarray | None = None, distance: float = 400.0) -> list[View]:
+def sphere_views(level: int = 3, inplane: np.ndarray | None = None, distance: float = 400.0) -> list[View]:
     """All (viewpoint x in-plane) views, viewpoint-major: the in-plane variants of a viewpoint are adjacent."""
     steps = np.zeros(1) if inplane is None else np.asarray(inplane, dtype=float)
     return [View(float(az), float(el), float(ip), distance) for az, el in hemisphere(level) for ip in steps]

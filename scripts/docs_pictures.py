@@ -14,7 +14,7 @@ import numpy as np
 from index.bop import BopDataset, instance_patch
 from index.render import Renderer
 from index.sensor import SensorModel, random_background
-from index.viewpoints import template_views
+from index.viewpoints import sphere_views
 
 
 def main() -> None:
@@ -45,7 +45,7 @@ def main() -> None:
 
     # 2. one object from every 8th template viewpoint, rgb above depth
     obj = ds.obj_ids[len(ds.obj_ids) // 2]
-    t = r.render(meshes[obj], template_views(3)[::8])
+    t = r.render(meshes[obj], sphere_views(3)[::8])
     from index.sheet import depth_to_colour
 
     rgb = np.concatenate(list(t.rgb[:19]), axis=1)

@@ -23,7 +23,7 @@ from index.bop import BopDataset, Instance, table_depth
 from index.pose import View, pose_to_view
 from index.render import Lighting, Renderer, render_size
 from index.shapes import random_shape
-from index.viewpoints import hemisphere, template_views
+from index.viewpoints import hemisphere, sphere_views
 from training.data import DataConfig, TrainingData
 from training.similarity import rotations
 from training.splits import frames_of, split_frames
@@ -78,7 +78,7 @@ def _render_all(roots: list[Path], cfg: DataConfig) -> tuple[dict[str, np.ndarra
         meshes.append(random_shape(rng))
         names.append(f"shape_{k:03d}")
         symmetries.append("none")
-    t_views = template_views(3, distance=cfg.distance)
+    t_views = sphere_views(3, distance=cfg.distance)
     train_vp = hemisphere(4)
     t_rgb, t_depth, s_rgb, s_depth, s_obj, s_R = [], [], [], [], [], []
     for o, mesh in enumerate(tqdm(meshes, desc="render objects", unit="obj", disable=False)):

@@ -17,7 +17,7 @@ from index.pose import View
 from index.render import Renderer
 from index.sensor import SensorModel, random_background
 from index.symmetry import view_error
-from index.viewpoints import template_views
+from index.viewpoints import sphere_views
 from training.data import TrainingData, test_input
 from training.similarity import pose_distances, rotations
 
@@ -157,7 +157,7 @@ def validate_synthetic(
     rng = np.random.default_rng(seed)
     renderer = Renderer(window_mm=window_mm)
     sensor = SensorModel()
-    t_views = template_views(3, distance=distance)
+    t_views = sphere_views(3, distance=distance)
     tf, t_obj, t_all, f, obj, test_views, syms = [], [], [], [], [], [], []
     try:
         for k, (mesh, sym) in enumerate(objects.values()):

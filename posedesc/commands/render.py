@@ -31,7 +31,7 @@ def run(args: argparse.Namespace) -> int:
     from index.mesh import MeshError, load_mesh, scale_warning
     from index.render import Renderer
     from index.sheet import contact_sheet
-    from index.viewpoints import inplane_steps, template_views
+    from index.viewpoints import inplane_steps, sphere_views
 
     if not 0 <= args.level <= 5:
         raise UserError("--level must be between 0 and 5")
@@ -43,7 +43,7 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"{args.mesh}: {e}") from None
     if warning := scale_warning(mesh, args.window_mm):
         print(f"posedesc render: warning: {warning}", file=sys.stderr)
-    views = template_views(args.level, inplane_steps(args.inplane_step, args.inplane_max), args.distance_mm)
+    views = sphere_views(args.level, inplane_steps(args.inplane_step, args.inplane_max), args.distance_mm)
     renderer = Renderer(window_mm=args.window_mm)
     t0 = time.perf_counter()
     with tqdm(total=len(views), desc="render", unit="view", disable=None) as bar:

@@ -49,13 +49,13 @@ def test_inplane_sets_are_what_registration_makes(posedesc_models, renderer):
     from benchmarks.objects import TURN_FREE_VARIANTS, inplane_template_sets, shapes
     from index.register import embed_templates
     from index.render import Templates
-    from index.viewpoints import inplane_steps, template_views
+    from index.viewpoints import inplane_steps, sphere_views
 
     models = load_models(posedesc_models)
     angles = inplane_steps(90.0, 180.0)  # -90, 0, 90, 180
     sets = inplane_template_sets(14, {"a": (models["rgb"], angles), "b": (models["depth"], [0.0])}, level=0)
     assert len(sets["a"]) == len(sets["b"]) == 14  # 2 shapes x 7 transforms
-    views = template_views(0, angles)
+    views = sphere_views(0, angles)
     assert sets["a"][0].poses.shape == (6 * 4, 3) and sets["b"][0].poses.shape == (6, 3)
     np.testing.assert_array_equal(sets["b"][5].poses[:, 2], 0.0)
     first, second = shapes(2)

@@ -6,7 +6,7 @@ import trimesh
 
 from index.patches import PatchSpec, crop
 from index.pose import View, view_to_pose
-from index.viewpoints import template_views
+from index.viewpoints import sphere_views
 
 K = np.array([[572.4, 0, 325.3], [0, 573.6, 242.0], [0, 0, 1]])
 
@@ -27,7 +27,7 @@ def test_origin_lands_at_patch_centre(renderer):
 
 
 def test_all_301_templates(renderer, l_shape):
-    t = renderer.render(l_shape, template_views(3))
+    t = renderer.render(l_shape, sphere_views(3))
     assert t.rgb.shape == (301, 64, 64, 3) and t.depth.shape == (301, 64, 64)
     filled = (t.depth > 0).mean(axis=(1, 2))
     assert filled.min() > 0.02 and filled.max() < 0.6

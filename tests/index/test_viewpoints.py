@@ -1,6 +1,6 @@
 import numpy as np
 
-from index.viewpoints import hemisphere, icosphere, inplane_steps, template_views
+from index.viewpoints import hemisphere, icosphere, inplane_steps, sphere_views
 
 
 def test_paper_template_and_training_sets():
@@ -21,7 +21,7 @@ def test_training_set_contains_template_set():
 def test_inplane_steps_and_views():
     assert list(inplane_steps(0)) == [0]
     assert list(inplane_steps(15, 45)) == [-45, -30, -15, 0, 15, 30, 45]
-    views = template_views(3, inplane_steps(20, 40), distance=500)
+    views = sphere_views(3, inplane_steps(20, 40), distance=500)
     assert len(views) == 301 * 5
     assert [v.inplane for v in views[:5]] == [-40, -20, 0, 20, 40]  # viewpoint-major
     assert views[5].azimuth != views[0].azimuth or views[5].elevation != views[0].elevation

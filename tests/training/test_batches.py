@@ -3,11 +3,11 @@
 import numpy as np
 import pytest
 
-from index.viewpoints import template_views
+from index.viewpoints import sphere_views
 from training.batches import BatchBuilder, bootstrap_triplets
 from training.similarity import pose_distances, rotations
 
-TEMPLATE_R = rotations(template_views(3))
+TEMPLATE_R = rotations(sphere_views(3))
 SYMMETRIES = ["none", "180", "full", "none"]
 
 
@@ -16,7 +16,7 @@ def batch():
     rng = np.random.default_rng(0)
     n = 12
     objs = rng.integers(0, len(SYMMETRIES), n)
-    views = template_views(4)
+    views = sphere_views(4)
     R = rotations([views[i] for i in rng.integers(0, len(views), n)])
     return BatchBuilder(TEMPLATE_R, SYMMETRIES).make(range(n), objs, R, rng), objs, R
 

@@ -3,12 +3,12 @@
 import numpy as np
 import torch
 
-from index.viewpoints import template_views
+from index.viewpoints import sphere_views
 from training.batches import BatchBuilder, bootstrap_triplets, with_templates
 from training.mining import TemplateBank, mine
 from training.similarity import rotations
 
-TEMPLATE_R = rotations(template_views(3))
+TEMPLATE_R = rotations(sphere_views(3))
 
 
 def bank_of(f: np.ndarray) -> TemplateBank:
