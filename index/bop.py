@@ -24,6 +24,15 @@ from index.sensor import fit_plane, plane_depth
 from index.symmetry import from_bop
 
 
+def nearest_rotation(M: np.ndarray) -> np.ndarray:
+    """The rotation closest to M (SVD). Annotations are stored to a few digits: LM-O's cam_R_m2c are
+    up to 1 % off orthonormal (det 1.014 seen), enough to move a trace-based rotation error by 1-2 deg
+    and to make it smaller than the viewing-direction error it bounds."""
+    u, _, vt = np.linalg.svd(M)
+    d = np.sign(np.linalg.det(u @ vt))
+    return u @ np.diag([1.0, 1.0, d]) @ vt
+
+
 @dataclass(frozen=True)
 class Instance:
     """One annotated object in one frame. R, t: BOP cam_R_m2c (3, 3) and cam_t_m2c (3,) in mm."""
@@ -142,7 +151,7 @@ def scene_instances(scene_dir: Path, min_visib: float = 0.0) -> Iterator[Instanc
                 frame_id=frame,
                 index=i,
                 obj_id=int(ann["obj_id"]),
-                R=np.asarray(ann["cam_R_m2c"], float).reshape(3, 3),
+                R=nearest_rotation(np.asarray(ann["cam_R_m2c"], float).reshape(3, 3)),
                 t=np.asarray(ann["cam_t_m2c"], float).reshape(3),
                 K=K,
                 rgb_path=rgb_path,

@@ -41,7 +41,7 @@ class Settings(BaseSettings):
         "in-plane step (of the whole turn when upright only), and keep the best: finer roll, n embeddings",
     )  # fmt: skip
     rerank: int = Field(
-        50, ge=0, le=1000, description="with a model that has local features: re-rank this many nearest "
+        200, ge=0, le=1000, description="with a model that has local features: re-rank this many nearest "
         "distinct answers by the local similarity of the query turned to each one's roll (0: off)",
     )  # fmt: skip
     level: int = Field(3, ge=0, le=4, description="template viewpoints: icosphere level (3 = 301)")

@@ -67,3 +67,13 @@ def test_patch_of_a_scene_written_here(tmp_path, renderer, l_shape):
     a, b = tmpl.depth[0] > 0, pdepth > 0
     assert (a != b).mean() < 0.03
     assert np.abs(tmpl.depth[0][a & b] - pdepth[a & b]).mean() < 3  # depth_scale applied, mm along the axis
+
+
+def test_annotated_rotations_are_rotations(lmo):
+    """LM-O stores cam_R_m2c to a few digits (up to 1 % off orthonormal): the reader gives rotations."""
+    from index.bop import BopDataset
+
+    ds = BopDataset(lmo)
+    for inst in list(ds.instances(ds.scene_dirs("test")[0]))[:50]:
+        assert np.allclose(inst.R @ inst.R.T, np.eye(3), atol=1e-9)
+        assert abs(np.linalg.det(inst.R) - 1.0) < 1e-9

@@ -137,6 +137,7 @@ class Server:
     """`posedesc serve` in a subprocess on a free loopback port; `env` adds POSEDESC_* settings."""
 
     def __init__(self, data_dir: Path, models: Path, env: dict[str, str] | None = None):
+        self.models = models
         self.port = free_port()
         self.url = f"http://127.0.0.1:{self.port}"
         env = {
@@ -189,3 +190,12 @@ class Server:
         if self.proc.poll() is None:
             self.proc.kill()
             self.proc.wait(timeout=60)
+
+
+def expected_templates(models: Path, modality: str, viewpoints: int = 71) -> int:
+    """Templates an object without symmetry gets from `models`' model of `modality` at the tests' level
+    (2: 71 viewpoints): times its in-plane variants when its metadata says it was trained with roll."""
+    from index.embed import Embedder
+
+    step = Embedder(models / f"posedesc-{modality}.onnx").info.inplane_step
+    return viewpoints * (int(round(360.0 / step)) if step > 0 else 1)

@@ -17,7 +17,7 @@ import faiss
 import httpx
 import numpy as np
 import pytest
-from service_helpers import ROOT, Server, free_port, patch_files, serve_command
+from service_helpers import ROOT, Server, expected_templates, free_port, patch_files, serve_command
 
 from index.register import TemplateConfig, template_views
 
@@ -66,11 +66,12 @@ def check_consistent(server: Server, data_dir: Path) -> dict[int, str]:
     (generation,) = db.execute("SELECT value FROM meta WHERE key = 'generation'").fetchone()
     db.close()
     assert listed == objects
-    assert counts == {(o, m): VIEWS for o in objects for m in MODELS}  # whole objects, no orphan templates
+    per = {m: expected_templates(server.models, m, VIEWS) for m in MODELS}
+    assert counts == {(o, m): per[m] for o in objects for m in MODELS}  # whole objects, no orphan templates
     for m in MODELS:
         tag = json.loads((data_dir / f"{m}.faiss.json").read_text())
         index = faiss.read_index(str(data_dir / f"{m}.faiss"))
-        assert index.ntotal == tag["ntotal"] == ready["templates"][m] == VIEWS * len(objects), m
+        assert index.ntotal == tag["ntotal"] == ready["templates"][m] == per[m] * len(objects), m
         assert tag["generation"] == int(generation), m
         assert found[m] == set(objects), m  # every object is found, and no other
     return objects
