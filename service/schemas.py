@@ -29,7 +29,9 @@ class MatchOut(BaseModel):
         description="estimated roll about the optical axis, counter-clockwise in the image, degrees in "
         "(-180, 180]: the template's in-plane angle plus the query turn it was found on"
     )
-    distance: float = Field(description="descriptor distance (L2); smaller is closer")
+    distance: float = Field(
+        description="L2 distance, smaller is closer: between descriptors, or with re-ranking (RERANK) between the local features the answers were ordered by"
+    )
 
 
 class RecognizeOut(BaseModel):
