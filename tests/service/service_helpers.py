@@ -109,6 +109,11 @@ def register(client, mesh: trimesh.Trimesh, name: str, headers=None, timeout: fl
         data={"name": name, **data},
         headers=headers,
     )
+    return created(client, r, timeout)
+
+
+def created(client, r, timeout: float = 120.0) -> dict:
+    """The object a POST /objects answer made: at once (201), or once its job is done (202)."""
     if r.status_code == 201:
         return r.json()
     assert r.status_code == 202, r.text

@@ -8,13 +8,12 @@ from __future__ import annotations
 
 import inspect
 import json
-import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 from fastapi.testclient import TestClient
-from service_helpers import ROOT, service_settings, wait_ready
+from service_helpers import ROOT, created, service_settings, wait_ready
 
 from index.bop import BopDataset
 from service.main import create_app
@@ -48,17 +47,7 @@ def register_file(client: TestClient, path: Path, name: str, timeout: float = 30
         files={"mesh": (path.name, path.read_bytes())},
         data={"name": name, "units": "mm", "symmetry": "none"},
     )
-    if r.status_code == 201:
-        return r.json()["object_id"]
-    assert r.status_code == 202, r.text
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        job = client.get(f"/jobs/{r.json()['job_id']}").json()
-        if job["status"] != "running":
-            assert job["status"] == "done", job
-            return job["object_id"]
-        time.sleep(0.2)
-    raise AssertionError(f"registration of {name} did not finish in {timeout} s")
+    return created(client, r, timeout)["object_id"]
 
 
 @pytest.fixture(scope="module")
