@@ -52,6 +52,9 @@ class Config:
     query_turns: int | None = None  # service protocol: the service's setting (None: the settings')
     synthetic: bool | None = None  # None: synthetic scenes only when the dataset lacks the images
     linemod_threshold: float = 50.0
+    #: service protocol: each frame sent black outside the instance's ground-truth visible mask (the
+    #: clutter-free bound, `evaluation/masks.py`); colour only
+    oracle_mask: bool = False
     seed: int = 0
 
 

@@ -26,8 +26,10 @@ from typing import TypedDict
 
 import cv2
 import numpy as np
+import trimesh
 
 from evaluation import ours
+from evaluation.masks import black_outside, visible_masks
 from evaluation.metric import K_MAX, WRONG_OBJECT
 from evaluation.neighbours import distinct_rows
 from evaluation.run import SYNTHETIC_NOTE, Config, Evaluation, MethodResult, bar, instances_of, rank
@@ -37,6 +39,7 @@ from index.bop import BopDataset, Instance
 from index.embed import Embedder
 from index.pose import View, view_to_pose
 from index.register import register, template_views
+from index.render import Renderer
 from index.symmetry import Symmetry, rotation_errors, view_errors
 from service.errors import ApiError
 from service.recognition import Query, cut, decode, recognise
@@ -78,7 +81,9 @@ def evaluate_served(cfg: Config) -> Evaluation:
             meshes, dataset_ids = _register(state, dataset, obj_ids)
             seconds["register"] = time.perf_counter() - t0
             t0 = time.perf_counter()
-            samples, answers, call_ms, refused = _ask(state, dataset, instances, synthetic, cfg, dataset_ids)
+            samples, answers, call_ms, refused = _ask(
+                state, dataset, instances, synthetic, cfg, dataset_ids, meshes if cfg.oracle_mask else None
+            )
             seconds["ours"] = time.perf_counter() - t0
             n_templates = state.store.snapshot.models[cfg.modality].size
         finally:
@@ -87,6 +92,8 @@ def evaluate_served(cfg: Config) -> Evaluation:
     step = embedder.info.inplane_step
     variants = len(state.templates.inplane(step))
     notes = [SYNTHETIC_NOTE] if synthetic else []
+    if cfg.oracle_mask:
+        notes.append("oracle mask: each frame was sent black outside the instance's true visible mask")
     if refused:
         notes.append(f"the service refused {len(refused)} queries (counted as wrong): {sorted(set(refused))}")
     ev = Evaluation(cfg, samples, None, symmetries, seconds=seconds, notes=notes)
@@ -223,9 +230,19 @@ def query(inst: Instance, rgb: bytes | None, depth: bytes | None, depth_scale: f
     )
 
 
-def _ask(state, dataset, instances, synthetic: bool, cfg: Config, dataset_ids: dict[int, int]):
+def _ask(
+    state,
+    dataset,
+    instances,
+    synthetic: bool,
+    cfg: Config,
+    dataset_ids: dict[int, int],
+    oracle_meshes: Mapping[int, trimesh.Trimesh] | None = None,
+):
     """Every instance through `recognise`; the unturned patches the service cut (for the baselines),
-    its answers, each call's milliseconds, and the reasons of the queries it refused."""
+    its answers, each call's milliseconds, and the reasons of the queries it refused. With
+    `oracle_meshes`, each instance's frame is sent black outside its true visible mask."""
+    renderer = Renderer() if oracle_meshes is not None else None
     embedder = state.embedders[cfg.modality]
     spec = embedder.info.spec
     ordered: list[Instance] = []
@@ -234,11 +251,19 @@ def _ask(state, dataset, instances, synthetic: bool, cfg: Config, dataset_ids: d
     answer_views = np.zeros((len(instances), K_MAX, 3))
     with bar(len(instances), "recognise") as b:
         for group, rgb, depth, scale in _frames(dataset, instances, cfg.modality, synthetic, cfg.seed):
-            try:
-                decoded = decode(state, Query(rgb=rgb, depth=depth, depth_scale=scale))
-            except ApiError:
-                decoded = None  # `recognise` says why, for every instance of the frame
-            for inst in group:
+            sent = [rgb] * len(group)
+            if renderer is not None and oracle_meshes is not None and rgb is not None:
+                frame: np.ndarray = cv2.imdecode(np.frombuffer(rgb, np.uint8), cv2.IMREAD_COLOR)  # type: ignore[assignment]  # a file the dataset holds
+                masks = visible_masks(renderer, group, oracle_meshes, frame.shape[1], frame.shape[0])
+                sent = [_png(black_outside(frame, m)) for m in masks]
+            decoded, decoded_of = None, None
+            for inst, rgb in zip(group, sent, strict=True):
+                if rgb is not decoded_of or decoded_of is None:  # once a frame, once a mask
+                    decoded_of = rgb
+                    try:
+                        decoded = decode(state, Query(rgb=rgb, depth=depth, depth_scale=scale))
+                    except ApiError:
+                        decoded = None  # `recognise` says why
                 q, i = query(inst, rgb, depth, scale), len(ordered)
                 t0 = time.perf_counter()
                 try:
@@ -255,6 +280,8 @@ def _ask(state, dataset, instances, synthetic: bool, cfg: Config, dataset_ids: d
                 depths.append(None if p is None or p.depth is None else p.depth[0])
                 cut_mm.append(np.nan if p is None else p.distance)
                 b.update()
+    if renderer is not None:
+        renderer.close()
     size = (spec.size, spec.size)
     samples = Samples(
         obj_ids=np.array([i.obj_id for i in ordered], int),

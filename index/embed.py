@@ -18,6 +18,10 @@ INPUT_NAME, OUTPUT_NAME = "patch", "descriptor"
 #: A second output some models have: the L2-normalised feature map of their pretrained trunk, flattened,
 #: for re-ranking the nearest answers by local similarity (`service.recognition`, `index.store`).
 LOCAL_NAME = "local"
+#: A third output some models have: logits (N, 1, S, S) of the pixels of the object at the patch's centre
+#: (`training/mask.py`). A query patch is blacked out where they are negative before it is described,
+#: as templates are renders on black: the descriptor then sees the object, not what stands around it.
+MASK_NAME = "mask"
 
 
 @dataclass(frozen=True)
@@ -87,7 +91,8 @@ class Embedder:
         except Exception as e:
             raise ValueError(f"cannot load ONNX model {self.path}: {e}") from None
         self.info = ModelInfo.from_metadata(self.session.get_modelmeta().custom_metadata_map)
-        self.has_local = LOCAL_NAME in {o.name for o in self.session.get_outputs()}
+        outputs = {o.name for o in self.session.get_outputs()}
+        self.has_local, self.has_mask = LOCAL_NAME in outputs, MASK_NAME in outputs
         if self.info.modality not in MODALITY_CHANNELS:
             raise ValueError(f"model {self.path} has unknown modality {self.info.modality!r}")
 
@@ -119,6 +124,29 @@ class Embedder:
         ]
         return np.concatenate(out) if out else np.zeros((0, 0), np.float16)
 
+    def mask(self, inputs: np.ndarray, batch: int = 256) -> np.ndarray:
+        """Network inputs (N, C, S, S) -> where the centred object is (N, S, S) bool (`MASK_NAME`)."""
+        out = [
+            self.session.run(
+                [MASK_NAME], {INPUT_NAME: np.ascontiguousarray(inputs[i : i + batch], np.float32)}
+            )[0][:, 0]
+            > 0.0
+            for i in range(0, len(inputs), batch)
+        ]
+        s = self.info.size
+        return np.concatenate(out) if out else np.zeros((0, s, s), bool)
+
+    def foreground(
+        self, rgb: np.ndarray, depth: np.ndarray | None, nominal_mm: float | np.ndarray, fill: bool = True
+    ) -> tuple[np.ndarray, np.ndarray | None]:
+        """Query patches with everything but the centred object black (rgb) and empty (depth), as a
+        template is: rgb (N, S, S, 3) uint8, depth (N, S, S) mm or None. Unchanged without a mask head."""
+        if not self.has_mask:
+            return rgb, depth
+        x = batch_inputs(self.modality, rgb, depth, nominal_mm, self.info.window_mm, fill)
+        keep = self.mask(x)
+        return rgb * keep[..., None].astype(rgb.dtype), None if depth is None else np.where(keep, depth, 0.0)
+
     def embed_patches(
         self,
         rgb: np.ndarray | None,
@@ -126,9 +154,13 @@ class Embedder:
         nominal_mm: float | np.ndarray,
         fill: bool = True,
         local: bool = False,
+        masked: bool = False,
     ) -> np.ndarray:
         """Cropped patches (rgb (N, S, S, 3) uint8, depth (N, S, S) mm) -> descriptors (N, D), or with
-        `local` the local features (N, F) instead."""
+        `local` the local features (N, F) instead. `masked`: query patches, cut to their centred object
+        first (`foreground`) when the model has a mask head; templates, renders on black, are not."""
+        if masked and rgb is not None:
+            rgb, depth = self.foreground(rgb, depth, nominal_mm, fill)
         x = batch_inputs(self.modality, rgb, depth, nominal_mm, self.info.window_mm, fill)
         return self.local(x) if local else self(x)
 

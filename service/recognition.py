@@ -95,7 +95,7 @@ def recognise_decoded(state: AppState, q: Query, d: Decoded, decode_s: float | N
     offsets = turn_offsets(state.settings.query_turns, state.templates.inplane_spacing(step))
     p = cut(q, d.rgb, d.depth, d.embedder.info.spec, offsets)
     t2 = time.perf_counter()
-    desc = d.embedder.embed_patches(p.rgb, p.depth, p.distance, fill=True)
+    desc = d.embedder.embed_patches(p.rgb, p.depth, p.distance, fill=True, masked=True)
     t3 = time.perf_counter()
     variants = len(state.templates.inplane(step))
     snap = state.store.snapshot
@@ -131,7 +131,8 @@ def rerank_local(snap: Snapshot, q: Query, d: Decoded, matches: list[Match]) -> 
         return matches
     rolls = sorted({round(matches[i].inplane, 3) for i in have})
     p = cut(q, d.rgb, d.depth, d.embedder.info.spec, rolls)  # undoes each roll: the object upright
-    feats = d.embedder.embed_patches(p.rgb, p.depth, p.distance, fill=True, local=True).astype(np.float32)
+    feats = d.embedder.embed_patches(p.rgb, p.depth, p.distance, fill=True, local=True, masked=True)
+    feats = feats.astype(np.float32)
     row = {r: j for j, r in enumerate(rolls)}
     scored = []
     for i in have:

@@ -187,12 +187,19 @@ class TrainingData:
         return ("synth", i, 0.0), self.s_R[i]
 
     def sample_input(self, sample: tuple, modality: str, rng: np.random.Generator) -> np.ndarray:
+        return self.sample_with_mask(sample, modality, rng)[0]
+
+    def sample_with_mask(
+        self, sample: tuple, modality: str, rng: np.random.Generator
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """A sample's network input (C, S, S) and the visible mask (S, S) bool of its centred object."""
         kind, i, roll = sample
         if kind == "synth":
-            rgb, depth = self._synth(i, rng)
+            rgb, depth, mask = self._synth(i, rng)
         else:
-            rgb, depth = self._real(i, roll, rng)
-        return network_input(modality, rgb, depth, self.cfg.distance, self.cfg.window_mm, fill=True)
+            rgb, depth, mask = self._real(i, roll, rng)
+        x = network_input(modality, rgb, depth, self.cfg.distance, self.cfg.window_mm, fill=True)
+        return x, mask
 
     def template_inputs(self, modality: str) -> np.ndarray:
         """Every template (in-plane variants included) as the network takes it. Shape: (O, T, C, S, S)
@@ -292,8 +299,9 @@ class TrainingData:
                 bg_depth = np.where(on, o_depth + rng.uniform(0.0, 150.0), bg_depth).astype(np.float32)
         return bg_rgb, bg_depth
 
-    def _synth(self, i: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    def _synth(self, i: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         rgb, depth = self.s_rgb[i].copy(), self.s_depth[i].astype(np.float32)
+        mask = depth > 0
         if rng.random() < self.cfg.occlude:  # another object in front, shifted towards a side
             o_rgb, o_depth = self._shifted(rng, 28.0, 48.0)
             front = o_depth > 0
@@ -301,6 +309,7 @@ class TrainingData:
                 near = depth[depth > 0].min() if (depth > 0).any() else self.cfg.distance
                 o_depth = o_depth - o_depth[front].max() + near - 10.0
                 rgb[front], depth[front] = o_rgb[front], o_depth[front]
+                mask &= ~front
         rgb = colour_jitter(rgb, rng, self.cfg.colour_jitter)  # the background replaces what is not object
         plane = None
         if rng.random() < self.cfg.support:  # standing on a table
@@ -308,10 +317,13 @@ class TrainingData:
             n, d = support_plane(self.s_R[i], t, self.z_min[int(self.s_obj[i])])
             plane = plane_depth(patch_camera(self.spec, self.cfg.distance), n, d, depth.shape)
         bg_rgb, bg_depth = self._scene(rng, plane)
-        return self.sensor.apply(rgb, depth, rng, bg_rgb, bg_depth)
+        rgb, depth = self.sensor.apply(rgb, depth, rng, bg_rgb, bg_depth)
+        return rgb, depth, mask
 
-    def _real(self, i: int, roll: float, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-        """Real instance i cut so that it appears turned `roll` degrees in-plane."""
+    def _real(
+        self, i: int, roll: float, rng: np.random.Generator
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Real instance i cut so that it appears turned `roll` degrees in-plane, with its visible mask."""
         r = self.real[i]
         j = self.cfg.centre_jitter_px
         uv = (r.centre_uv[0] + rng.uniform(-j, j), r.centre_uv[1] + rng.uniform(-j, j))
@@ -322,14 +334,14 @@ class TrainingData:
         bg_rgb, bg_depth = self._scene(rng)
         # depth from the rendered frame, relative to the object's own nominal distance like a template's
         depth = np.where(depth > 0, depth - d + self.cfg.distance, 0.0).astype(np.float32)
+        mask3 = np.repeat(((self.labels[r.frame] == r.obj + 1) * 255).astype(np.uint8)[..., None], 3, 2)
+        m = crop(mask3, None, r.K, uv, d, self.spec, undo)[0][..., :1] / 255.0
         if rng.random() < self.cfg.real_paste:
-            mask3 = np.repeat(((self.labels[r.frame] == r.obj + 1) * 255).astype(np.uint8)[..., None], 3, 2)
-            m = crop(mask3, None, r.K, uv, d, self.spec, undo)[0][..., :1] / 255.0
             rgb = (m * rgb + (1 - m) * bg_rgb).astype(np.uint8)
             depth = np.where(m[..., 0] > 0.5, depth, 0.0).astype(np.float32)
         rgb, _ = self.sensor.apply(colour_jitter(rgb, rng, 0.5 * self.cfg.colour_jitter), None, rng)
         _, depth = self.sensor.apply(None, depth, rng, None, bg_depth)
-        return rgb, depth
+        return rgb, depth, m[..., 0] > 0.5
 
 
 def test_input(

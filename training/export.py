@@ -9,41 +9,52 @@ import onnx
 import torch
 from torch import nn
 
-from index.embed import INPUT_NAME, LOCAL_NAME, OUTPUT_NAME, ModelInfo
+from index.embed import INPUT_NAME, LOCAL_NAME, MASK_NAME, OUTPUT_NAME, ModelInfo
+from training.mask import MaskHead
 from training.model import DescriptorNet
 
 
 class WithLocal(nn.Module):
     """The network and, as a second output, its frozen trunk's map L2-normalised and flattened: what
     the service re-ranks its nearest answers by (local similarity of early pretrained features, measured
-    to double the answers within 20 deg on validation frames). Shape: (B, C, S, S) -> (B, D), (B, F)."""
+    to double the answers within 20 deg on validation frames); with a mask head (`training/mask.py`) on
+    the same trunk, a third output: the logits of the centred object's pixels. Shape: (B, C, S, S) ->
+    (B, D), (B, F)[, (B, 1, S, S)]."""
 
-    def __init__(self, net: DescriptorNet):
+    def __init__(self, net: DescriptorNet, mask: MaskHead | None = None):
         super().__init__()
-        self.net = net
+        self.net, self.mask = net, mask
 
-    def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, ...]:
         m = self.net.stem(x)
         flat = m.flatten(1)
-        return self.net.body(m), flat / torch.sqrt((flat * flat).sum(dim=1, keepdim=True) + 1e-12)
+        out = (self.net.body(m), flat / torch.sqrt((flat * flat).sum(dim=1, keepdim=True) + 1e-12))
+        return out if self.mask is None else (*out, self.mask(m))
 
 
 def export_onnx(
-    net: DescriptorNet, out: str | Path, window_mm: float, extra: dict[str, str] | None = None
+    net: DescriptorNet,
+    out: str | Path,
+    window_mm: float,
+    extra: dict[str, str] | None = None,
+    mask: MaskHead | None = None,
 ) -> Path:
-    """Writes `net` to `out` (.onnx) with metadata; returns the path."""
+    """Writes `net` (and a mask head on its trunk) to `out` (.onnx) with metadata; returns the path."""
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     cfg = net.cfg
     net = net.eval()
     dummy = torch.zeros(2, cfg.channels, cfg.size, cfg.size)
     local = not isinstance(net.stem, nn.Identity)  # a pretrained trunk: its map re-ranks
+    if mask is not None and not local:
+        raise ValueError("a mask head reads the pretrained trunk: export it with a trunk model")
+    names = [OUTPUT_NAME, LOCAL_NAME] if local else [OUTPUT_NAME]
     torch.onnx.export(
-        WithLocal(net) if local else net,
+        WithLocal(net, None if mask is None else mask.eval()) if local else net,
         (dummy,),
         str(out),
         input_names=[INPUT_NAME],
-        output_names=[OUTPUT_NAME, LOCAL_NAME] if local else [OUTPUT_NAME],
+        output_names=names + ([MASK_NAME] if mask is not None else []),
         dynamic_shapes={"x": {0: torch.export.Dim("batch", min=1, max=65536)}},
         external_data=False,
         dynamo=True,

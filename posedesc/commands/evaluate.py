@@ -109,6 +109,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "POSEDESC_QUERY_TURNS, else 1)")  # fmt: skip
     p.add_argument("--synthetic", action="store_true",
                    help="synthetic test scenes even where the dataset has the images")  # fmt: skip
+    p.add_argument(
+        "--oracle-mask",
+        action="store_true",
+        help="service protocol: send each frame black outside the instance's true visible mask "
+        "(the clutter-free bound; colour only)",
+    )
     p.add_argument("--model-3d", type=Path, default=None, help="a 3-dimensional model for the 3-D picture")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--json", type=Path, required=True, help="where to write the results")
@@ -137,6 +143,8 @@ def run(args: argparse.Namespace) -> int:
         raise UserError("--inplane-step must be in [0, 180]")
     if args.protocol == "full" and args.inplane_step == 0:
         raise UserError("--inplane-step must be in (0, 180] for the full protocol")
+    if args.oracle_mask and (args.protocol != "service" or args.modality == "depth"):
+        raise UserError("--oracle-mask needs the service protocol and colour (rgb or rgbd)")
     if args.query_turns is not None and not (1 <= args.query_turns <= 36):
         raise UserError("--query-turns must be in 1..36")
     cfg = Config(
@@ -154,6 +162,7 @@ def run(args: argparse.Namespace) -> int:
         inplane_max=args.inplane_max,
         query_turns=args.query_turns,
         synthetic=True if args.synthetic else None,
+        oracle_mask=args.oracle_mask,
         seed=args.seed,
     )
     t0 = time.perf_counter()

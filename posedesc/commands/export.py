@@ -19,10 +19,20 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="best: the epoch chosen on the validation frames (default); last: the final one",
     )
 
+    p.add_argument(
+        "--mask",
+        type=Path,
+        default=None,
+        help="run folder of `posedesc train --arch mask`: its best head goes into the model, and the "
+        "service blacks out what is not the centred object before describing a patch",
+    )
+
 
 def run(args: argparse.Namespace) -> int:
     if not (args.run / "checkpoint.pt").is_file():
         raise UserError(f"{args.run} has no checkpoint.pt: not a training run folder")
+    if args.mask is not None and not (args.mask / "mask.pt").is_file():
+        raise UserError(f"{args.mask} has no mask.pt: not a `posedesc train --arch mask` run folder")
     from training.export import export_onnx
     from training.train import load_checkpoint
 
@@ -57,6 +67,23 @@ def run(args: argparse.Namespace) -> int:
         for k in ("real_val", "synthetic_unseen_demo_shapes", "synthetic_bop_objects"):
             if k in r:
                 extra[k] = json.dumps({a: b for a, b in r[k].items() if a != "bands"})
-    out = export_onnx(net, args.out, ckpt["window_mm"], extra)
+    head = None
+    if args.mask is not None:
+        from training.mask import load_mask
+
+        mask_net, mask_state = load_mask(args.mask)
+        head = mask_net.head
+        extra["mask"] = json.dumps(
+            {
+                "step": mask_state["step"],
+                "val_iou": round(mask_state["val_iou"], 4),
+                "command": mask_state.get("command", ""),
+                "code": mask_state.get("code", ""),
+            }
+        )
+    try:
+        out = export_onnx(net, args.out, ckpt["window_mm"], extra, mask=head)
+    except ValueError as e:
+        raise UserError(str(e)) from None
     print(f"{args.run} -> {out} ({out.stat().st_size / 1e6:.2f} MB)")
     return 0

@@ -32,8 +32,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--minutes", type=float, default=25.0, help="wall-clock budget of the optimisation")
     p.add_argument("--max-steps", type=int, default=0, help="also stop after this many batches (0: no limit)")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--arch", choices=("paper", "trunk", "pca"), default="trunk",
+    p.add_argument("--arch", choices=("paper", "trunk", "pca", "mask"), default="trunk",
                    help="trunk: frozen ImageNet MobileNetV2 stages + trained head (colour only); "
+                   "mask: the foreground-mask head on the same stages (training/mask.py; "
+                   "`posedesc export --mask RUN` adds it to a model); "
                    "pca: the same stages' map, pooled and projected on principal components of "
                    "procedural shapes' templates, no metric training (colour only); "
                    "paper: the paper's network (the baseline; depth and rgbd)")  # fmt: skip
@@ -94,6 +96,8 @@ def run(args: argparse.Namespace) -> int:
     from training.train import TrainConfig, train
     from training.validate import validate_real, validate_synthetic
 
+    if args.arch == "mask" and args.modality != "rgb":
+        raise UserError("--arch mask: the mask head reads colour; train it with --modality rgb")
     arch = args.arch if args.modality == "rgb" else "paper"  # the pretrained trunk takes colour only
     dim = args.dim or {"trunk": 32, "pca": 64}.get(arch, 16)
 
@@ -154,6 +158,15 @@ def run(args: argparse.Namespace) -> int:
         return acc.as_dict()
 
     t1 = time.perf_counter()
+    if arch == "mask":
+        from training.mask import MaskConfig, train_mask
+
+        mcfg = MaskConfig(
+            minutes=args.minutes, max_steps=args.max_steps, threads=args.threads, seed=args.seed
+        )
+        train_mask(mcfg, data, args.out, command, _code_version())
+        print(f"trained the mask head for {(time.perf_counter() - t1) / 60:.1f} min -> {args.out}")
+        return 0
     if arch == "pca":
         from training.pca import run as fit_pca
 

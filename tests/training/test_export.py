@@ -47,3 +47,41 @@ def test_trunk_is_imagenet_mobilenet_and_frozen():
     assert trainable and all(n.startswith("body.") for n in trainable)
     with pytest.raises(ValueError, match="colour only"):
         DescriptorNet(NetConfig("depth", 32, arch="trunk"))
+
+
+def test_mask_head_exports_and_blacks_out_what_is_not_the_object(tmp_path):
+    """A model with a mask head answers its logits as a third output, equal to torch's; a query patch
+    is blacked out where they are negative before it is described, and a template is not."""
+    from training.mask import MaskHead
+
+    torch.manual_seed(0)
+    net = DescriptorNet(NetConfig("rgb", 32, arch="trunk"))
+    head = MaskHead()
+    with torch.no_grad():  # a head whose answer is known: the left half of every patch
+        for p in head.parameters():
+            p.zero_()
+        head.out.bias.fill_(-1.0)
+        head.out.weight[0, 0, 0, 0] = 0.0
+    path = export_onnx(net, tmp_path / "m.onnx", 200.0, {"arch": "trunk"}, mask=head)
+    emb = Embedder(path)
+    assert emb.has_mask and emb.has_local
+    rgb = np.random.default_rng(2).integers(0, 255, (2, 64, 64, 3), dtype=np.uint8)
+    x = np.random.default_rng(3).normal(size=(2, 3, 64, 64)).astype(np.float32)
+    with torch.no_grad():
+        want = head.eval()(net.stem(torch.from_numpy(x))).numpy()[:, 0] > 0
+    np.testing.assert_array_equal(emb.mask(x), want)
+    assert not want.any()  # bias -1 everywhere: nothing is the object
+    out, _ = emb.foreground(rgb, None, 400.0)
+    assert not out.any()
+    assert not np.allclose(
+        emb.embed_patches(rgb, None, 400.0, masked=True), emb.embed_patches(rgb, None, 400.0)
+    )
+    with torch.no_grad():
+        head.out.bias.fill_(1.0)  # everything is the object: the query is described as it is
+    path = export_onnx(net, tmp_path / "all.onnx", 200.0, {"arch": "trunk"}, mask=head)
+    emb = Embedder(path)
+    np.testing.assert_allclose(
+        emb.embed_patches(rgb, None, 400.0, masked=True), emb.embed_patches(rgb, None, 400.0), atol=1e-5
+    )
+    with pytest.raises(ValueError, match="trunk"):
+        export_onnx(DescriptorNet(NetConfig("rgb", 16)), tmp_path / "p.onnx", 200.0, mask=head)
