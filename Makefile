@@ -4,7 +4,7 @@ PY ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 # podman & co. build and run deploy/Dockerfile in tests/deploy (no Docker engine on these machines).
-APT_PACKAGES := libegl1 libegl-mesa0 libgl1-mesa-dri libgl1 libopengl0 python3-venv \
+APT_PACKAGES := libegl1 libegl-mesa0 libgl1-mesa-dri libgl1 libopengl0 python3-venv curl \
   podman buildah uidmap runc debootstrap iptables podman-compose
 STAMP := $(VENV)/.setup-stamp
 

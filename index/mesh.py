@@ -1,9 +1,11 @@
-"""Loading a user's mesh: any format trimesh reads, in mm, checked, and simplified when too heavy;
-refused when too large to load safely (`max_input_faces`, see `index/mesh_limits.py`)."""
+"""Loading a user's mesh: any format of `MESH_FORMATS`, in mm, checked, and simplified when too heavy;
+refused when too large to load safely (`max_input_faces`, see `index/mesh_limits.py`) or, given the patch
+window, when its units make an object the templates cannot show (`window_mm`, see `index/units.py`)."""
 
 from __future__ import annotations
 
 import io
+import json
 import logging
 from pathlib import Path
 
@@ -12,11 +14,14 @@ import trimesh
 from scipy.spatial import cKDTree
 
 from index import mesh_limits
+from index.units import UNIT_SCALE, UNITS, size_problem
 
 log = logging.getLogger(__name__)
 
-MESH_FORMATS = ("ply", "obj", "stl", "glb", "gltf", "off")
-UNIT_SCALE = {"mm": 1.0, "m": 1000.0}
+MESH_FORMATS = ("ply", "obj", "stl", "off", "glb", "gltf")
+# The formats as every message, help text and doc names them. An upload is one file: a glTF's buffers and
+# images must be inside it (data URIs); GLB always is.
+FORMATS_TEXT = "PLY, OBJ, STL, OFF, GLB or glTF (self-contained: buffers and images as data URIs)"
 MAX_SIZE_MM = 1e6  # a kilometre: larger is a units mistake, or coordinates that overflow the renderer
 
 
@@ -34,14 +39,17 @@ def load_mesh(
     file_type: str | None = None,
     max_faces: int | None = 200_000,
     max_input_faces: int | None = None,
+    window_mm: float | None = None,
 ) -> trimesh.Trimesh:
     """One triangle mesh in millimetres from a path or bytes (`file_type` needed for bytes).
 
     Multi-part files (OBJ groups, GLB scenes) are merged with their colours and textures baked to
     vertex colours where the parts differ. A mesh over `max_faces` is simplified to it; one over
-    `max_input_faces` (or `mesh_limits.MAX_PARTS`) raises MeshTooLarge, before parsing when it can."""
+    `max_input_faces` (or `mesh_limits.MAX_PARTS`) raises MeshTooLarge, before parsing when it can.
+    With `window_mm`, an object whose diameter does not fit that patch window raises MeshError saying
+    which units would make it fit."""
     if units not in UNIT_SCALE:
-        raise MeshError(f"units must be one of {sorted(UNIT_SCALE)}, got {units!r}")
+        raise MeshError(f"units must be one of {', '.join(UNITS)}, got {units!r}")
     if isinstance(source, (str, Path)):
         path = Path(source)
         if not path.is_file():
@@ -52,7 +60,9 @@ def load_mesh(
         data = source
     file_type = (file_type or "").lower()
     if file_type not in MESH_FORMATS:
-        raise MeshError(f"unsupported mesh format {file_type!r}; use one of {', '.join(MESH_FORMATS)}")
+        raise MeshError(f"unsupported mesh format {file_type!r}; use {FORMATS_TEXT}")
+    if file_type == "gltf":
+        _self_contained(data)
     if max_input_faces is not None:
         _refuse(mesh_limits.declared(data, file_type), max_input_faces, "declares")
     try:
@@ -73,7 +83,27 @@ def load_mesh(
         mesh = simplify(mesh, max_faces)
         if len(mesh.faces) == 0:  # e.g. a million copies of one triangle
             raise MeshError(f"simplifying it to {max_faces:,} faces left none: its faces are degenerate")
+    if window_mm is not None and (problem := size_problem(diameter(mesh), units, window_mm)):
+        raise MeshError(problem)
     return mesh
+
+
+def _self_contained(data: bytes) -> None:
+    """A glTF upload cannot bring the files its JSON points at: say so, not what trimesh trips on."""
+    try:
+        doc = json.loads(data)
+    except Exception:  # not JSON: trimesh says what is wrong
+        return
+    if not isinstance(doc, dict):
+        return
+    for kind in ("buffers", "images"):
+        for item in doc.get(kind) or ():
+            uri = item.get("uri") if isinstance(item, dict) else None
+            if isinstance(uri, str) and not uri.startswith("data:"):
+                raise MeshError(
+                    f"the glTF's {kind[:-1]} {uri[:80]!r} is a separate file: send a GLB, or a glTF with "
+                    "its buffers and images embedded as data URIs"
+                )
 
 
 def _refuse(size: mesh_limits.Size, max_faces: int, verb: str) -> None:
@@ -161,20 +191,3 @@ def diameter(mesh: trimesh.Trimesh) -> float:
         d2 = sq[i : i + 1024, None] + sq[None, :] - 2.0 * (pts[i : i + 1024] @ pts.T)
         best = max(best, float(d2.max()))
     return float(np.sqrt(best))
-
-
-def scale_warning(mesh: trimesh.Trimesh, window_mm: float) -> str | None:
-    """A message when the object would fill far more or far less of the patch window than it should:
-    the usual sign of a mesh in metres given as mm (or the reverse)."""
-    d = diameter(mesh)
-    if d > 4 * window_mm:
-        return (
-            f"object diameter {d:.0f} mm is over 4x the {window_mm:.0f} mm window: "
-            "is the mesh in mm given as metres?"
-        )
-    if d < window_mm / 20:
-        return (
-            f"object diameter {d:.2f} mm is under 1/20 of the {window_mm:.0f} mm window: "
-            "is the mesh in metres given as mm? (use units=m)"
-        )
-    return None

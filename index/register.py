@@ -36,7 +36,7 @@ import trimesh
 from index.embed import Embedder
 from index.mesh import MeshError, load_mesh, simplify
 from index.pose import View
-from index.render import Renderer, RenderWorker, Templates
+from index.render import INVISIBLE, Renderer, RenderWorker, Templates
 from index.store import ObjectRecord, Store, TemplateSet
 from index.symmetry import SYMMETRIES
 from index.viewpoints import inplane_steps, sphere_views
@@ -214,13 +214,13 @@ def make_templates(
         for m, ts in sets.items():
             parts[m].append(ts)
     if not visible:
-        raise MeshError("the object is invisible in every template: check its units")
+        raise MeshError(INVISIBLE)
     out = {m: _concatenate(ps) for m, ps in parts.items()}
     return out, seconds
 
 
 def _visible(rendered: Mapping[float, Templates]) -> bool:
-    return all(bool((t.depth > 0).any()) for t in rendered.values())
+    return all(t.visible for t in rendered.values())
 
 
 def register(

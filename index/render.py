@@ -33,6 +33,8 @@ from index.pose import OPENGL_FROM_OPENCV, View, opengl_camera_pose, view_to_pos
 
 SHADER_DIR = Path(__file__).parent / "shaders"
 T = TypeVar("T")
+# Why no template shows the object; the camera looks at the object's origin, from 400 mm by default.
+INVISIBLE = "the object is invisible in every template: check its units, and that its origin lies on or in it"
 
 
 @dataclass(frozen=True)
@@ -53,6 +55,11 @@ class Templates:
     depth: np.ndarray
     window_mm: float
     extra: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def visible(self) -> bool:
+        """Whether the object shows in any of them; if not, every template is black (see INVISIBLE)."""
+        return bool((self.depth > 0).any())
 
 
 def render_size(size: int) -> int:

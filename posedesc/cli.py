@@ -1,15 +1,19 @@
 """`posedesc`: one console script, one module per subcommand under posedesc/commands/.
 
-Subcommand modules are imported only when used, so `posedesc serve` never imports torch.
-Each module has `add_arguments(parser)` and `run(args) -> int`, and a one-line `__doc__`.
-Errors a user can fix (`UserError`, `ValueError` from input checks) print one line, exit 2."""
+Subcommand modules are imported only when used, so `posedesc serve` never imports torch; `posedesc --help`
+reads their docstrings without importing them. Each module has `add_arguments(parser)`, `run(args) -> int`
+and a `__doc__` whose first line (at most 60 characters: one line of `posedesc --help` in 80 columns) says
+what it does. Errors a user can fix (`UserError`, `ValueError` from input checks) print one line, exit 2."""
 
 from __future__ import annotations
 
 import argparse
+import ast
 import importlib
+import importlib.util
 import logging
 import sys
+from pathlib import Path
 
 COMMANDS = ("render", "train", "export", "build-index", "serve", "evaluate", "bench")
 
@@ -18,8 +22,36 @@ class UserError(ValueError):
     """Bad input from the user: printed as one line, no traceback."""
 
 
+class HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
+    """Each option's help ends with its default, except where there is none to show (None, a flag)."""
+
+    def _get_help_string(self, action: argparse.Action) -> str:
+        text, default = action.help or "", action.default
+        if action.required or default is None or isinstance(default, bool) or default in ("", ()):
+            return text
+        if "%(default)" in text or default is argparse.SUPPRESS:
+            return text
+        if isinstance(default, tuple):  # blocks of fractions, as typed: A:B,C:D
+            shown = ",".join(":".join(f"{x:g}" for x in block) for block in default)
+            return f"{text} (default: {shown})"
+        return text + " (default: %(default)s)"
+
+
+def _module_name(name: str) -> str:
+    return f"posedesc.commands.{name.replace('-', '_')}"
+
+
 def _module(name: str):
-    return importlib.import_module(f"posedesc.commands.{name.replace('-', '_')}")
+    return importlib.import_module(_module_name(name))
+
+
+def summary(name: str) -> str | None:
+    """The first line of a subcommand's docstring, read from its source (None: not in this build)."""
+    spec = importlib.util.find_spec(_module_name(name))
+    if spec is None or spec.origin is None:
+        return None
+    doc = ast.get_docstring(ast.parse(Path(spec.origin).read_text(encoding="utf-8")))
+    return doc.splitlines()[0] if doc else ""
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -36,8 +68,13 @@ def main(argv: list[str] | None = None) -> int:
                 mod = None
             else:
                 raise
-        help_text = (mod.__doc__ or "").strip().splitlines()[0] if mod and mod.__doc__ else None
-        p = sub.add_parser(name, help=help_text or f"see `posedesc {name} --help`", description=help_text)
+        line = summary(name)
+        p = sub.add_parser(
+            name,
+            help=line if line is not None else "not available in this build",
+            description=mod.__doc__ if mod else line,
+            formatter_class=HelpFormatter,
+        )
         if mod is not None:
             mod.add_arguments(p)
     args = parser.parse_args(argv)

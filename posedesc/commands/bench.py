@@ -1,4 +1,7 @@
-"""Measure speed beside the baselines (HOG, LineMOD, exact k-NN): a table, and JSON for the README."""
+"""Measure speed beside HOG, LineMOD and exact k-NN.
+
+Every figure beside its baseline in the same run: a table, and JSON for the README.
+"""
 
 from __future__ import annotations
 
@@ -57,7 +60,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--roll-objects", type=int, default=None, help="objects in the roll section's stores (100)"
     )
     p.add_argument("--query-turns", default=None, help="query turns of the roll section (1,2,3)")
-    p.add_argument("--seed", type=int, default=0)  # fmt: skip
+    p.add_argument("--seed", type=int, default=0, help="seed of the generated data")  # fmt: skip
 
 
 def run(args: argparse.Namespace) -> int:

@@ -1,4 +1,7 @@
-"""Register every mesh of a folder into a data dir offline (the same code path as POST /objects)."""
+"""Register every mesh of a folder into a data dir, offline.
+
+The same code path as POST /objects; a service already serving that data dir sees them after a restart.
+"""
 
 from __future__ import annotations
 
@@ -11,10 +14,13 @@ from posedesc.cli import UserError
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--meshes", type=Path, required=True, help="folder of PLY, OBJ, STL or GLB files")
+    from index.mesh import FORMATS_TEXT
+    from index.units import UNITS
+
+    p.add_argument("--meshes", type=Path, required=True, help=f"folder of meshes: {FORMATS_TEXT}")
     p.add_argument("--data-dir", type=Path, required=True, help="the store to add them to (made if missing)")
     p.add_argument("--models", type=Path, default=Path("models"), help="folder of posedesc-*.onnx models")
-    p.add_argument("--units", choices=("mm", "m"), default="mm", help="units of the mesh files")
+    p.add_argument("--units", choices=UNITS, default="mm", help="units of the mesh files")
     p.add_argument("--symmetry", choices=("none", "180", "full"), default="none", help="of every mesh")
     p.add_argument("--inplane-step", type=float, default=None,
                    help="template in-plane step for every model, degrees (0: upright only; default: each "
@@ -29,7 +35,7 @@ def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from index.embed import fingerprint, load_models
-    from index.mesh import MESH_FORMATS, MeshError, load_mesh
+    from index.mesh import FORMATS_TEXT, MESH_FORMATS, MeshError, load_mesh
     from index.register import TemplateConfig, register
     from index.render import RenderWorker
     from index.store import Store, StoreError
@@ -38,7 +44,7 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"--meshes {args.meshes}: not a folder")
     files = sorted(f for f in args.meshes.iterdir() if f.suffix.lstrip(".").lower() in MESH_FORMATS)
     if not files:
-        raise UserError(f"no meshes ({', '.join(MESH_FORMATS)}) in {args.meshes}")
+        raise UserError(f"no meshes ({FORMATS_TEXT}) in {args.meshes}")
     embedders = load_models(args.models)
     try:
         store = Store(args.data_dir, {m: (e.dim, fingerprint(e.path)) for m, e in embedders.items()})
@@ -56,7 +62,7 @@ def run(args: argparse.Namespace) -> int:
                     tqdm.write(f"{f.name}: {f.stem} is already in the store, skipped")
                     continue
                 try:
-                    mesh = load_mesh(f, units=args.units, max_faces=args.max_faces)
+                    mesh = load_mesh(f, units=args.units, max_faces=args.max_faces, window_mm=window)
                     register(
                         mesh,
                         f.stem,

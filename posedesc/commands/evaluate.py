@@ -1,4 +1,8 @@
-"""Measure what `POST /recognize` answers (or the paper's protocols) beside HOG and LineMOD: JSON, report."""
+"""Measure accuracy as the API answers, beside HOG and LineMOD.
+
+What POST /recognize answers (or the paper's protocols) on a BOP dataset's frames, beside HOG and
+LineMOD on the same patches and templates: JSON, and a report with pictures.
+"""
 
 from __future__ import annotations
 
@@ -80,7 +84,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--scene", type=int, default=2, help="test scene id")
     p.add_argument("--min-visib", type=float, default=0.5, help="least visible fraction of an instance")
     p.add_argument("--protocol", choices=PROTOCOLS, default="service",
-                   help="service (default): what POST /recognize answers, called in process with the "
+                   help="service: what POST /recognize answers, called in process with the "
                    "frame, camera, centre and distance (colour) or depth, as a user sends them; templates "
                    "from the service's registration and settings; 3-D rotation error (in-plane included) "
                    "and viewing-direction error of the top answers. paper: patch cut at the true centre "
@@ -116,7 +120,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "(the clutter-free bound; colour only)",
     )
     p.add_argument("--model-3d", type=Path, default=None, help="a 3-dimensional model for the 3-D picture")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument(
+        "--seed", type=int, default=0, help="seed of synthetic scenes and of the pictures' samples"
+    )
     p.add_argument("--json", type=Path, required=True, help="where to write the results")
     p.add_argument("--report", type=Path, default=None, help="folder for report.md and the pictures")
 

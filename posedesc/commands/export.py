@@ -1,4 +1,8 @@
-"""Export a trained run to one ONNX file with its patch conventions and provenance in the metadata."""
+"""Export a training run to one ONNX file, with its metadata.
+
+The patch conventions (modality, window, size, in-plane step), the data split and the provenance go into
+the model's metadata.
+"""
 
 from __future__ import annotations
 
@@ -16,7 +20,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--checkpoint",
         choices=("best", "last"),
         default="best",
-        help="best: the epoch chosen on the validation frames (default); last: the final one",
+        help="best: the epoch chosen on the validation frames; last: the final one",
     )
 
     p.add_argument(

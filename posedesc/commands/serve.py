@@ -1,4 +1,7 @@
-"""Serve the recognition API (FastAPI on uvicorn); other settings from POSEDESC_* environment variables."""
+"""Serve the recognition API (FastAPI on uvicorn).
+
+Other settings come from POSEDESC_* environment variables.
+"""
 
 from __future__ import annotations
 
@@ -13,7 +16,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--port", type=int, default=8000, help="port to listen on")
     p.add_argument("--data-dir", type=Path, help="store folder (default: POSEDESC_DATA_DIR or data/default)")
     p.add_argument("--models", type=Path, help="models folder (default: POSEDESC_MODELS_DIR or models)")
-    p.add_argument("--log-level", default="info", choices=("debug", "info", "warning", "error"))
+    p.add_argument(
+        "--log-level", default="info", choices=("debug", "info", "warning", "error"), help="uvicorn's"
+    )
 
 
 def run(args: argparse.Namespace) -> int:

@@ -1,4 +1,8 @@
-"""Train a descriptor network (Wohlhart & Lepetit 2015) on BOP data plus procedural shapes."""
+"""Train a descriptor network (BOP data, procedural shapes).
+
+The paper's method (Wohlhart & Lepetit 2015) in PyTorch on BOP meshes and frames plus procedural shapes;
+the run folder gets checkpoints, a log and a report.
+"""
 
 from __future__ import annotations
 
@@ -31,7 +35,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--minutes", type=float, default=25.0, help="wall-clock budget of the optimisation")
     p.add_argument("--max-steps", type=int, default=0, help="also stop after this many batches (0: no limit)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=int, default=0, help="random seed")
     p.add_argument("--arch", choices=("paper", "trunk", "pca", "mask"), default="trunk",
                    help="trunk: frozen ImageNet MobileNetV2 stages + trained head (colour only); "
                    "mask: the foreground-mask head on the same stages (training/mask.py; "
@@ -46,7 +50,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="deg between the in-plane variants of a template (0: upright only)")  # fmt: skip
     p.add_argument("--shapes", type=int, default=40, help="procedural objects besides the BOP meshes")
     p.add_argument("--batch", type=int, default=48, help="training samples per batch")
-    p.add_argument("--lr", type=float, default=1e-3)
+    p.add_argument(
+        "--lr", type=float, default=1e-3, help="Adam learning rate, decayed (cosine) over the budget"
+    )
     p.add_argument("--threads", type=int, default=2, help="torch threads")
     p.add_argument(
         "--val",

@@ -11,7 +11,12 @@ from service.schemas import JobOut, ObjectCreated
 router = APIRouter(tags=["objects"])
 
 
-@router.get("/jobs/{job_id}", response_model=JobOut, responses=responses(404, 422))
+@router.get(
+    "/jobs/{job_id}",
+    response_model=JobOut,
+    summary="A registration's status (running, done, failed) and then its object",
+    responses=responses(404, 422),
+)
 def get_job(job_id: str, state: StateDep) -> JobOut:
     job = state.jobs.get(job_id)
     if job is None:

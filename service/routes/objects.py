@@ -12,8 +12,9 @@ from typing import Annotated, Literal
 from fastapi import APIRouter, File, Form, Response, UploadFile
 from fastapi.responses import JSONResponse
 
-from index.mesh import MeshError, MeshTooLarge, load_mesh, scale_warning
+from index.mesh import FORMATS_TEXT, MeshError, MeshTooLarge, load_mesh
 from index.register import register
+from index.units import LARGEST, SMALLEST, Units
 from service.deps import ApiKeyDep, StateDep
 from service.errors import DISK_FULL, ApiError, responses
 from service.jobs import Job
@@ -53,16 +54,22 @@ def _out(state: AppState, object_id: int) -> ObjectOut:
 async def add_object(
     state: StateDep,
     _key: ApiKeyDep,
-    mesh: Annotated[UploadFile, File(description="PLY, OBJ, STL or GLB; vertex colours or a texture")],
+    mesh: Annotated[UploadFile, File(description=f"{FORMATS_TEXT}; vertex colours or a texture (GLB, glTF)")],
     name: Annotated[str, Form(min_length=1, max_length=200, examples=["my-part"])],
-    units: Annotated[Literal["mm", "m"], Form(description="units of the mesh file")] = "mm",
+    units: Annotated[
+        Units,
+        Form(
+            description=f"units of the mesh file; an object whose diameter comes out under {SMALLEST:g} or "
+            f"over {LARGEST:g} times the patch window's side is refused, with the units that would fit"
+        ),
+    ] = "mm",
     symmetry: Annotated[
         Literal["none", "180", "full"], Form(description="about the object's z axis")
     ] = "none",
 ) -> Response | ObjectCreated:
     file_type = Path(mesh.filename or "").suffix.lstrip(".").lower()
     if not file_type:
-        raise ApiError(422, "mesh: the file name needs an extension (.ply, .obj, .stl or .glb)")
+        raise ApiError(422, f"mesh: the file name needs an extension: {FORMATS_TEXT}")
     if state.jobs.running() >= MAX_QUEUED:
         raise ApiError(503, "too many registrations queued; try again in a minute")
     limits = state.settings.max_faces, state.settings.max_upload_faces
@@ -71,17 +78,15 @@ async def add_object(
         data = await mesh.read()
         try:
             loaded = await asyncio.wrap_future(
-                state.mesh_loader.submit(_load, data, units, file_type, *limits)
+                state.mesh_loader.submit(_load, data, units, file_type, *limits, window)
             )
         except MeshTooLarge as e:
             raise ApiError(413, f"mesh: {e}") from None
         except MeshError as e:
             raise ApiError(422, f"mesh: {e}") from None
         del data
-        warning = await asyncio.wrap_future(state.mesh_loader.submit(scale_warning, loaded, window))
-    warnings = [warning] if warning else []
     job = state.jobs.new(name)
-    fut = state.registrar.submit(_run, state, job, loaded, name, symmetry, warnings)
+    fut = state.registrar.submit(_run, state, job, loaded, name, symmetry)
     try:
         await asyncio.wait_for(asyncio.shield(asyncio.wrap_future(fut)), state.settings.sync_seconds)
     except TimeoutError:
@@ -92,19 +97,19 @@ async def add_object(
     return ObjectCreated(**job.result)  # type: ignore[arg-type]
 
 
-def _load(data: bytes, units: str, file_type: str, max_faces: int, max_upload_faces: int):
+def _load(data: bytes, units: str, file_type: str, max_faces: int, max_upload_faces: int, window_mm: float):
     """`load_mesh` on the mesh thread, leaving nothing behind: trimesh's meshes are reference cycles
     (mesh <-> visual), so a refused or simplified one would stay in memory until the next full GC and
     the next upload's parse stack on it (measured: +750 MB for three 12 M-triangle files in a row)."""
     try:
-        return load_mesh(data, units, file_type, max_faces, max_upload_faces)
+        return load_mesh(data, units, file_type, max_faces, max_upload_faces, window_mm)
     except MeshError as e:
         raise e.with_traceback(None) from None  # its frames hold the parsed mesh
     finally:
         gc.collect()
 
 
-def _run(state: AppState, job: Job, mesh, name: str, symmetry: str, warnings: list[str]) -> None:
+def _run(state: AppState, job: Job, mesh, name: str, symmetry: str) -> None:
     """The registration, on the registration thread; its outcome goes into the job."""
     try:
         reg = register(
@@ -135,7 +140,6 @@ def _run(state: AppState, job: Job, mesh, name: str, symmetry: str, warnings: li
         templates=max(reg.record.templates.values()),
         seconds=round(reg.timings["total"], 3),
         timings={k: round(v, 3) for k, v in reg.timings.items()},
-        warnings=warnings,
     ).model_dump()
     job.status = "done"
 
@@ -146,7 +150,9 @@ def list_objects(state: StateDep) -> list[ObjectOut]:
     return [_out(state, oid) for oid in sorted(snap.objects)]
 
 
-@router.get("/objects/{object_id}", response_model=ObjectOut, responses=responses(404, 422))
+@router.get(
+    "/objects/{object_id}", response_model=ObjectOut, summary="One object", responses=responses(404, 422)
+)
 def get_object(object_id: int, state: StateDep) -> ObjectOut:
     return _out(state, object_id)
 

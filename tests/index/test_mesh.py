@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from index.mesh import MeshError, diameter, load_mesh, scale_warning
+from index.mesh import FORMATS_TEXT, MESH_FORMATS, MeshError, diameter, load_mesh
 
 
 def export(mesh: trimesh.Trimesh, path, fmt: str):
@@ -25,14 +25,37 @@ def test_metres_are_scaled(tmp_path, l_shape):
     assert diameter(m) == pytest.approx(diameter(l_shape), rel=1e-3)
 
 
-def test_scale_warnings(l_shape):
-    assert scale_warning(l_shape, 200) is None
-    tiny = l_shape.copy()
-    tiny.apply_scale(0.001)
-    assert "units=m" in scale_warning(tiny, 200)
-    huge = l_shape.copy()
-    huge.apply_scale(1000)
-    assert "metres" in scale_warning(huge, 200)
+@pytest.mark.parametrize("units,scale", [("cm", 0.1), ("m", 0.001), ("inch", 1 / 25.4)])
+def test_a_file_in_other_units_is_refused_in_mm_and_read_in_its_own(tmp_path, l_shape, units, scale):
+    small = l_shape.copy()
+    small.apply_scale(scale)
+    path = export(small, tmp_path / "m.ply", "ply")
+    with pytest.raises(MeshError, match=f"too small for the 200 mm patch window.* in {units} it is "):
+        load_mesh(path, window_mm=200)
+    assert diameter(load_mesh(path, units=units, window_mm=200)) == pytest.approx(diameter(l_shape), rel=1e-3)
+    load_mesh(path)  # without a window, the size is not checked (BOP meshes, stored meshes)
+
+
+def test_a_mesh_in_mm_read_as_metres_is_too_large(tmp_path, l_shape):
+    path = export(l_shape, tmp_path / "m.ply", "ply")
+    with pytest.raises(MeshError, match="too large.*read in mm it is 1"):
+        load_mesh(path, units="m", window_mm=200)
+
+
+def test_gltf_must_be_self_contained(l_shape):
+    embedded = l_shape.export(file_type="gltf", embed_buffers=True)["model.gltf"]
+    assert len(load_mesh(embedded, file_type="gltf").faces) == len(l_shape.faces)
+    separate = l_shape.export(file_type="gltf")
+    assert len(separate) > 1  # the JSON and its buffer files
+    with pytest.raises(MeshError, match="separate file: send a GLB, or a glTF with its buffers and images"):
+        load_mesh(separate["model.gltf"], file_type="gltf")
+
+
+def test_the_formats_text_names_every_format():
+    assert all(f in FORMATS_TEXT.lower() for f in MESH_FORMATS)
+    with pytest.raises(MeshError) as e:
+        load_mesh(b"x", file_type="docx")
+    assert FORMATS_TEXT in str(e.value)
 
 
 def test_bad_meshes_are_refused(tmp_path):

@@ -50,10 +50,25 @@ def test_render_bad_input_is_one_line(tmp_path, content, suffix, message):
     assert message in r.stderr and "Traceback" not in r.stderr and len(r.stderr.strip().splitlines()) == 1
 
 
-def test_render_warns_about_units(tmp_path, l_shape):
+@pytest.mark.parametrize("units,scale", [("cm", 0.1), ("m", 0.001)])
+def test_render_refuses_a_mesh_in_other_units(tmp_path, l_shape, units, scale):
     small = l_shape.copy()
-    small.apply_scale(0.001)  # metres, but rendered as mm
+    small.apply_scale(scale)  # in cm or m, rendered as mm: a speck, or 301 black templates
     f = tmp_path / "m.ply"
     f.write_bytes(small.export(file_type="ply"))
     r = posedesc("render", str(f), "--out", str(tmp_path / "o"), "--level", "1")
-    assert r.returncode == 0 and "units=m" in r.stderr
+    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1 and "Traceback" not in r.stderr
+    assert "too small for the 200 mm patch window" in r.stderr and f" {units} it is " in r.stderr
+    assert not (tmp_path / "o").exists()  # nothing written
+    r = posedesc("render", str(f), "--out", str(tmp_path / "o"), "--level", "1", "--units", units)
+    assert r.returncode == 0, r.stderr
+
+
+def test_render_refuses_an_object_no_template_shows(tmp_path, l_shape):
+    away = l_shape.copy()
+    away.apply_translation([3000.0, 0.0, 0.0])  # its size fits, but the camera looks at its far-off origin
+    f = tmp_path / "away.ply"
+    f.write_bytes(away.export(file_type="ply"))
+    r = posedesc("render", str(f), "--out", str(tmp_path / "o"), "--level", "1")
+    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1
+    assert "invisible in every template" in r.stderr and not (tmp_path / "o").exists()

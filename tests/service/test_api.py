@@ -13,10 +13,12 @@ from fastapi.testclient import TestClient
 from PIL import Image
 from service_helpers import (
     K,
+    created,
     depth_png,
     expected_templates,
     frame,
     frame_fields,
+    make_t_shape,
     ply_bytes,
     png,
     register,
@@ -177,14 +179,28 @@ def _stl_on_a_line() -> bytes:
     return b"solid x\nfacet normal 0 0 1\nouter loop\nvertex 0 0 0\nvertex 1 0 0\nvertex 2 0 0\nendloop\nendfacet\nendsolid x\n"
 
 
+def _in_cm() -> bytes:
+    """The T (about 160 mm across) written in centimetres."""
+    mesh = make_t_shape()
+    mesh.apply_scale(0.1)
+    return ply_bytes(mesh)
+
+
+def _gltf_with_separate_buffers() -> bytes:
+    files = trimesh.creation.box(extents=[100, 60, 40]).export(file_type="gltf")
+    return files["model.gltf"]  # its buffers are other files of the export: an upload cannot bring them
+
+
 BAD_MESHES = {
     "not a mesh": ("x.ply", b"\x00\x01garbage" * 50, {}, "mesh:"),
     "no faces": ("x.ply", _ply_points_only(), {}, "mesh:"),
     "degenerate": ("x.stl", _stl_on_a_line(), {}, "degenerate"),
     "unknown format": ("x.docx", b"hello", {}, "unsupported mesh format"),
-    "too small to see": ("x.ply", ply_bytes(trimesh.creation.box(extents=[0.01] * 3)), {}, "invisible"),
+    "too small to see": ("x.ply", ply_bytes(trimesh.creation.box(extents=[0.01] * 3)), {}, "too small"),
+    "centimetres given as mm": ("x.ply", _in_cm(), {"units": "mm"}, "read in cm it is 1"),
+    "glTF pointing at other files": ("x.gltf", _gltf_with_separate_buffers(), {}, "data URIs"),
     "no extension": ("mesh", b"hello", {}, "extension"),
-    "bad units": ("x.ply", b"", {"units": "inch"}, "units"),
+    "bad units": ("x.ply", b"", {"units": "furlong"}, "units"),
     "bad symmetry": ("x.ply", b"", {"symmetry": "90"}, "symmetry"),
     "empty name": ("x.ply", b"", {"name": ""}, "name"),
 }
@@ -197,6 +213,13 @@ def test_bad_meshes_get_422(client, case):
     assert r.status_code == 422, r.text
     assert message in r.json()["detail"]
     assert "bad" not in {o["name"] for o in client.get("/objects").json()}
+
+
+def test_a_mesh_in_centimetres_registers_with_units_cm(client):
+    r = client.post("/objects", files={"mesh": ("t.ply", _in_cm())}, data={"name": "T in cm", "units": "cm"})
+    obj = created(client, r)
+    assert obj["name"] == "T in cm" and obj["warnings"] == []
+    assert client.delete(f"/objects/{obj['object_id']}").status_code == 204
 
 
 def test_unknown_ids_get_404(client):

@@ -1,0 +1,82 @@
+"""The README's service examples run as written: its curl block in bash and its Python block, taken from
+README.md with only the server's address changed, against `posedesc serve` on a loopback port with the
+shipped models and the demo objects, as `make serve` starts it. A README example that stops working fails
+here."""
+
+from __future__ import annotations
+
+import re
+import shutil
+import subprocess
+import sys
+
+import httpx
+import pytest
+from service_helpers import ROOT, Server
+
+MODELS = ROOT / "models"
+DEMO = ["mug", "lamp", "robot", "duck"]
+
+
+def blocks(lang: str, needle: str) -> list[str]:
+    """The README's fenced `lang` code blocks that contain `needle`."""
+    found = re.findall(rf"^```{lang}\n(.*?)^```", (ROOT / "README.md").read_text(), re.M | re.S)
+    return [b for b in found if needle in b]
+
+
+# A registration answers 201 when done within SYNC_SECONDS, else 202 and a job: the examples handle both.
+@pytest.fixture(scope="module", params=["30", "0"], ids=["201", "202"])
+def server(request, tmp_path_factory):
+    if not all((MODELS / f"posedesc-{m}.onnx").is_file() for m in ("rgb", "depth", "rgbd")):
+        pytest.skip(f"no shipped models in {MODELS}")
+    env = {"POSEDESC_DEMO_OBJECTS": "true", "POSEDESC_SYNC_SECONDS": request.param}
+    with Server(tmp_path_factory.mktemp("readme") / "data", MODELS, env) as s:
+        s.wait_ready(timeout=300)
+        s.registered = "202" if request.param == "0" else "201"  # what POST /objects answers
+        yield s
+        s.stop()
+
+
+def names(server: Server) -> list[str]:
+    return [o["name"] for o in httpx.get(f"{server.url}/objects").json()]
+
+
+def registrations(server: Server) -> str:
+    """The metrics' count of POST /objects answered as the server's set-up makes it answer."""
+    code = server.registered  # type: ignore[attr-defined]
+    wanted = f'posedesc_requests_total{{method="POST",route="/objects",status="{code}"}} '
+    lines = httpx.get(f"{server.url}/metrics").text.splitlines()
+    return next((x.split()[-1] for x in lines if x.startswith(wanted)), "0")
+
+
+def test_the_curl_examples(server):
+    assert shutil.which("curl"), "curl is needed (make setup installs it)"
+    (script,) = blocks("sh", "curl -s localhost:8000/recognize")
+    assert names(server) == DEMO
+    before = float(registrations(server))
+    script = script.replace("localhost:8000", server.url.removeprefix("http://"))
+    r = subprocess.run(
+        ["bash", "-e", "-o", "pipefail", "-c", script], cwd=ROOT, capture_output=True, text=True, timeout=300
+    )
+    assert r.returncode == 0, r.stdout[-2000:] + r.stderr
+    out = r.stdout
+    assert '"detail":"' not in out  # no error answered (errors are {"detail": "..."})
+    # the three recognitions of the demo robot's frame and patch
+    assert out.count('"best":{"object_id":3,"name":"robot"') == 3, out[:3000]
+    assert '"name":"part"' in out and re.search(r"\}204\n", out)  # registered, shown, then deleted
+    assert "posedesc_requests_total" in out  # the metrics
+    assert names(server) == DEMO  # the part is gone and the demo objects (the mug is id 1) are not
+    assert float(registrations(server)) == before + 1
+
+
+def test_the_python_example(server):
+    (code,) = blocks("python", "httpx.Client")
+    assert names(server) == DEMO
+    before = float(registrations(server))
+    code = code.replace("http://localhost:8000", server.url)
+    r = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stdout[-2000:] + r.stderr
+    assert r.stdout.startswith("{'object_id': 3, 'name': 'robot'"), r.stdout[:500]  # as its comment says
+    assert "'name': 'part'" in r.stdout
+    assert names(server) == DEMO
+    assert float(registrations(server)) == before + 1
