@@ -39,7 +39,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--arch", choices=("paper", "trunk", "pca", "mask"), default="trunk",
                    help="trunk: frozen ImageNet MobileNetV2 stages + trained head (colour only); "
                    "mask: the foreground-mask head on the same stages (training/mask.py; "
-                   "`posedesc export --mask RUN` adds it to a model); "
+                   "the export command adds it to a model); "
                    "pca: the same stages' map, pooled and projected on principal components of "
                    "procedural shapes' templates, no metric training (colour only); "
                    "paper: the paper's network (the baseline; depth and rgbd)")  # fmt: skip
