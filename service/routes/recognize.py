@@ -9,6 +9,7 @@ from fastapi.concurrency import run_in_threadpool
 
 from service.deps import StateDep
 from service.errors import responses
+from service.poses import pose_fields
 from service.recognition import MAX_DISTANCE_MM, MAX_PX, MIN_DISTANCE_MM, Query, recognise
 from service.schemas import MatchOut, RecognizeOut
 
@@ -28,7 +29,9 @@ router = APIRouter(tags=["recognition"])
         "frame needs it. With depth and no `distance_mm`, the service measures the distance of the "
         "surface at (u, v) in the depth image. The answer holds `k` distinct (object, viewpoint) "
         "matches, nearest first, each with its azimuth, elevation and estimated in-plane angle (roll, "
-        "counter-clockwise in the image, in (-180, 180]; 0 when the templates are upright only)."
+        "counter-clockwise in the image, in (-180, 180]; 0 when the templates are upright only) and its pose "
+        "in the camera as BOP writes it: `R` (model to camera, row-major) and `t` (mm) along the ray through "
+        "(u, v) at the distance the query was cut at (for a patch, in the patch's own camera)."
     ),
     responses=responses(400, 413, 422),
 )
@@ -82,7 +85,9 @@ async def recognize(
             k=k,
         )
         result = await run_in_threadpool(recognise, state, q)
-    matches = [MatchOut(**m.__dict__) for m in result.matches]
+    matches = [
+        MatchOut(**m.__dict__, **pose_fields(m, result.ray, result.distance_mm)) for m in result.matches
+    ]
     return RecognizeOut(
         matches=matches,
         best=matches[0] if matches else None,

@@ -26,7 +26,7 @@ from service_helpers import (
     wait_ready,
 )
 
-from index.pose import View
+from index.pose import View, view_to_pose
 from index.symmetry import view_error
 from service.main import create_app
 
@@ -92,6 +92,28 @@ def test_recognise_a_patch(client, renderer, t_shape):
     assert r.json()["best"]["name"] == "T"
     errors = [view_error(m["azimuth"], m["elevation"], 200.0, 50.0) for m in r.json()["matches"]]
     assert min(errors) <= 20.0
+
+
+def test_each_match_carries_its_pose_in_the_camera(client, l_frame):
+    """A frame's answers are posed along the ray through (u, v) at the distance sent; a patch's in its own
+    camera, on the optical axis at 400 mm: each R the answer's view turned onto that ray."""
+    rgb, _ = l_frame
+    frame_r = client.post(
+        "/recognize", files={"rgb": ("f.png", png(rgb))}, data=frame_fields(UV, distance_mm=600)
+    )
+    patch_r = client.post("/recognize", files={"rgb": ("p.png", png(GREY))}, data={"k": "3"})
+    through_uv = np.linalg.inv(K) @ np.array([*UV, 1.0])
+    for r, ray, distance in (
+        (frame_r, through_uv / np.linalg.norm(through_uv), 600.0),
+        (patch_r, np.array([0, 0, 1.0]), 400.0),
+    ):
+        assert r.status_code == 200, r.text
+        for m in r.json()["matches"]:
+            R, t = np.reshape(m["R"], (3, 3)), np.asarray(m["t"])
+            want_R, want_t = view_to_pose(View(m["azimuth"], m["elevation"], m["inplane"], distance), ray)
+            np.testing.assert_allclose(t, want_t, atol=1e-9)
+            np.testing.assert_allclose(R, want_R, atol=1e-9)
+            assert np.allclose(R @ R.T, np.eye(3)) and np.linalg.det(R) > 0
 
 
 def test_objects_list_get_delete(client, posedesc_models, renderer, l_shape, l_frame):

@@ -10,12 +10,13 @@ import inspect
 import json
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 from service_helpers import ROOT, created, service_settings, wait_ready
 
-from index.bop import BopDataset
+from index.bop import BopDataset, instance_patch
 from service.main import create_app
 
 LMO_DEPTH = ROOT.parent / "shared" / "data" / "lmo-depth"
@@ -37,6 +38,7 @@ def frame():
         "depth": (SCENE / "depth" / "000003.png").read_bytes(),
         "rgb": (SCENE / "rgb" / "000003.png").read_bytes(),
         "instances": insts,
+        "all": [i for i in BopDataset(LMO_DEPTH).instances(2) if i.frame_id == 3],
     }
 
 
@@ -95,6 +97,12 @@ def test_recognise_objects_in_a_real_depth_frame(client, frame, cut_distances, m
         assert len(body["matches"]) == 5 and body["best"] == body["matches"][0]
         assert {m["object_id"] for m in body["matches"]} <= set(client.ids)
         assert body["timings_ms"]["total"] > 0
+        # each answer's pose: a rotation, the origin along the ray through (u, v) at the cut distance
+        ray = np.linalg.inv(inst.K) @ np.array([u, v, 1.0])
+        for m in body["matches"]:
+            R, t = np.reshape(m["R"], (3, 3)), np.asarray(m["t"])
+            assert np.abs(R @ R.T - np.eye(3)).max() < 1e-9 and np.linalg.det(R) == pytest.approx(1.0)
+            np.testing.assert_allclose(t, cut_distances[0] * ray / np.linalg.norm(ray), rtol=1e-9)
         # the distance was measured from the real depth: the surface at the centre, near ‖t‖
         true = float(np.linalg.norm(inst.t))
         assert cut_distances and len(set(cut_distances)) == 1
@@ -105,3 +113,61 @@ def test_recognise_objects_in_a_real_depth_frame(client, frame, cut_distances, m
             f"az {best['azimuth']:.0f} el {best['elevation']:.0f} (true {inst.view.azimuth:.0f} "
             f"{inst.view.elevation:.0f}), cut at {cut_distances[0]:.0f} mm (‖t‖ {true:.0f})"
         )
+
+
+def png16(depth: np.ndarray) -> bytes:
+    assert depth.max() <= 65535
+    ok, buf = cv2.imencode(".png", np.round(depth).astype(np.uint16))
+    assert ok
+    return buf.tobytes()
+
+
+def rescaled(png: bytes, factor: float) -> bytes:
+    """The 16-bit depth file in other units: x10 is 0.1 mm, x0.1 is cm."""
+    return png16(cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_UNCHANGED) * factor)
+
+
+def send_depth(client: TestClient, depth: bytes, inst, **extra) -> dict:
+    (fx, _, cx), (_, fy, cy) = inst.K[:2]
+    u, v = inst.centre_uv
+    fields = {"fx": fx, "fy": fy, "cx": cx, "cy": cy, "u": u, "v": v, "k": 3, **extra}
+    r = client.post(
+        "/recognize", files={"depth": ("d.png", depth)}, data={k: str(x) for k, x in fields.items()}
+    )
+    return {"status": r.status_code, **r.json()}
+
+
+@pytest.mark.parametrize(("factor", "scale"), [(10.0, "0.1"), (0.1, "10")], ids=["0.1 mm", "cm"])
+def test_depth_in_other_units_is_refused_naming_the_scale(client, frame, factor, scale):
+    """The Kinect frame in 0.1 mm (or cm) sent as if in mm: without the check, cut 10x too far (near) and
+    answered with a confident wrong object; now 422 naming the scale, for every object of the frame."""
+    other = rescaled(frame["depth"], factor)
+    for inst in frame["all"]:
+        r = send_depth(client, other, inst)
+        assert r["status"] == 422 and f"send depth_scale={scale};" in r["detail"], (inst.obj_id, r)
+        # the distance given: the depth around it still says the units are wrong
+        r = send_depth(client, other, inst, distance_mm=float(np.linalg.norm(inst.t)))
+        assert r["status"] == 422 and r["detail"].endswith(f"send depth_scale={scale}"), (inst.obj_id, r)
+
+
+def test_depth_in_tenths_of_a_mm_with_its_scale_is_the_mm_frame(client, frame, cut_distances):
+    tenths = rescaled(frame["depth"], 10.0)
+    for inst in frame["instances"]:
+        cut_distances.clear()
+        assert send_depth(client, frame["depth"], inst)["status"] == 200
+        assert send_depth(client, tenths, inst, depth_scale=0.1)["status"] == 200
+        mm, scaled = cut_distances[0], cut_distances[-1]
+        assert scaled == pytest.approx(mm, abs=0.01)
+
+
+def test_a_depth_patch_in_cm_is_refused(client, frame):
+    """A patch has no camera to size the window by: its distance is checked against a camera's range."""
+    depth = cv2.imdecode(np.frombuffer(frame["depth"], np.uint8), cv2.IMREAD_UNCHANGED).astype(np.float32)
+    inst = frame["instances"][0]
+    _, patch, _ = instance_patch(inst, rgb=np.zeros((*depth.shape, 3), np.uint8), depth=depth)
+    files = {"mm": png16(patch), "cm": png16(patch / 10)}
+    r = {
+        k: client.post("/recognize", files={"depth": ("p.png", f)}, data={"k": "3"}) for k, f in files.items()
+    }
+    assert r["mm"].status_code == 200, r["mm"].text
+    assert r["cm"].status_code == 422 and "send depth_scale=10;" in r["cm"].json()["detail"]
