@@ -12,6 +12,7 @@ from torch import nn
 from index.embed import INPUT_NAME, LOCAL_NAME, MASK_NAME, OUTPUT_NAME, ModelInfo
 from training.mask import MaskHead
 from training.model import DescriptorNet
+from training.trunk import Trunk
 
 
 class WithLocal(nn.Module):
@@ -29,6 +30,7 @@ class WithLocal(nn.Module):
         if self.mask is None:
             m = self.net.stem(x)
         else:
+            assert isinstance(self.net.stem, Trunk)  # export_onnx checked: a mask head needs the trunk
             early, m = self.net.stem.stages(x)
         flat = m.flatten(1)
         out = (self.net.body(m), flat / torch.sqrt((flat * flat).sum(dim=1, keepdim=True) + 1e-12))
