@@ -19,7 +19,8 @@ class Job:
     created: float = field(default_factory=time.time)
     result: dict[str, Any] | None = None
     error: str | None = None
-    code: int | None = None  # the HTTP status a failure answers with: 422 bad mesh, 409 name taken, 507 disk full
+    #: the HTTP status a failure answers with: 422 bad mesh, 409 name taken, 507 disk full, 500 a bug
+    code: int | None = None
 
     def fail(self, code: int, error: str) -> None:
         self.code, self.error, self.status = code, error, "failed"
