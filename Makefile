@@ -7,6 +7,9 @@ BIN := $(VENV)/bin
 APT_PACKAGES := libegl1 libegl-mesa0 libgl1-mesa-dri libgl1 libopengl0 python3-venv \
   podman buildah uidmap runc debootstrap iptables podman-compose
 STAMP := $(VENV)/.setup-stamp
+# `make serve HOST=0.0.0.0 PORT=9000`; loopback by default, as `posedesc serve` (other hosts: set an API key)
+HOST ?= 127.0.0.1
+PORT ?= 8000
 
 .PHONY: setup test lint serve bench clean models
 
@@ -34,7 +37,7 @@ test: setup lint
 	$(BIN)/pytest -q
 
 serve: setup
-	$(BIN)/posedesc serve --host 0.0.0.0 --port 8000 --data-dir data/default
+	$(BIN)/posedesc serve --host $(HOST) --port $(PORT) --data-dir data/default
 
 bench: setup
 	$(BIN)/posedesc bench --json out/bench.json
