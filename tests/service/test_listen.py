@@ -102,3 +102,22 @@ def test_make_serve_takes_host_and_port():
 
     assert "posedesc serve --host 127.0.0.1 --port 8000 " in command()
     assert "posedesc serve --host 0.0.0.0 --port 9123 " in command("HOST=0.0.0.0", "PORT=9123")
+
+
+def test_which_addresses_count_as_public():
+    from service.deps import open_writes_refused, public
+    from service.settings import Settings
+
+    assert [public(h) for h in ("0.0.0.0", "::", "192.168.1.20", "127.0.0.1", "127.0.0.2", "::1")] == [
+        True,
+        True,
+        True,
+        False,
+        False,
+        False,
+    ]
+    assert not public("testserver") and not public(None)  # not an IP (TestClient), or unknown
+    assert "0.0.0.0 without an API key" in (open_writes_refused(Settings(), "0.0.0.0") or "")
+    assert open_writes_refused(Settings(api_key="k"), "0.0.0.0") is None  # the key decides
+    assert open_writes_refused(Settings(allow_open_writes=True), "0.0.0.0") is None
+    assert open_writes_refused(Settings(), "127.0.0.1") is None
