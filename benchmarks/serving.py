@@ -68,10 +68,17 @@ def bench_registration(models: Path, repeats: int) -> None:
         for step in (0.0, 45.0, 15.0):
             cfg = TemplateConfig(inplane_step=step)
             runs = [
-                register(
-                    mesh, "x", "none", worker=worker, embedders=embedders, store=store, cfg=cfg, pool=pool
+                register(  # one name per object: the store refuses a second object of a name
+                    mesh,
+                    f"x{step:g}-{i}",
+                    "none",
+                    worker=worker,
+                    embedders=embedders,
+                    store=store,
+                    cfg=cfg,
+                    pool=pool,
                 )
-                for _ in range(repeats)
+                for i in range(repeats)
             ]
             med = {k: statistics.median(r.timings[k] for r in runs) for k in runs[0].timings}
             n = max(runs[0].record.templates.values())

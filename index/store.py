@@ -12,7 +12,7 @@ Layout of a data directory:
 
 A full disk: a write that SQLite cannot commit is rolled back and raises `OSError(ENOSPC)`; the store keeps
 its previous state. A snapshot that cannot be written after a commit is only a warning (its tag is
-removed, so it is rebuilt at the next start).
+removed, so it is rebuilt at the next start); so is one rebuilt on open that cannot be saved.
 
 Readers never see a half-added object: the live state is an immutable `Snapshot` (indexes + metadata).
 A write builds the next one on copies (copy-on-write) and swaps the reference under a lock; a search
@@ -148,6 +148,10 @@ class Snapshot:
     objects: Mapping[int, ObjectRecord]
     models: Mapping[str, ModelIndex]
 
+    def named(self, name: str) -> ObjectRecord | None:
+        """The object of this name, if any."""
+        return next((r for r in self.objects.values() if r.name == name), None)
+
     def search(self, model: str, queries: np.ndarray, k: int) -> list[list[Match]]:
         """The k nearest templates of each query descriptor (Q, D), nearest first (fewer if the store is small)."""
         mi = self.models[model]
@@ -219,6 +223,14 @@ class Snapshot:
 
 class StoreError(RuntimeError):
     """The data directory cannot be used (a one-line reason)."""
+
+
+class NameTaken(ValueError):
+    """An object of this name is stored already; `object_id` is its id."""
+
+    def __init__(self, name: str, object_id: int):
+        super().__init__(f"an object named {name!r} exists already (object_id {object_id})")
+        self.name, self.object_id = name, object_id
 
 
 def check_store(data_dir: str | Path) -> None:
@@ -327,6 +339,13 @@ class Store:
             row = self._db.execute("SELECT value FROM meta WHERE key = ?", (key,)).fetchone()
         return None if row is None else row[0]
 
+    def has_held_objects(self) -> bool:
+        """Whether an object was ever added here, even if all were removed since: the objects table's
+        AUTOINCREMENT counter (`sqlite_sequence`) only grows, and only with a committed insert."""
+        with self._write:
+            row = self._db.execute("SELECT seq FROM sqlite_sequence WHERE name = 'objects'").fetchone()
+        return row is not None and int(row[0]) > 0
+
     def set_meta(self, key: str, value: str) -> None:
         with self._write, self._transaction() as cur:
             cur.execute("INSERT OR REPLACE INTO meta VALUES (?, ?)", (key, value))
@@ -342,11 +361,16 @@ class Store:
         mesh: bytes | None = None,
         extra: Mapping[str, object] | None = None,
     ) -> ObjectRecord:
-        """Adds an object with its templates for every model in one transaction; returns its record."""
+        """Adds an object with its templates for every model in one transaction; returns its record.
+        Raises NameTaken when an object of that name is stored already (checked in the transaction, so
+        two registrations of one name cannot both pass)."""
         for m, ts in templates.items():
             self._check_set(m, ts)
         with self._write:
             with self._transaction() as cur:
+                row = cur.execute("SELECT id FROM objects WHERE name = ? LIMIT 1", (name,)).fetchone()
+                if row is not None:
+                    raise NameTaken(name, int(row[0]))
                 created = time.time()
                 cur.execute(
                     "INSERT INTO objects (name, symmetry, faces, created, extra, mesh) VALUES (?, ?, ?, ?, ?, ?)",
@@ -564,7 +588,17 @@ class Store:
         index = self._read_snapshot(model, generation, len(ids))
         if index is None:
             index = self._build(model, ids)
-            self._save_index(model, ModelIndex(index, ids, object_ids, poses), generation)
+            try:
+                self._save_index(model, ModelIndex(index, ids, object_ids, poses), generation)
+            except OSError as e:  # a full disk: SQLite is intact and the index is built, so serve on
+                log.warning(
+                    "could not save the %s index snapshot to %s (%s): serving from SQLite; it is rebuilt "
+                    "at each start until it can be saved",
+                    model,
+                    self.dir,
+                    e,
+                )
+                self._paths(model)[1].unlink(missing_ok=True)  # as in `_swap`: no tag for a file it lacks
         return ModelIndex(index, ids, object_ids, poses, local)
 
     def _paths(self, model: str) -> tuple[Path, Path]:

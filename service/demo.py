@@ -1,7 +1,9 @@
 """Start-up work before /readyz says ready: templates a changed model lacks, and the demo objects.
 
-The demo objects are generated shapes (`index.shapes.demo_shapes`), registered once into an empty data
-dir through the same code path as `POST /objects`, so the README's first `POST /recognize` finds them."""
+The demo objects are generated shapes (`index.shapes.demo_shapes`), registered through the same code path
+as `POST /objects`, so the README's first `POST /recognize` finds them: once, and only into a data dir
+that has never held an object (`Store.has_held_objects`), so they never mix with a user's objects, nor
+come back after the user removed every object."""
 
 from __future__ import annotations
 
@@ -13,6 +15,7 @@ from service.state import AppState
 log = logging.getLogger("service")
 
 SEEDED = "demo_seeded"
+SEEDING = "demo_seeding"  # set before the first demo object: a seeding cut short goes on at the next start
 
 
 def startup(state: AppState) -> None:
@@ -34,11 +37,14 @@ def seed(state: AppState) -> None:
     store = state.store
     if store.get_meta(SEEDED):
         return
+    if not store.get_meta(SEEDING):
+        if store.has_held_objects():
+            log.info("no demo objects: %s holds or has held objects", state.settings.data_dir)
+            return
+        store.set_meta(SEEDING, "1")
     from index.shapes import demo_shapes
 
     present = {r.name for r in store.snapshot.objects.values()}
-    if present and not present & set(demo_shapes()):
-        return  # a data dir made before seeding existed: leave it as it is
     for name, mesh in demo_shapes().items():
         if state.stopping.is_set():
             return

@@ -1,13 +1,20 @@
-"""Dependencies of the routes: the loaded state, and the API key for writes."""
+"""Dependencies of the routes: the loaded state, and the API key for writes.
+
+Writes (POST /objects, DELETE /objects/{id}) need the API key when one is set. Without one they are open
+on a loopback address only: a server that other hosts can reach refuses them (403) unless the operator
+opts in with `allow_open_writes`, so a forgotten key does not leave the store open to the network."""
 
 from __future__ import annotations
 
+import ipaddress
 import secrets
 from typing import Annotated
+from urllib.parse import urlsplit
 
 from fastapi import Depends, Header, Request
 
 from service.errors import ApiError
+from service.settings import Settings
 from service.state import AppState
 
 
@@ -21,12 +28,42 @@ def get_state(request: Request) -> AppState:
 StateDep = Annotated[AppState, Depends(get_state)]
 
 
+def public(host: str | None) -> bool:
+    """Whether a server listening on `host` is reachable from other hosts: any IP address but a loopback
+    one (0.0.0.0 and :: are every interface). Not an IP (TestClient's "testserver"): not judged public."""
+    try:
+        return not ipaddress.ip_address(host or "").is_loopback
+    except ValueError:
+        return False
+
+
+def host_of(url: str | None) -> str | None:
+    return urlsplit(url).hostname if url else None
+
+
+def open_writes_refused(settings: Settings, host: str | None) -> str | None:
+    """Why writes are refused on a server listening on `host`, or None when they are allowed."""
+    if settings.api_key is not None or settings.allow_open_writes or not public(host):
+        return None
+    return (
+        f"writes are refused: the server listens on {host} without an API key; set POSEDESC_API_KEY "
+        "(clients send it as X-API-Key), or POSEDESC_ALLOW_OPEN_WRITES=1 to let anyone who can reach "
+        "the server register and delete objects"
+    )
+
+
 def require_api_key(
+    request: Request,
     state: StateDep,
     x_api_key: Annotated[str | None, Header(description="the API key, when the service has one")] = None,
 ) -> None:
     key = state.settings.api_key
     if key is None:
+        # Where `posedesc serve` listens; under another server (`uvicorn service.main:app`), the local
+        # address this request came in on, which is public only if the server listens on one.
+        host = host_of(request.app.state.url) or (request.scope.get("server") or (None,))[0]
+        if (reason := open_writes_refused(state.settings, host)) is not None:
+            raise ApiError(403, reason)
         return
     if x_api_key is None or not secrets.compare_digest(x_api_key.encode(), key.get_secret_value().encode()):
         raise ApiError(401, "missing or wrong API key (send it as the X-API-Key header)")

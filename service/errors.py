@@ -22,7 +22,9 @@ DISK_FULL = "the server's disk is full: nothing was changed; retry once space is
 MEANING = {
     400: "a malformed request body (not multipart form data)",
     401: "missing or wrong API key",
+    403: "writes are refused: the server listens on a public address without an API key",
     404: "unknown id",
+    409: "an object of that name exists already (its id is in `detail`)",
     413: "request body or image over the limit",
     422: "bad input: what is wrong is in `detail`",
     500: "internal error (a bug)",

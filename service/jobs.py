@@ -19,10 +19,15 @@ class Job:
     created: float = field(default_factory=time.time)
     result: dict[str, Any] | None = None
     error: str | None = None
-    code: int | None = None  # the HTTP status a failure answers with: 422 bad mesh, 507 disk full, 500
+    #: the HTTP status a failure answers with: 422 bad mesh, 409 name taken, 507 disk full, 500 a bug
+    code: int | None = None
 
     def fail(self, code: int, error: str) -> None:
         self.code, self.error, self.status = code, error, "failed"
+
+
+class Busy(Exception):
+    """As many jobs are running as the limit allows."""
 
 
 class Jobs:
@@ -33,13 +38,22 @@ class Jobs:
         self._lock = threading.Lock()
         self.keep = keep
 
-    def new(self, name: str) -> Job:
+    def new(self, name: str, limit: int | None = None) -> Job:
+        """A running job; raises Busy when `limit` jobs are running already. Counting and adding are one
+        step under the lock: checked apart, concurrent uploads would all see room and all be queued."""
         job = Job(uuid.uuid4().hex, name)
         with self._lock:
+            if limit is not None and self._running() >= limit:
+                raise Busy(f"{limit} registrations are queued already")
             self._jobs[job.job_id] = job
             while len(self._jobs) > self.keep:
                 self._jobs.popitem(last=False)
         return job
+
+    def discard(self, job: Job) -> None:
+        """Forgets a job that never started (its upload was refused), so it frees its place at once."""
+        with self._lock:
+            self._jobs.pop(job.job_id, None)
 
     def get(self, job_id: str) -> Job | None:
         with self._lock:
@@ -47,4 +61,7 @@ class Jobs:
 
     def running(self) -> int:
         with self._lock:
-            return sum(j.status == "running" for j in self._jobs.values())
+            return self._running()
+
+    def _running(self) -> int:
+        return sum(j.status == "running" for j in self._jobs.values())

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import asyncio
+import logging
 import time
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
@@ -12,10 +14,11 @@ from fastapi_offline import FastAPIOffline
 
 from service import errors, openapi
 from service.demo import startup
+from service.deps import host_of, open_writes_refused, public
 from service.limits import BodyLimit
 from service.routes import health, jobs, objects, recognize
 from service.settings import Settings
-from service.state import close_state, load_state
+from service.state import AppState, close_state, load_state
 
 DESCRIPTION = """Recognises known 3-D objects in images and tells from which viewpoint they are seen
 (Wohlhart & Lepetit, CVPR 2015: learnt descriptors, nearest templates). Register a mesh with
@@ -27,17 +30,29 @@ METHODS = frozenset({"GET", "HEAD", "POST", "PUT", "PATCH", "DELETE", "OPTIONS"}
 DOCS_ASSETS = "/docs-assets"
 
 
-def create_app(settings: Settings | None = None) -> FastAPI:
+log = logging.getLogger("service")
+
+
+def create_app(settings: Settings | None = None, url: str | None = None) -> FastAPI:
+    """`url`: where the server listens (`posedesc serve` binds it first), for the log and the write guard."""
     settings = settings or Settings()
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        if (reason := open_writes_refused(settings, host_of(url))) is not None:
+            log.warning("%s", reason)
+        elif settings.api_key is None and public(host_of(url)):
+            log.warning(
+                "writes are open to anyone who can reach %s (POSEDESC_ALLOW_OPEN_WRITES, no API key)", url
+            )
         state = await run_in_threadpool(load_state, settings)
         app.state.posedesc = state
         state.registrar.submit(startup, state)
+        announcer = asyncio.create_task(announce_ready(state, url))
         try:
             yield
         finally:
+            announcer.cancel()
             app.state.posedesc = None
             await run_in_threadpool(close_state, state)
 
@@ -54,6 +69,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         swagger_ui_parameters={"validatorUrl": None},
     )
     app.state.settings = settings
+    app.state.url = url
     errors.install(app)
     openapi.install(app)
     for r in (recognize.router, objects.router, jobs.router, health.router):
@@ -82,6 +98,23 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     app.add_middleware(BodyLimit, limit_for=limit_for)
     return app
+
+
+async def announce_ready(state: AppState, url: str | None) -> None:
+    """One log line once /readyz answers 200: where, and what is served (the start-up work may take a
+    while after uvicorn's own start-up lines: a changed model's templates, the demo objects)."""
+    while not state.ready.is_set():
+        await asyncio.sleep(0.05)
+    snap = state.store.snapshot
+    templates = ", ".join(f"{m} {mi.size}" for m, mi in sorted(snap.models.items()))
+    failed = f"; {state.startup_error}" if state.startup_error else ""
+    log.info(
+        "ready%s: %d objects; templates %s%s",
+        f" on {url}" if url else "",
+        len(snap.objects),
+        templates,
+        failed,
+    )
 
 
 app = create_app()  # `uvicorn service.main:app`; `posedesc serve` builds its own from its arguments

@@ -15,6 +15,9 @@ class Settings(BaseSettings):
     data_dir: Path = Field(Path("data/default"), description="store (SQLite + FAISS snapshots) lives here")
     models_dir: Path = Field(Path("models"), description="posedesc-{rgb,depth,rgbd}.onnx, any of them")
     api_key: SecretStr | None = Field(None, description="when set, POST/DELETE /objects need it (X-API-Key)")
+    allow_open_writes: bool = Field(
+        False, description="without an API key on a non-loopback address, allow POST/DELETE /objects anyway"
+    )
 
     max_image_mb: float = Field(25.0, gt=0, description="largest /recognize request body")
     max_mesh_mb: float = Field(50.0, gt=0, description="largest /objects request body")

@@ -12,10 +12,11 @@ from dataclasses import dataclass, field
 from index.embed import Embedder, fingerprint, load_models
 from index.register import TemplateConfig
 from index.render import RenderWorker
-from index.store import Store, set_threads
+from index.store import Store
 from service.jobs import Jobs
 from service.metrics import Metrics
 from service.settings import Settings
+from service.threads import limit_threads, worker_pool
 
 log = logging.getLogger("service")
 
@@ -27,22 +28,32 @@ class AppState:
     store: Store
     worker: RenderWorker
     templates: TemplateConfig
+    #: the pools below are made from `settings.threads` (service/threads.py)
     #: registrations one at a time: rendering is one thread anyway, and two cores must keep serving
-    registrar: ThreadPoolExecutor = field(default_factory=lambda: ThreadPoolExecutor(1, "register"))
+    registrar: ThreadPoolExecutor = field(init=False)
     #: the models of a registration embed side by side (onnxruntime releases the GIL)
-    embed_pool: ThreadPoolExecutor = field(default_factory=lambda: ThreadPoolExecutor(2, "embed"))
+    embed_pool: ThreadPoolExecutor = field(init=False)
     #: one uploaded mesh in memory and parsed at a time: a hostile one may take ~1 GB until it is refused.
     #: Always on the same thread, so the allocator reuses that memory rather than growing another arena.
     mesh_gate: asyncio.Semaphore = field(default_factory=lambda: asyncio.Semaphore(1))
-    mesh_loader: ThreadPoolExecutor = field(default_factory=lambda: ThreadPoolExecutor(1, "mesh"))
+    mesh_loader: ThreadPoolExecutor = field(init=False)
     #: recognitions decoding at once (a 4096 x 4096 depth image takes ~250 MB); 2 cores serve 2 anyway
     recognition_gate: asyncio.Semaphore = field(default_factory=lambda: asyncio.Semaphore(2))
+    #: where recognitions run (as many threads as the gate lets in)
+    recognizer: ThreadPoolExecutor = field(init=False)
     jobs: Jobs = field(default_factory=Jobs)
     metrics: Metrics = field(default_factory=Metrics)
     ready: threading.Event = field(default_factory=threading.Event)
     stopping: threading.Event = field(default_factory=threading.Event)
     started: float = field(default_factory=time.time)
     startup_error: str | None = None
+
+    def __post_init__(self) -> None:
+        n = self.settings.threads
+        self.registrar = worker_pool(1, "register", n)
+        self.embed_pool = worker_pool(2, "embed", n)
+        self.mesh_loader = worker_pool(1, "mesh", n)
+        self.recognizer = worker_pool(2, "recognise", n)
 
     @property
     def model_names(self) -> dict[str, str]:
@@ -52,7 +63,7 @@ class AppState:
 def load_state(settings: Settings, embedders: dict[str, Embedder] | None = None) -> AppState:
     """Models (those of `settings.models_dir` unless given), store and render thread; raises with a
     one-line message when something is missing."""
-    set_threads(settings.threads)
+    limit_threads(settings.threads)  # this thread rebuilds the indexes the snapshots cannot give
     embedders = embedders or load_models(settings.models_dir, settings.threads)
     windows = {e.info.window_mm for e in embedders.values()}
     sizes = {e.info.size for e in embedders.values()}
@@ -74,5 +85,6 @@ def close_state(state: AppState) -> None:
     state.registrar.shutdown(wait=True, cancel_futures=True)  # a registration in flight finishes (atomic)
     state.mesh_loader.shutdown(wait=True, cancel_futures=True)
     state.embed_pool.shutdown(wait=True)
+    state.recognizer.shutdown(wait=True)
     state.worker.close()
     state.store.close()

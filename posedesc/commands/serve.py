@@ -6,6 +6,7 @@ Other settings come from POSEDESC_* environment variables.
 from __future__ import annotations
 
 import argparse
+import socket
 from pathlib import Path
 
 from posedesc.cli import UserError
@@ -53,6 +54,34 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(str(e)) from None
     if not 0 < args.port < 65536:
         raise UserError(f"--port {args.port}: not a port")
+    sock = listen(args.host, args.port)  # before the models load: a busy port fails at once
     logging.getLogger().setLevel(args.log_level.upper())
-    uvicorn.run(create_app(settings), host=args.host, port=args.port, log_level=args.log_level)
-    return 0
+    logging.getLogger("posedesc").info("listening on %s; loading the models and the store", url(sock))
+    server = uvicorn.Server(uvicorn.Config(create_app(settings, url=url(sock)), log_level=args.log_level))
+    server.run(sockets=[sock])
+    return 0 if server.started else 3  # 3: uvicorn's start-up failure (the lifespan failed)
+
+
+def listen(host: str, port: int) -> socket.socket:
+    """A socket bound to host:port and listening (connections wait in its backlog until the app serves);
+    a one-line UserError when the address is unknown or taken."""
+    try:
+        family, kind, proto, _, addr = socket.getaddrinfo(
+            host, port, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE
+        )[0]
+    except socket.gaierror as e:
+        raise UserError(f"--host {host}: {e.strerror}") from None
+    sock = socket.socket(family, kind, proto)
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # as uvicorn: no wait after a restart
+    try:
+        sock.bind(addr)
+        sock.listen(2048)
+    except OSError as e:
+        sock.close()
+        raise UserError(f"cannot listen on {host}:{port}: {e.strerror or e}") from None
+    return sock
+
+
+def url(sock: socket.socket) -> str:
+    host, port = sock.getsockname()[:2]
+    return f"http://[{host}]:{port}" if sock.family == socket.AF_INET6 else f"http://{host}:{port}"

@@ -14,10 +14,11 @@ from fastapi.responses import JSONResponse
 
 from index.mesh import FORMATS_TEXT, MeshError, MeshTooLarge, load_mesh
 from index.register import register
+from index.store import NameTaken
 from index.units import LARGEST, SMALLEST, Units
 from service.deps import ApiKeyDep, StateDep
 from service.errors import DISK_FULL, ApiError, responses
-from service.jobs import Job
+from service.jobs import Busy, Job
 from service.schemas import JobAccepted, ObjectCreated, ObjectOut
 from service.state import AppState
 
@@ -48,7 +49,7 @@ def _out(state: AppState, object_id: int) -> ObjectOut:
     summary="Register a mesh: 201 when done within ~2 s, else 202 with a job to poll",
     responses={
         202: {"model": JobAccepted, "description": "still registering: poll /jobs/{job_id}"},
-        **responses(400, 401, 413, 422, 503, 507),
+        **responses(400, 401, 403, 409, 413, 422, 503, 507),
     },
 )
 async def add_object(
@@ -70,8 +71,30 @@ async def add_object(
     file_type = Path(mesh.filename or "").suffix.lstrip(".").lower()
     if not file_type:
         raise ApiError(422, f"mesh: the file name needs an extension: {FORMATS_TEXT}")
-    if state.jobs.running() >= MAX_QUEUED:
-        raise ApiError(503, "too many registrations queued; try again in a minute")
+    if (same := state.store.snapshot.named(name)) is not None:  # at once, before the upload is parsed
+        raise ApiError(409, _taken(NameTaken(name, same.object_id)))
+    try:  # the job holds its place in the queue from here on, so concurrent uploads cannot all pass
+        job = state.jobs.new(name, limit=MAX_QUEUED)
+    except Busy:
+        raise ApiError(503, "too many registrations queued; try again in a minute") from None
+    try:
+        loaded = await _load_upload(state, mesh, units, file_type)
+        fut = state.registrar.submit(_run, state, job, loaded, name, symmetry)
+    except BaseException:  # refused, cancelled (the client left) or shutting down: it frees its place
+        state.jobs.discard(job)
+        raise
+    try:
+        await asyncio.wait_for(asyncio.shield(asyncio.wrap_future(fut)), state.settings.sync_seconds)
+    except TimeoutError:
+        body = JobAccepted(job_id=job.job_id, status="running").model_dump()
+        return JSONResponse(body, status_code=202, headers={"Location": f"/jobs/{job.job_id}"})
+    if job.status == "failed":
+        raise ApiError(job.code or 500, job.error or "registration failed")
+    return ObjectCreated(**job.result)  # type: ignore[arg-type]
+
+
+async def _load_upload(state: AppState, mesh: UploadFile, units: str, file_type: str):
+    """The uploaded mesh, parsed on the mesh thread (413/422 when unusable)."""
     limits = state.settings.max_faces, state.settings.max_upload_faces
     window = min(e.info.window_mm for e in state.embedders.values())
     async with state.mesh_gate:  # meanwhile the other uploads wait spooled to disk, not in memory
@@ -85,16 +108,11 @@ async def add_object(
         except MeshError as e:
             raise ApiError(422, f"mesh: {e}") from None
         del data
-    job = state.jobs.new(name)
-    fut = state.registrar.submit(_run, state, job, loaded, name, symmetry)
-    try:
-        await asyncio.wait_for(asyncio.shield(asyncio.wrap_future(fut)), state.settings.sync_seconds)
-    except TimeoutError:
-        body = JobAccepted(job_id=job.job_id, status="running").model_dump()
-        return JSONResponse(body, status_code=202, headers={"Location": f"/jobs/{job.job_id}"})
-    if job.status == "failed":
-        raise ApiError(job.code or 500, job.error or "registration failed")
-    return ObjectCreated(**job.result)  # type: ignore[arg-type]
+    return loaded
+
+
+def _taken(e: NameTaken) -> str:
+    return f"{e}: delete it first, or choose another name"
 
 
 def _load(data: bytes, units: str, file_type: str, max_faces: int, max_upload_faces: int, window_mm: float):
@@ -124,6 +142,9 @@ def _run(state: AppState, job: Job, mesh, name: str, symmetry: str) -> None:
         )
     except MeshError as e:
         job.fail(422, f"mesh: {e}")
+        return
+    except NameTaken as e:  # registered meanwhile, by an upload queued before this one
+        job.fail(409, _taken(e))
         return
     except Exception as e:
         if isinstance(e, OSError) and e.errno == errno.ENOSPC:  # rolled back: nothing was stored

@@ -2,10 +2,10 @@
 
 from __future__ import annotations
 
+import asyncio
 from typing import Annotated
 
 from fastapi import APIRouter, File, Form, UploadFile
-from fastapi.concurrency import run_in_threadpool
 
 from service.deps import StateDep
 from service.errors import responses
@@ -84,7 +84,7 @@ async def recognize(
             distance_mm=distance_mm,
             k=k,
         )
-        result = await run_in_threadpool(recognise, state, q)
+        result = await asyncio.wrap_future(state.recognizer.submit(recognise, state, q))
     matches = [
         MatchOut(**m.__dict__, **pose_fields(m, result.ray, result.distance_mm)) for m in result.matches
     ]

@@ -23,6 +23,7 @@ from index.pose import View
 pytestmark = [pytest.mark.container, pytest.mark.slow]
 COMPOSE_FILE = Path(__file__).resolve().parents[2] / "deploy" / "docker-compose.yml"
 CONTAINER_UID = 10001  # the Dockerfile's USER
+API_KEY = "test-key"  # the container listens on 0.0.0.0: writes need a key (or POSEDESC_ALLOW_OPEN_WRITES)
 
 
 def png(array: np.ndarray) -> bytes:
@@ -36,6 +37,8 @@ def register(url: str, mesh: trimesh.Trimesh, name: str, timeout: float = 600) -
     files = {"mesh": ("object.ply", mesh.export(file_type="ply"), "application/octet-stream")}
     data = {"name": name, "units": "mm", "symmetry": "none"}
     r = httpx.post(f"{url}/objects", files=files, data=data, timeout=timeout)
+    assert r.status_code == 401, r.text  # without the key
+    r = httpx.post(f"{url}/objects", files=files, data=data, headers={"X-API-Key": API_KEY}, timeout=timeout)
     assert r.status_code in (201, 202), r.text
     if r.status_code == 201:
         return r.json()["object_id"]
@@ -53,7 +56,8 @@ def register(url: str, mesh: trimesh.Trimesh, name: str, timeout: float = 600) -
 def run(podman, name: str, data_dir: str, port: int, image: str) -> None:
     # The timer of the HEALTHCHECK needs systemd, absent here; `podman healthcheck run` runs it by hand.
     podman(
-        *f"run -d --name {name} --health-interval=disable -p 127.0.0.1:{port}:8000 -v {data_dir}:/data {image}".split()
+        *f"run -d --name {name} --health-interval=disable -p 127.0.0.1:{port}:8000 -v {data_dir}:/data "
+        f"-e POSEDESC_API_KEY={API_KEY} {image}".split()
     )
 
 
@@ -100,6 +104,7 @@ def test_compose_file_serves_on_a_named_volume(podman, image) -> None:
     project = f"posedesc-test-{uuid.uuid4().hex[:8]}"
     port = podman.free_port()
     env = {**podman.env, "POSEDESC_IMAGE": image, "PUBLISH_ADDR": "127.0.0.1", "PUBLISH_PORT": str(port)}
+    env["POSEDESC_API_KEY"] = ""  # the compose file's default: no key
 
     def compose(*args: str) -> subprocess.CompletedProcess[str]:
         cmd = ["podman-compose", "-p", project, "-f", str(COMPOSE_FILE), *args]
@@ -119,6 +124,8 @@ def test_compose_file_serves_on_a_named_volume(podman, image) -> None:
             "volume read-only"
         )
         assert httpx.get(f"http://127.0.0.1:{port}/objects", timeout=10).status_code == 200
+        # no POSEDESC_API_KEY given: on the container's 0.0.0.0 the writes are refused
+        assert httpx.delete(f"http://127.0.0.1:{port}/objects/1", timeout=10).status_code == 403
     finally:
         down = compose("down", "-v", "-t", "5")
         assert down.returncode == 0, down.stdout + down.stderr

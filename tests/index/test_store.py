@@ -13,7 +13,7 @@ import faiss
 import numpy as np
 import pytest
 
-from index.store import Store, StoreError, TemplateSet
+from index.store import NameTaken, Store, StoreError, TemplateSet
 
 MODELS = {"rgb": (4, "fp-rgb"), "depth": (4, "fp-depth")}
 ROOT = Path(__file__).resolve().parents[2]
@@ -281,3 +281,28 @@ def test_a_store_from_before_local_features_opens(tmp_path):
     oid = add(store, "a", 1.0)
     assert oid in store.snapshot.objects and not store.snapshot.models["rgb"].local
     store.close()
+
+
+def test_a_name_is_stored_once(tmp_path):
+    store = Store(tmp_path, MODELS)
+    a = add(store, "a", 0.0)
+    before = store.snapshot
+    with pytest.raises(NameTaken) as taken:
+        add(store, "a", 5.0)
+    assert taken.value.object_id == a and f"object_id {a}" in str(taken.value)
+    assert store.snapshot is before  # nothing was added, not even in SQLite
+    assert store.snapshot.named("a").object_id == a and store.snapshot.named("b") is None
+    store.remove_object(a)
+    assert add(store, "a", 5.0) != a  # a removed object's name is free again
+
+
+def test_has_held_objects_outlives_the_objects(tmp_path):
+    store = Store(tmp_path, MODELS)
+    assert not store.has_held_objects()
+    with pytest.raises(ValueError):  # a refused write leaves no trace
+        store.add_object("bad", "none", {"rgb": TemplateSet(np.zeros((1, 3)), np.full((1, 4), np.nan))})
+    assert not store.has_held_objects()
+    store.remove_object(add(store, "a", 0.0))
+    assert store.snapshot.objects == {}
+    store.close()
+    assert Store(tmp_path, MODELS).has_held_objects()

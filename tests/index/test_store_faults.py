@@ -134,3 +134,27 @@ def test_a_full_disk_for_the_snapshots_keeps_the_commit_and_leaves_no_stale_tag(
     (matches,) = again.search("rgb", np.full((1, 4), 5.0, np.float32), 1)
     assert matches[0].object_id == c and matches[0].distance == pytest.approx(0.0, abs=1e-5)
     assert os.path.getsize(tmp_path / "rgb.faiss") > 0
+
+
+def test_a_full_disk_at_start_up_serves_from_sqlite(tmp_path, monkeypatch, caplog):
+    """The snapshots are missing (or stale) and the disk is full: the store opens from SQLite and says so."""
+    _stored(tmp_path)
+    for f in tmp_path.glob("*.faiss*"):
+        f.unlink()
+
+    def no_space(fd: int) -> None:
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(index.store.os, "fsync", no_space)
+    with caplog.at_level("WARNING", logger="index.store"):
+        store = Store(tmp_path, MODELS)
+    assert "could not save the rgb index snapshot" in caplog.text and "serving from SQLite" in caplog.text
+    assert {r.name for r in store.snapshot.objects.values()} == {"a", "b"}
+    (matches,) = store.search("rgb", np.full((1, 4), 5.0, np.float32), 1)
+    assert matches[0].name == "b" and matches[0].distance == pytest.approx(0.0, abs=1e-5)
+    assert not list(tmp_path.glob("*.tmp")) and not list(tmp_path.glob("*.faiss.json"))
+    monkeypatch.undo()
+    c = add(store, "c", 9.0)  # space again: the next write saves the snapshots
+    store.close()
+    again = Store(tmp_path, MODELS)
+    assert c in again.snapshot.objects and again.snapshot.models["rgb"].size == 15

@@ -133,15 +133,25 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-def serve_command(port: int, data_dir: Path, models: Path) -> list[str]:
-    cmd = [sys.executable, "-m", "posedesc.cli", "serve", "--host", "127.0.0.1", "--port", str(port)]
-    return cmd + ["--data-dir", str(data_dir), "--models", str(models), "--log-level", "warning"]
+def serve_command(
+    port: int, data_dir: Path, models: Path, host: str = "127.0.0.1", log_level: str = "warning"
+) -> list[str]:
+    cmd = [sys.executable, "-m", "posedesc.cli", "serve", "--host", host, "--port", str(port)]
+    return cmd + ["--data-dir", str(data_dir), "--models", str(models), "--log-level", log_level]
 
 
 class Server:
-    """`posedesc serve` in a subprocess on a free loopback port; `env` adds POSEDESC_* settings."""
+    """`posedesc serve` in a subprocess on a free port, reached on loopback (listening there unless `host`
+    says otherwise); `env` adds POSEDESC_* settings."""
 
-    def __init__(self, data_dir: Path, models: Path, env: dict[str, str] | None = None):
+    def __init__(
+        self,
+        data_dir: Path,
+        models: Path,
+        env: dict[str, str] | None = None,
+        host: str = "127.0.0.1",
+        log_level: str = "warning",
+    ):
         self.models = models
         self.port = free_port()
         self.url = f"http://127.0.0.1:{self.port}"
@@ -152,7 +162,7 @@ class Server:
             "POSEDESC_SYNC_SECONDS": "30",
             **(env or {}),
         }
-        cmd = serve_command(self.port, data_dir, models)
+        cmd = serve_command(self.port, data_dir, models, host, log_level)
         self.log = data_dir.parent / f"server-{self.port}.log"
         with open(self.log, "wb") as out:  # the child keeps its own copy of the descriptor
             self.proc = subprocess.Popen(cmd, cwd=ROOT, env=env, stdout=out, stderr=subprocess.STDOUT)

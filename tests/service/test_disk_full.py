@@ -97,3 +97,23 @@ def test_a_full_disk_refuses_writes_and_keeps_serving(
         assert c.get("/objects").json() == objects
         assert found(c) == {l_id}
     snapshots_match_sqlite(settings.data_dir)
+
+
+def test_a_full_disk_at_start_up_still_serves(tmp_path, posedesc_models, l_shape, monkeypatch, caplog):
+    """Snapshots to rebuild and no space to save them: the service starts from SQLite and says so."""
+    settings = service_settings(tmp_path / "data", posedesc_models, level=1)
+    with TestClient(create_app(settings)) as c:
+        wait_ready(c)
+        l_id = register(c, l_shape, "L")["object_id"]
+    for f in settings.data_dir.glob("*.faiss*"):
+        f.unlink()
+
+    def no_space(fd: int) -> None:
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(index.store.os, "fsync", no_space)
+    with caplog.at_level("WARNING"), TestClient(create_app(settings)) as c:
+        assert wait_ready(c)["objects"] == 1
+        assert found(c) == {l_id}
+    assert "serving from SQLite" in caplog.text
+    assert not list(settings.data_dir.glob("*.tmp"))
