@@ -31,7 +31,10 @@ router = APIRouter(tags=["recognition"])
         "matches, nearest first, each with its azimuth, elevation and estimated in-plane angle (roll, "
         "counter-clockwise in the image, in (-180, 180]; 0 when the templates are upright only) and its pose "
         "in the camera as BOP writes it: `R` (model to camera, row-major) and `t` (mm) along the ray through "
-        "(u, v) at the distance the query was cut at (for a patch, in the patch's own camera)."
+        "(u, v) at the distance the query was cut at (for a patch, in the patch's own camera). `best` is null, "
+        "with a `reason`, when the nearest answer is too far to be a registered object (open-set rejection: "
+        "each model's calibrated threshold, or the REJECT_ABOVE setting); each match's `confidence` is the "
+        "calibrated chance that it is the right object."
     ),
     responses=responses(400, 413, 422),
 )
@@ -86,11 +89,14 @@ async def recognize(
         )
         result = await run_in_threadpool(recognise, state, q)
     matches = [
-        MatchOut(**m.__dict__, **pose_fields(m, result.ray, result.distance_mm)) for m in result.matches
+        MatchOut(**m.__dict__, confidence=c, **pose_fields(m, result.ray, result.distance_mm))
+        for m, c in zip(result.matches, result.confidences, strict=True)
     ]
     return RecognizeOut(
         matches=matches,
-        best=matches[0] if matches else None,
+        best=None if result.reason else matches[0],
+        reason=result.reason,
+        score=result.score,
         timings_ms=result.timings_ms,
         model=result.model,
     )
