@@ -26,6 +26,7 @@ from index.store import Match, Snapshot, local_key
 from service.depth_units import check_frame_distance, check_given_distance, check_patch_distance
 from service.errors import ApiError
 from service.images import read_depth, read_rgb
+from service.origin import origin_distances
 from service.rejection import judge, read_calibrations
 from service.state import AppState
 
@@ -68,6 +69,9 @@ class Result:
     score: str = "descriptor"
     confidences: list[float | None] = field(default_factory=list)
     reason: str | None = None
+    #: per match, how far its object's origin lies along `ray` (mm): `distance_mm` when it was sent, else
+    #: the measured surface plus the match's template offset (`service.origin`)
+    origins_mm: list[float] = field(default_factory=list)
 
 
 @dataclass
@@ -134,6 +138,9 @@ def recognise_decoded(state: AppState, q: Query, d: Decoded, decode_s: float | N
     score = "local" if rerank else "descriptor"
     calibration = read_calibrations(d.embedder.info.extra, d.embedder.path.name).get(score)
     verdict = judge(matches, score, calibration, state.settings.reject_above)
+    measured = q.distance_mm is None and p.depth is not None
+    depth0 = None if p.depth is None else p.depth[0]
+    origins = origin_distances(snap, matches, p.distance, depth0, d.embedder.info.window_mm, measured)
     return Result(
         state.model_names[d.modality],
         matches,
@@ -143,6 +150,7 @@ def recognise_decoded(state: AppState, q: Query, d: Decoded, decode_s: float | N
         score,
         verdict.confidences,
         verdict.reason,
+        origins,
     )
 
 

@@ -54,8 +54,10 @@ class MatchOut(BaseModel):
         min_length=3,
         max_length=3,
         description="the object's origin in the camera, mm (BOP's cam_t_m2c): along the ray through (u, v), "
-        "as far as the query was cut: `distance_mm` when sent, else the surface measured at the centre "
-        "(nearer than the origin, by up to the object's radius), else 400 for a colour patch",
+        "at `distance_mm` when sent; else at the surface measured at the centre plus this answer's offset "
+        "(how far its object's origin lies behind the surface seen from its viewpoint, kept per template "
+        "at registration; objects registered before offsets were kept: the surface); else 400 for a "
+        "colour patch",
     )
 
 
