@@ -81,8 +81,16 @@ def evaluate_served(cfg: Config) -> Evaluation:
             meshes, dataset_ids = _register(state, dataset, obj_ids)
             seconds["register"] = time.perf_counter() - t0
             t0 = time.perf_counter()
+            depth_errors: list[tuple[float, float]] = []
             samples, answers, call_ms, refused = _ask(
-                state, dataset, instances, synthetic, cfg, dataset_ids, meshes if cfg.oracle_mask else None
+                state,
+                dataset,
+                instances,
+                synthetic,
+                cfg,
+                dataset_ids,
+                meshes if cfg.oracle_mask else None,
+                depth_errors,
             )
             seconds["ours"] = time.perf_counter() - t0
             n_templates = state.store.snapshot.models[cfg.modality].size
@@ -113,6 +121,8 @@ def evaluate_served(cfg: Config) -> Evaluation:
             "calls": len(call_ms),
         },
     }
+    if depth_errors:  # measured from depth: where the answers put the origin, against ‖t‖
+        ev.extra["origin_distance_mm"] = origin_errors(np.array(depth_errors))
     obj, views = answers
     rot, view, same = score(obj, views, instances, symmetries)
     ev.results["ours"] = MethodResult(
@@ -238,10 +248,13 @@ def _ask(
     cfg: Config,
     dataset_ids: dict[int, int],
     oracle_meshes: Mapping[int, trimesh.Trimesh] | None = None,
+    depth_errors: list[tuple[float, float]] | None = None,
 ):
     """Every instance through `recognise`; the unturned patches the service cut (for the baselines),
     its answers, each call's milliseconds, and the reasons of the queries it refused. With
-    `oracle_meshes`, each instance's frame is sent black outside its true visible mask."""
+    `oracle_meshes`, each instance's frame is sent black outside its true visible mask. `depth_errors`
+    gets, for each query sent without a distance whose best answer is the right object, the errors (mm)
+    of the distance it was cut at (the surface) and of where the answer puts the origin, against ‖t‖."""
     renderer = Renderer() if oracle_meshes is not None else None
     embedder = state.embedders[cfg.modality]
     spec = embedder.info.spec
@@ -270,6 +283,9 @@ def _ask(
                     result = recognise(state, q)
                     call_ms.append(1000 * (time.perf_counter() - t0))
                     obj[i], answer_views[i], _ = ours.answers(result.matches, dataset_ids, K_MAX)
+                    if depth_errors is not None and q.distance_mm is None and obj[i, 0] == inst.obj_id:
+                        true = float(np.linalg.norm(inst.t))
+                        depth_errors.append((result.distance_mm - true, result.origins_mm[0] - true))
                     p = cut(q, decoded.rgb, decoded.depth, spec) if decoded is not None else None
                 except ApiError as e:
                     refused.append(e.detail)
@@ -294,6 +310,15 @@ def _ask(
         cut_mm=np.nan_to_num(np.array(cut_mm), nan=400.0),
     )
     return samples, (obj, answer_views), call_ms, refused
+
+
+def origin_errors(errors: np.ndarray) -> dict[str, float | int]:
+    """Summary of (surface, origin) distance errors (N, 2) mm: the cut distance against the answer's."""
+    out: dict[str, float | int] = {"n": len(errors)}
+    for j, name in enumerate(("surface", "answer")):
+        out[f"{name}_median_error"] = round(float(np.median(errors[:, j])), 1)
+        out[f"{name}_median_abs_error"] = round(float(np.median(np.abs(errors[:, j]))), 1)
+    return out
 
 
 def _stack(images: list, shape: tuple[int, ...], dtype) -> np.ndarray:

@@ -38,6 +38,7 @@ from index.mesh import MeshError, load_mesh, simplify
 from index.pose import View
 from index.render import INVISIBLE, Renderer, RenderWorker, Templates
 from index.store import ObjectRecord, Store, TemplateSet
+from index.surface import SURFACE_KEY, template_offsets
 from index.symmetry import SYMMETRIES
 from index.viewpoints import inplane_steps, sphere_views
 
@@ -170,8 +171,9 @@ def make_templates(
     views: Mapping[str, list[View]],
     pool: ThreadPoolExecutor | None = None,
     chunks: int = 4,
-) -> tuple[dict[str, TemplateSet], dict[str, float]]:
-    """Every model's templates of `mesh` from its `views`, and seconds spent rendering and embedding.
+) -> tuple[dict[str, TemplateSet], dict[str, float], np.ndarray]:
+    """Every model's templates of `mesh` from its `views`, seconds spent rendering and embedding, and
+    each viewpoint's surface offset (`index.surface.template_offsets`, rows of azimuth, elevation, mm).
 
     The union of the views goes to the render thread once, in `chunks` (whole viewpoints each); a chunk
     is embedded while the next renders, each model embedding its own views of it, side by side on
@@ -193,9 +195,12 @@ def make_templates(
     parts: dict[str, list[TemplateSet]] = {m: [] for m in embedders}
     seconds = {"render": 0.0, "embed": 0.0}
     visible = False
+    offsets = []
     for fut in renders:
         rendered, render_s = fut.result()
         seconds["render"] += render_s
+        t = rendered[min(rendered)]
+        offsets.append(template_offsets(t.depth, t.views, t.window_mm))
         visible = visible or _visible(rendered)
         chunk = next(iter(rendered.values())).views
         keep = {
@@ -216,7 +221,7 @@ def make_templates(
     if not visible:
         raise MeshError(INVISIBLE)
     out = {m: _concatenate(ps) for m, ps in parts.items()}
-    return out, seconds
+    return out, seconds, np.concatenate(offsets)
 
 
 def _visible(rendered: Mapping[float, Templates]) -> bool:
@@ -238,10 +243,11 @@ def register(
     """Adds `mesh` (mm) under `name` to every model's store; raises MeshError when it cannot be used."""
     t0 = time.perf_counter()
     views = model_views(symmetry, cfg, embedders)
-    sets, timings = make_templates(worker, embedders, mesh, views, pool)
+    sets, timings, offsets = make_templates(worker, embedders, mesh, views, pool)
     t1 = time.perf_counter()
     glb = mesh.export(file_type="glb")  # kept so templates can be made again when a model changes
     assert isinstance(glb, bytes)  # glb is binary
+    extra = {**(extra or {}), SURFACE_KEY: np.round(offsets, 2).tolist()}
     record = store.add_object(name, symmetry, sets, faces=len(mesh.faces), mesh=glb, extra=extra)
     t2 = time.perf_counter()
     # render and embed overlap (chunks), so they add up to more than the time until the last descriptor
@@ -271,7 +277,7 @@ def reembed(
             continue
         mesh = load_mesh(glb, file_type="glb", max_faces=None)
         subset = {m: embedders[m] for m in models}
-        sets, _ = make_templates(worker, subset, mesh, model_views(rec.symmetry, cfg, subset), pool)
+        sets, _, _ = make_templates(worker, subset, mesh, model_views(rec.symmetry, cfg, subset), pool)
         try:
             for m, ts in sets.items():
                 store.add_templates(oid, m, ts)

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import cv2
 import numpy as np
@@ -26,6 +26,8 @@ from index.store import Match, Snapshot, local_key
 from service.depth_units import check_frame_distance, check_given_distance, check_patch_distance
 from service.errors import ApiError
 from service.images import read_depth, read_rgb
+from service.origin import origin_distances
+from service.rejection import judge, read_calibrations
 from service.state import AppState
 
 FRAME_FIELDS = ("fx", "fy", "cx", "cy", "u", "v")
@@ -55,13 +57,21 @@ class Query:
 class Result:
     """The answers, and where they are: `ray` (3,) the unit ray through the object's centre in the query's
     camera (the patch camera for a patch: the optical axis), `distance_mm` how far along it the query was
-    cut. With a match's view they give its pose (`service.poses`)."""
+    cut. With a match's view they give its pose (`service.poses`). `score`: what each match's distance
+    is ("local" when re-ranked, else "descriptor"); `confidences` per match and `reason` (the best answer
+    rejected, or None) from `service.rejection`."""
 
     model: str
     matches: list[Match]
     timings_ms: dict[str, float]
     ray: np.ndarray
     distance_mm: float
+    score: str = "descriptor"
+    confidences: list[float | None] = field(default_factory=list)
+    reason: str | None = None
+    #: per match, how far its object's origin lies along `ray` (mm): `distance_mm` when it was sent, else
+    #: the measured surface plus the match's template offset (`service.origin`)
+    origins_mm: list[float] = field(default_factory=list)
 
 
 @dataclass
@@ -125,7 +135,23 @@ def recognise_decoded(state: AppState, q: Query, d: Decoded, decode_s: float | N
         "total": t5 - t1 + (decode_s or 0.0),
     }
     timings = {k: round(v * 1000, 2) for k, v in ms.items()}
-    return Result(state.model_names[d.modality], matches, timings, p.ray, p.distance)
+    score = "local" if rerank else "descriptor"
+    calibration = read_calibrations(d.embedder.info.extra, d.embedder.path.name).get(score)
+    verdict = judge(matches, score, calibration, state.settings.reject_above)
+    measured = q.distance_mm is None and p.depth is not None
+    depth0 = None if p.depth is None else p.depth[0]
+    origins = origin_distances(snap, matches, p.distance, depth0, d.embedder.info.window_mm, measured)
+    return Result(
+        state.model_names[d.modality],
+        matches,
+        timings,
+        p.ray,
+        p.distance,
+        score,
+        verdict.confidences,
+        verdict.reason,
+        origins,
+    )
 
 
 def rerank_local(snap: Snapshot, q: Query, d: Decoded, matches: list[Match]) -> list[Match]:

@@ -12,6 +12,7 @@ MATCH_EXAMPLE: JsonDict = {
     "elevation": 31.7,
     "inplane": 0.0,
     "distance": 0.42,
+    "confidence": 0.83,
     # a patch's answer: in the patch camera, 400 mm along its optical axis
     "R": [-0.809, -0.5878, 0.0, -0.3089, 0.4251, -0.8508, 0.5001, -0.6883, -0.5255],
     "t": [0.0, 0.0, 400.0],
@@ -35,6 +36,13 @@ class MatchOut(BaseModel):
     distance: float = Field(
         description="L2 distance, smaller is closer: between descriptors, or with re-ranking (RERANK) between the local features the answers were ordered by"
     )
+    confidence: float | None = Field(
+        None,
+        description="chance that this is the right object, from its distance: the share of best answers "
+        "with that distance that were the right object on the model's validation frames, with the object "
+        "registered half of the time (a logistic fit, `scripts/calibrate_reject.py`); null when the model "
+        "has no calibration for this kind of distance",
+    )
     R: list[float] = Field(
         min_length=9,
         max_length=9,
@@ -46,8 +54,10 @@ class MatchOut(BaseModel):
         min_length=3,
         max_length=3,
         description="the object's origin in the camera, mm (BOP's cam_t_m2c): along the ray through (u, v), "
-        "as far as the query was cut: `distance_mm` when sent, else the surface measured at the centre "
-        "(nearer than the origin, by up to the object's radius), else 400 for a colour patch",
+        "at `distance_mm` when sent; else at the surface measured at the centre plus this answer's offset "
+        "(how far its object's origin lies behind the surface seen from its viewpoint, kept per template "
+        "at registration; objects registered before offsets were kept: the surface); else 400 for a "
+        "colour patch",
     )
 
 
@@ -58,6 +68,8 @@ class RecognizeOut(BaseModel):
                 {
                     "matches": [MATCH_EXAMPLE],
                     "best": MATCH_EXAMPLE,
+                    "reason": None,
+                    "score": "local",
                     "timings_ms": {"decode": 2.1, "patch": 0.8, "embed": 1.9, "search": 0.1, "total": 4.9},
                     "model": "posedesc-rgb",
                 }
@@ -69,7 +81,15 @@ class RecognizeOut(BaseModel):
         description="the k nearest distinct (object, viewpoint) answers, nearest first: the in-plane "
         "variants of a viewpoint count once, at their nearest"
     )
-    best: MatchOut | None = Field(description="the nearest answer (null when no object is registered)")
+    best: MatchOut | None = Field(
+        description="the nearest answer; null when no object is registered or when it is not close enough "
+        "(its distance above the model's calibrated threshold or the REJECT_ABOVE setting): `reason` says"
+    )
+    reason: str | None = Field(None, description="why `best` is null; null when it is not")
+    score: str = Field(
+        "descriptor",
+        description="what the matches' distances are: 'local' (re-ranked) or 'descriptor'",
+    )
     timings_ms: dict[str, float]
     model: str = Field(description="the model that matched the modality sent")
 

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Literal
+from typing import Annotated, Literal
 
 from pydantic import Field, SecretStr, field_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
@@ -46,6 +46,11 @@ class Settings(BaseSettings):
     rerank: int = Field(
         200, ge=0, le=1000, description="with a model that has local features: re-rank this many nearest "
         "distinct answers by the local similarity of the query turned to each one's roll (0: off)",
+    )  # fmt: skip
+    # A number replaces every model's calibrated threshold (`service.rejection`); "off": never reject.
+    reject_above: Annotated[float, Field(ge=0, allow_inf_nan=False)] | Literal["off"] | None = Field(
+        None, description="answer best = null when the best answer's score (distance) is above this; "
+        "'off': never; unset: each model's calibration (its metadata `reject_above`), none without one",
     )  # fmt: skip
     level: int = Field(3, ge=0, le=4, description="template viewpoints: icosphere level (3 = 301)")
     index_kind: Literal["flat", "ivf"] = Field("flat", description="flat = exact; ivf for large collections")

@@ -26,12 +26,17 @@ router = APIRouter(tags=["recognition"])
         "window, or a full frame with intrinsics `fx`, `fy`, `cx`, `cy` and the object's centre `u`, `v` "
         "(pixels, where the object's origin projects). `distance_mm` is the distance from the camera "
         "centre to the object's origin along the ray through (u, v) (‖t‖ of a BOP pose); a colour-only "
-        "frame needs it. With depth and no `distance_mm`, the service measures the distance of the "
-        "surface at (u, v) in the depth image. The answer holds `k` distinct (object, viewpoint) "
+        "frame needs it. With depth and no `distance_mm`, the service measures the surface at (u, v) and "
+        "cuts the patch there; each answer then puts the origin behind that surface by its template's "
+        "offset (how far the origin of that object lies behind the surface seen from that viewpoint). The answer holds `k` distinct (object, viewpoint) "
         "matches, nearest first, each with its azimuth, elevation and estimated in-plane angle (roll, "
         "counter-clockwise in the image, in (-180, 180]; 0 when the templates are upright only) and its pose "
         "in the camera as BOP writes it: `R` (model to camera, row-major) and `t` (mm) along the ray through "
-        "(u, v) at the distance the query was cut at (for a patch, in the patch's own camera)."
+        "(u, v) at the object's origin: `distance_mm` when sent, else the measured surface plus the answer's "
+        "offset (for a patch, in the patch's own camera). `best` is null, "
+        "with a `reason`, when the nearest answer is too far to be a registered object (open-set rejection: "
+        "each model's calibrated threshold, or the REJECT_ABOVE setting); each match's `confidence` is the "
+        "calibrated chance that it is the right object."
     ),
     responses=responses(400, 413, 422),
 )
@@ -63,7 +68,8 @@ async def recognize(
             ge=MIN_DISTANCE_MM,
             le=MAX_DISTANCE_MM,
             description="from the camera centre to the object's origin along the ray through (u, v), mm "
-            "(optional with depth: then the surface at (u, v) is measured)",
+            "(optional with depth: then the surface at (u, v) is measured and each answer adds how far its "
+            "template's origin lies behind the surface)",
         ),
     ] = None,
     k: Annotated[
@@ -86,11 +92,14 @@ async def recognize(
         )
         result = await asyncio.wrap_future(state.recognizer.submit(recognise, state, q))
     matches = [
-        MatchOut(**m.__dict__, **pose_fields(m, result.ray, result.distance_mm)) for m in result.matches
+        MatchOut(**m.__dict__, confidence=c, **pose_fields(m, result.ray, origin))
+        for m, c, origin in zip(result.matches, result.confidences, result.origins_mm, strict=True)
     ]
     return RecognizeOut(
         matches=matches,
-        best=matches[0] if matches else None,
+        best=None if result.reason else matches[0],
+        reason=result.reason,
+        score=result.score,
         timings_ms=result.timings_ms,
         model=result.model,
     )

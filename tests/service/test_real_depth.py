@@ -82,6 +82,7 @@ def cut_distances(monkeypatch):
 
 @pytest.mark.parametrize("modality", ["depth", "rgbd"])
 def test_recognise_objects_in_a_real_depth_frame(client, frame, cut_distances, modality):
+    errors: dict[str, list[tuple[float, float]]] = {modality: []}
     for inst in frame["instances"]:
         (fx, _, cx), (_, fy, cy) = inst.K[:2]
         u, v = inst.centre_uv
@@ -97,22 +98,33 @@ def test_recognise_objects_in_a_real_depth_frame(client, frame, cut_distances, m
         assert len(body["matches"]) == 5 and body["best"] == body["matches"][0]
         assert {m["object_id"] for m in body["matches"]} <= set(client.ids)
         assert body["timings_ms"]["total"] > 0
-        # each answer's pose: a rotation, the origin along the ray through (u, v) at the cut distance
+        # each answer's pose: a rotation, the origin along the ray through (u, v), behind the surface
         ray = np.linalg.inv(inst.K) @ np.array([u, v, 1.0])
         for m in body["matches"]:
             R, t = np.reshape(m["R"], (3, 3)), np.asarray(m["t"])
             assert np.abs(R @ R.T - np.eye(3)).max() < 1e-9 and np.linalg.det(R) == pytest.approx(1.0)
-            np.testing.assert_allclose(t, cut_distances[0] * ray / np.linalg.norm(ray), rtol=1e-9)
+            np.testing.assert_allclose(t / np.linalg.norm(t), ray / np.linalg.norm(ray), rtol=1e-9)
+            assert np.linalg.norm(t) > cut_distances[0]  # an origin lies behind the surface seen
         # the distance was measured from the real depth: the surface at the centre, near ‖t‖
         true = float(np.linalg.norm(inst.t))
         assert cut_distances and len(set(cut_distances)) == 1
         assert abs(cut_distances[0] - true) < 0.10 * true, (inst.obj_id, cut_distances[0], true)
         best = body["best"]
+        right = [m for m in body["matches"] if client.ids[m["object_id"]] == inst.obj_id]
+        for m in right:  # the right object's answers put its origin nearer ‖t‖ than the surface is
+            errors[modality].append((abs(np.linalg.norm(m["t"]) - true), abs(cut_distances[0] - true)))
         print(
             f"{modality} obj {inst.obj_id}: best obj {client.ids[best['object_id']]} "
             f"az {best['azimuth']:.0f} el {best['elevation']:.0f} (true {inst.view.azimuth:.0f} "
-            f"{inst.view.elevation:.0f}), cut at {cut_distances[0]:.0f} mm (‖t‖ {true:.0f})"
+            f"{inst.view.elevation:.0f}), cut at {cut_distances[0]:.0f} mm, origin at "
+            f"{np.linalg.norm(best['t']):.0f} (‖t‖ {true:.0f})"
         )
+    answer_error, surface_error = np.median(errors[modality], axis=0)
+    print(
+        f"{modality}: right object's answers, median |distance error| {answer_error:.1f} mm "
+        f"(the surface's: {surface_error:.1f} mm)"
+    )
+    assert answer_error < surface_error
 
 
 def png16(depth: np.ndarray) -> bytes:

@@ -1,0 +1,49 @@
+"""`service.rejection`: which threshold applies (setting, model, off), the confidence curve, the metadata."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from index.store import Match
+from service.rejection import REJECT_KEY, Calibration, judge, read_calibrations
+
+
+def match(distance: float) -> Match:
+    return Match(1, "a", 0.0, 0.0, 0.0, distance)
+
+
+CAL = Calibration("local", threshold=1.0, slope=10.0, midpoint=0.9)
+
+
+def test_the_model_threshold_rejects_above_it_only():
+    assert judge([match(0.99), match(2.0)], "local", CAL).reason is None
+    reason = judge([match(1.01)], "local", CAL).reason
+    assert reason is not None and "local distance 1.01 is above 1" in reason and "val frames" in reason
+
+
+def test_the_setting_replaces_the_model_threshold_and_off_turns_it_off():
+    assert judge([match(0.5)], "local", CAL, setting=0.4).reason is not None
+    assert judge([match(1.5)], "local", CAL, setting=2.0).reason is None
+    assert judge([match(99.0)], "local", CAL, setting="off").reason is None
+    assert judge([match(99.0)], "descriptor", None).reason is None  # no calibration, no setting
+
+
+def test_no_registered_object_is_a_reason_too():
+    assert judge([], "descriptor", None).reason == "no object is registered"
+
+
+def test_confidence_falls_with_the_distance_and_is_half_at_the_midpoint():
+    c = judge([match(0.5), match(0.9), match(1.3)], "local", CAL).confidences
+    assert c[1] == pytest.approx(0.5)
+    assert c[0] > 0.95 and c[2] < 0.05
+    assert CAL.confidence(1e6) < 1e-300 and CAL.confidence(-1e6) == 1.0  # no overflow
+
+
+def test_metadata_round_trip_and_a_bad_one_is_ignored():
+    meta = {REJECT_KEY: json.dumps({"local": CAL.to_json(), "other": {"threshold": 1}})}
+    assert read_calibrations(meta) == {"local": CAL}
+    assert read_calibrations({REJECT_KEY: "{not json"}) == {}
+    assert read_calibrations({REJECT_KEY: json.dumps({"local": {"slope": 1}})}) == {}
+    assert read_calibrations({}) == {}
