@@ -19,8 +19,8 @@ INPUT_NAME, OUTPUT_NAME = "patch", "descriptor"
 #: for re-ranking the nearest answers by local similarity (`service.recognition`, `index.store`).
 LOCAL_NAME = "local"
 #: A third output some models have: logits (N, 1, S, S) of the pixels of the object at the patch's centre
-#: (`training/mask.py`). A query patch is blacked out where they are negative before it is described,
-#: as templates are renders on black: the descriptor then sees the object, not what stands around it.
+#: (a head on the trunk, `training/mask.py`, or an RGB-D model's depth, `training.export`): the
+#: re-ranking compares a query with a template where they are positive (`index.local`).
 MASK_NAME = "mask"
 
 
@@ -96,6 +96,9 @@ class Embedder:
         #: a pixel is the object's where the mask logit exceeds this (metadata `mask_logit`, chosen on
         #: validation frames at export: cutting the object hurts more than keeping a little clutter)
         self.mask_logit = float(self.info.extra.get("mask_logit") or 0.0)
+        #: cells on a side of the `local` map (metadata `local_grid`; the trunk's map is a quarter of the
+        #: input's side)
+        self.local_grid = int(self.info.extra.get("local_grid") or self.info.size // 4)
         if self.info.modality not in MODALITY_CHANNELS:
             raise ValueError(f"model {self.path} has unknown modality {self.info.modality!r}")
 
@@ -139,17 +142,6 @@ class Embedder:
         s = self.info.size
         return np.concatenate(out) if out else np.zeros((0, s, s), bool)
 
-    def foreground(
-        self, rgb: np.ndarray, depth: np.ndarray | None, nominal_mm: float | np.ndarray, fill: bool = True
-    ) -> tuple[np.ndarray, np.ndarray | None]:
-        """Query patches with everything but the centred object black (rgb) and empty (depth), as a
-        template is: rgb (N, S, S, 3) uint8, depth (N, S, S) mm or None. Unchanged without a mask head."""
-        if not self.has_mask:
-            return rgb, depth
-        x = batch_inputs(self.modality, rgb, depth, nominal_mm, self.info.window_mm, fill)
-        keep = self.mask(x)
-        return rgb * keep[..., None].astype(rgb.dtype), None if depth is None else np.where(keep, depth, 0.0)
-
     def embed_patches(
         self,
         rgb: np.ndarray | None,
@@ -157,13 +149,9 @@ class Embedder:
         nominal_mm: float | np.ndarray,
         fill: bool = True,
         local: bool = False,
-        masked: bool = False,
     ) -> np.ndarray:
         """Cropped patches (rgb (N, S, S, 3) uint8, depth (N, S, S) mm) -> descriptors (N, D), or with
-        `local` the local features (N, F) instead. `masked`: query patches, cut to their centred object
-        first (`foreground`) when the model has a mask head; templates, renders on black, are not."""
-        if masked and rgb is not None:
-            rgb, depth = self.foreground(rgb, depth, nominal_mm, fill)
+        `local` the local features (N, F) instead."""
         x = batch_inputs(self.modality, rgb, depth, nominal_mm, self.info.window_mm, fill)
         return self.local(x) if local else self(x)
 

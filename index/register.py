@@ -34,6 +34,7 @@ import numpy as np
 import trimesh
 
 from index.embed import Embedder
+from index.local import with_silhouettes
 from index.mesh import MeshError, load_mesh, simplify
 from index.pose import View
 from index.render import INVISIBLE, Renderer, RenderWorker, Templates
@@ -149,6 +150,8 @@ def embed_templates(
     local = embedder.embed_patches(
         None if rgb is None else rgb[up], None if depth is None else depth[up], nominal[up], False, local=True
     )
+    # where each template's object is: the re-ranking compares the cells it covers (`index.local`)
+    local = with_silhouettes(local, t.depth[idx][up], embedder.local_grid)
     return TemplateSet(poses, desc, up, local)
 
 

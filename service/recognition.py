@@ -21,7 +21,8 @@ import cv2
 import numpy as np
 
 from index.embed import Embedder
-from index.patches import PatchSpec, crop, patch_camera
+from index.local import cell_weights, cells, l2, masked_distance, split_silhouettes
+from index.patches import PatchSpec, batch_inputs, crop, patch_camera
 from index.store import Match, Snapshot, local_key
 from service.depth_units import check_frame_distance, check_given_distance, check_patch_distance
 from service.errors import ApiError
@@ -114,7 +115,7 @@ def recognise_decoded(state: AppState, q: Query, d: Decoded, decode_s: float | N
     offsets = turn_offsets(state.settings.query_turns, state.templates.inplane_spacing(step))
     p = cut(q, d.rgb, d.depth, d.embedder.info.spec, offsets)
     t2 = time.perf_counter()
-    desc = d.embedder.embed_patches(p.rgb, p.depth, p.distance, fill=True, masked=True)
+    desc = d.embedder.embed_patches(p.rgb, p.depth, p.distance, fill=True)
     t3 = time.perf_counter()
     variants = len(state.templates.inplane(step))
     snap = state.store.snapshot
@@ -156,10 +157,12 @@ def recognise_decoded(state: AppState, q: Query, d: Decoded, decode_s: float | N
 
 def rerank_local(snap: Snapshot, q: Query, d: Decoded, matches: list[Match]) -> list[Match]:
     """The answers re-ranked by local similarity: the query is cut once per roll the answers give
-    (turned upright for each), its local features compared with those of each answer's upright template
-    (L2 between unit-length maps of the pretrained trunk, `index.embed.LOCAL_NAME`). An answer whose
-    viewpoint has no local features keeps its place after those that have. Measured on validation
-    frames (README, Evaluation): the answers within 20 deg double against the descriptor's order."""
+    (turned upright for each), and its local features (`index.embed.LOCAL_NAME`, the pretrained trunk's
+    map) compared with those of each answer's upright template, cell by cell where the object is
+    (`index.local.masked_distance`): the template's silhouette, and the query's mask when the model has
+    one (a head on the trunk, or the depth's for RGB-D). Templates stored without silhouettes (older
+    stores) are compared as whole maps (`l2`). An answer whose viewpoint has no local features keeps its
+    place after those that have. Measured on validation frames (README, Evaluation)."""
     local = snap.models[d.modality].local
     refs = [local.get(local_key(m.object_id, m.azimuth, m.elevation)) for m in matches]
     have = [i for i, r in enumerate(refs) if r is not None]
@@ -167,16 +170,19 @@ def rerank_local(snap: Snapshot, q: Query, d: Decoded, matches: list[Match]) -> 
         return matches
     rolls = sorted({round(matches[i].inplane, 3) for i in have})
     p = cut(q, d.rgb, d.depth, d.embedder.info.spec, rolls)  # undoes each roll: the object upright
-    feats = d.embedder.embed_patches(p.rgb, p.depth, p.distance, fill=True, local=True, masked=True)
-    feats = feats.astype(np.float32)
-    row = {r: j for j, r in enumerate(rolls)}
-    scored = []
-    for i in have:
-        m, ref = matches[i], refs[i]
-        diff = feats[row[round(m.inplane, 3)]] - np.asarray(ref, np.float32)
-        scored.append((float(np.sqrt(diff @ diff)), i))
-    scored.sort()
-    out = [replace(matches[i], distance=s) for s, i in scored]
+    x = batch_inputs(d.modality, p.rgb, p.depth, p.distance, d.embedder.info.window_mm, fill=True)
+    feats = d.embedder.local(x)
+    row = np.array([rolls.index(round(matches[i].inplane, 3)) for i in have])
+    t = np.stack([np.asarray(refs[i]) for i in have])
+    grid = d.embedder.local_grid
+    if t.shape[1] == feats.shape[1]:  # no silhouettes stored
+        score = l2(feats[row], t)
+    else:
+        t, silhouettes = split_silhouettes(t, grid)
+        query_mask = cell_weights(d.embedder.mask(x), grid)[row] if d.embedder.has_mask else None
+        score = masked_distance(cells(feats, grid)[row], cells(t, grid), silhouettes, query_mask)
+    order = np.argsort(score, kind="stable")
+    out = [replace(matches[have[j]], distance=float(score[j])) for j in order]
     return out + [m for i, m in enumerate(matches) if refs[i] is None]
 
 

@@ -37,35 +37,68 @@ class WithLocal(nn.Module):
         return out if self.mask is None else (*out, self.mask(early, m))
 
 
+class ColourAndDepthMask(nn.Module):
+    """A colour trunk model as an RGB-D one: the colour channels go through it (descriptor and local
+    features, as the rgb model's), and the depth channel says where the centred object is: the mask's
+    logits are positive where the depth lies between `near_mm` in front of the surface at the patch's
+    centre and `far_mm` behind it (the input's depth channel is (d - surface) / (window / 2), empty +1;
+    `index.patches.normalise_depth`). Clutter in front of or behind the object falls out of the
+    re-ranking's score (`index.local.masked_cosine`). Shape: (B, 4, S, S) -> (B, D), (B, F), (B, 1, S, S)."""
+
+    def __init__(self, net: DescriptorNet, near_mm: float, far_mm: float, window_mm: float):
+        super().__init__()
+        self.net = WithLocal(net)
+        if not (0 <= near_mm < window_mm / 2 and 0 < far_mm < window_mm / 2):
+            raise ValueError(
+                f"the depth mask's near and far must be under half the window ({window_mm / 2:g} mm): the "
+                "network's depth input is clipped there"
+            )
+        self.lo, self.hi = -near_mm / (window_mm / 2), far_mm / (window_mm / 2)
+
+    def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        desc, local = self.net(x[:, :3])
+        d = x[:, 3:4]
+        return desc, local, torch.minimum(d - self.lo, self.hi - d)
+
+
 def export_onnx(
     net: DescriptorNet,
     out: str | Path,
     window_mm: float,
     extra: dict[str, str] | None = None,
     mask: MaskHead | None = None,
+    depth_mask: tuple[float, float] | None = None,
 ) -> Path:
-    """Writes `net` (and a mask head on its trunk) to `out` (.onnx) with metadata; returns the path."""
+    """Writes `net` (and a mask head on its trunk) to `out` (.onnx) with metadata; returns the path.
+    `depth_mask` (near, far mm): a colour trunk model written as an RGB-D model whose mask is cut from
+    the depth channel (`ColourAndDepthMask`)."""
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     cfg = net.cfg
     net = net.eval()
-    dummy = torch.zeros(2, cfg.channels, cfg.size, cfg.size)
     local = not isinstance(net.stem, nn.Identity)  # a pretrained trunk: its map re-ranks
-    if mask is not None and not local:
+    if (mask is not None or depth_mask is not None) and not local:
         raise ValueError("a mask head reads the pretrained trunk: export it with a trunk model")
+    if mask is not None and depth_mask is not None:
+        raise ValueError("one mask: a head on the colour trunk, or the depth's")
+    modality, channels = ("rgbd", 4) if depth_mask is not None else (cfg.modality, cfg.channels)
+    dummy = torch.zeros(2, channels, cfg.size, cfg.size)
     names = [OUTPUT_NAME, LOCAL_NAME] if local else [OUTPUT_NAME]
+    module: nn.Module = WithLocal(net, None if mask is None else mask.eval()) if local else net
+    if depth_mask is not None:
+        module = ColourAndDepthMask(net, *depth_mask, window_mm)
     torch.onnx.export(
-        WithLocal(net, None if mask is None else mask.eval()) if local else net,
+        module,
         (dummy,),
         str(out),
         input_names=[INPUT_NAME],
-        output_names=names + ([MASK_NAME] if mask is not None else []),
+        output_names=names + ([MASK_NAME] if mask is not None or depth_mask is not None else []),
         dynamic_shapes={"x": {0: torch.export.Dim("batch", min=1, max=65536)}},
         external_data=False,
         dynamo=True,
     )
     model = onnx.load(str(out))
-    info = ModelInfo(cfg.modality, float(window_mm), cfg.size, cfg.descriptor_dim, dict(extra or {}))
+    info = ModelInfo(modality, float(window_mm), cfg.size, cfg.descriptor_dim, dict(extra or {}))
     del model.metadata_props[:]
     for k, v in info.to_metadata().items():
         model.metadata_props.add(key=k, value=str(v))

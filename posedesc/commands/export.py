@@ -31,6 +31,24 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "service blacks out what is not the centred object before describing a patch",
     )
 
+    p.add_argument(
+        "--as-rgbd",
+        default=None,
+        metavar="NEAR:FAR",
+        help="write a colour trunk run as an RGB-D model: colour through the network, the mask from "
+        "depth between NEAR mm in front of the surface at the centre and FAR mm behind it",
+    )
+
+
+def _near_far(text: str) -> tuple[float, float]:
+    try:
+        near, far = (float(v) for v in text.split(":"))
+    except ValueError:
+        raise UserError(f"--as-rgbd takes NEAR:FAR in mm, e.g. 40:90; got {text!r}") from None
+    if near < 0 or far <= 0:
+        raise UserError(f"--as-rgbd: NEAR must be >= 0 and FAR > 0 mm; got {text!r}")
+    return near, far
+
 
 def run(args: argparse.Namespace) -> int:
     if not (args.run / "checkpoint.pt").is_file():
@@ -85,8 +103,11 @@ def run(args: argparse.Namespace) -> int:
                 "code": mask_state.get("code", ""),
             }
         )
+    depth_mask = None if args.as_rgbd is None else _near_far(args.as_rgbd)
+    if depth_mask is not None:
+        extra["mask"] = json.dumps({"from": "depth", "near_mm": depth_mask[0], "far_mm": depth_mask[1]})
     try:
-        out = export_onnx(net, args.out, ckpt["window_mm"], extra, mask=head)
+        out = export_onnx(net, args.out, ckpt["window_mm"], extra, mask=head, depth_mask=depth_mask)
     except ValueError as e:
         raise UserError(str(e)) from None
     print(f"{args.run} -> {out} ({out.stat().st_size / 1e6:.2f} MB)")
