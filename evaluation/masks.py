@@ -1,7 +1,12 @@
-"""The visible mask of every annotated object of a frame, rendered from the ground-truth poses (the
-nearest surface wins, so occluders cut it), for the clutter-free bound: `posedesc evaluate
---oracle-mask` sends each frame with everything but the instance's own pixels black, the best a
-foreground mask could ever do for a descriptor that is about the object at the centre."""
+"""What a frame's ground truth renders to, every annotated object at its annotated pose with the frame's
+camera (the nearest surface wins, so occluders cut each other):
+
+- the visible mask of each object, for the clutter-free bound: `posedesc evaluate --oracle-mask` sends
+  each frame with everything but the instance's own pixels black, the best a foreground mask could ever
+  do for a descriptor that is about the object at the centre;
+- the frame's depth, for real colour frames that have none (LM-O): the objects, the table they stand on
+  where no object is, through the sensor model. Whatever the frame shows that is not annotated (clutter)
+  gets the table's depth, or none where there is no table."""
 
 from __future__ import annotations
 
@@ -10,8 +15,9 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 import trimesh
 
-from index.bop import Instance
+from index.bop import Instance, table_depth
 from index.render import Renderer
+from index.sensor import SensorModel
 
 
 def visible_masks(
@@ -30,3 +36,26 @@ def visible_masks(
 def black_outside(rgb: np.ndarray, mask: np.ndarray) -> np.ndarray:
     """The frame with every pixel outside `mask` black. Shape: (H, W, 3) -> (H, W, 3)."""
     return np.where(mask[..., None], rgb, 0).astype(rgb.dtype)
+
+
+def rendered_depth(
+    renderer: Renderer,
+    everyone: Sequence[Instance],
+    meshes: Mapping[int, trimesh.Trimesh],
+    w: int,
+    h: int,
+    rng: np.random.Generator | None = None,
+    sensor: SensorModel | None = SensorModel(),
+) -> np.ndarray:
+    """The depth (H, W) float32 mm a sensor would have measured of a frame's ground truth: every annotated
+    instance `everyone` (all of the frame's, not only those asked about: they all occlude) at its pose,
+    the table (`index.bop.table_depth`) where no object is, 0 where neither; through `sensor` (holes at
+    depth edges, noise, quantisation; None: clean) with `rng`."""
+    # one render of all meshes: the z-buffer keeps the nearest surface
+    _, objects = renderer.render_frame([(meshes[i.obj_id], i.R, i.t) for i in everyone], everyone[0].K, w, h)
+    table = table_depth(everyone, [meshes[i.obj_id] for i in everyone], w, h)
+    depth = np.where(objects > 0, objects, table).astype(np.float32)
+    if sensor is None:
+        return depth
+    _, noisy = sensor.apply(None, depth, rng if rng is not None else np.random.default_rng(0))
+    return noisy

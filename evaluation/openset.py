@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from evaluation.run import bar
-from evaluation.samples import needs_synthetic, select_instances
+from evaluation.samples import REAL, SYNTHETIC, needs_synthetic, select_instances
 from evaluation.served import _frames, _register, query
 from index.bop import BopDataset
 from index.embed import Embedder
@@ -88,7 +88,8 @@ def collect(
             close_state(state)
         store_id = {o: s for s, o in dataset_ids.items()}
         synthetic = needs_synthetic(embedder.modality, instances)
-        sent = list(_frames(dataset, instances, embedder.modality, synthetic, seed))
+        kind = SYNTHETIC if synthetic else REAL  # as before rendered depth came: scenes, or the frames
+        sent = list(_frames(dataset, instances, embedder.modality, kind, seed))
         out = Answers(answered={k: [] for k in kinds}, scores={k: [] for k in kinds})
         with bar(len(registered_sets) * len(instances), "recognise (open set)") as b:
             for run, subset in enumerate(registered_sets):

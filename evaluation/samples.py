@@ -3,7 +3,9 @@
 Real frames where the dataset has the modality's images; otherwise synthetic test scenes: every frame's
 annotated objects rendered at their annotated poses with the frame's camera (so the arrangement and the
 occlusions between annotated objects are the real ones), over a random background, through the sensor
-model. Instances are chosen by the dataset's visible fraction in both cases."""
+model. The service protocol has a third kind where only depth is missing: the real colour frame with
+depth rendered from the same ground truth (`rendered_depth_frames`). Instances are chosen by the
+dataset's visible fraction in every case."""
 
 from __future__ import annotations
 
@@ -16,6 +18,7 @@ import trimesh
 from index.bop import BopDataset, Instance, instance_patch, table_depth
 from index.patches import PatchSpec
 from index.pose import View
+from index.render import Renderer
 
 
 @dataclass
@@ -59,6 +62,27 @@ def needs_synthetic(modality: str, instances: Sequence[Instance]) -> bool:
     need_depth = modality in ("depth", "rgbd")
     need_rgb = modality in ("rgb", "rgbd")
     return any((need_depth and i.depth_path is None) or (need_rgb and i.rgb_path is None) for i in instances)
+
+
+#: What test frames are made of (the JSON's `test_data`): the dataset's own images; synthetic scenes of
+#: its ground truth (`synthetic_frames`); or its real colour with depth rendered from the ground truth
+#: (`rendered_depth_frames`; "rendered depth" when no colour is used)
+REAL, SYNTHETIC = "real", "synthetic"
+REAL_COLOUR_RENDERED_DEPTH, RENDERED_DEPTH = "real colour, rendered depth", "rendered depth"
+RENDERED = (REAL_COLOUR_RENDERED_DEPTH, RENDERED_DEPTH)
+
+
+def served_data(modality: str, instances: Sequence[Instance], synthetic: bool | None) -> str:
+    """What the service protocol sends: synthetic scenes when asked (`synthetic`) or when colour the
+    modality needs is missing; the real colour (if needed) with rendered depth when only depth is
+    missing; else the real frames."""
+    need_depth = modality in ("depth", "rgbd")
+    need_rgb = modality in ("rgb", "rgbd")
+    if synthetic or (need_rgb and any(i.rgb_path is None for i in instances)):
+        return SYNTHETIC
+    if need_depth and any(i.depth_path is None for i in instances):
+        return REAL_COLOUR_RENDERED_DEPTH if need_rgb else RENDERED_DEPTH
+    return REAL
 
 
 def by_frame(instances: Sequence[Instance]) -> dict[int, list[Instance]]:
@@ -122,23 +146,16 @@ def synthetic_frames(
     synthetic frame: the annotated objects of the frame rendered at their annotated poses with its camera,
     standing on their table (`index.bop.table_depth`, textured like a background), composited over a
     random background, through the sensor model."""
-    from index.render import Renderer
     from index.sensor import SensorModel, random_background, with_support
 
     rng = np.random.default_rng(seed)
     sensor = SensorModel()
     meshes: dict[int, trimesh.Trimesh] = {}
     renderer = Renderer()
-    # Every annotated object of a frame occludes, not only the selected ones.
-    scenes = {i.scene_id for i in instances}
-    everyone_by_frame = by_frame([a for s in scenes for a in dataset.instances(s)])
     try:
-        for frame_id, group in by_frame(instances).items():
-            everyone = everyone_by_frame[frame_id]
-            for inst in everyone:
-                if inst.obj_id not in meshes:
-                    meshes[inst.obj_id] = dataset.mesh(inst.obj_id, max_faces=20_000)
-            w, h = _frame_size(group[0])
+        for group, everyone in _with_everyone(dataset, instances):
+            _load_meshes(dataset, everyone, meshes, 20_000)
+            w, h = frame_size(group[0])
             rgb, depth = renderer.render_frame(
                 [(meshes[i.obj_id], i.R, i.t) for i in everyone], group[0].K, w, h
             )
@@ -153,7 +170,47 @@ def synthetic_frames(
         renderer.close()
 
 
-def _frame_size(inst: Instance) -> tuple[int, int]:
+def rendered_depth_frames(
+    dataset: BopDataset,
+    instances: Sequence[Instance],
+    renderer: Renderer,
+    meshes: dict[int, trimesh.Trimesh],
+    max_faces: int,
+    seed: int = 0,
+) -> Iterator[tuple[list[Instance], np.ndarray]]:
+    """Per frame of `instances`: (its instances, depth (H, W) float32 mm) rendered from the frame's ground
+    truth (`evaluation.masks.rendered_depth`: every annotated object, the table, the sensor model), to go
+    with its real colour. `renderer` must belong to the calling thread; `meshes` (dataset object id ->
+    mesh) is a cache, filled with objects it lacks, loaded with at most `max_faces`."""
+    from evaluation.masks import rendered_depth
+
+    rng = np.random.default_rng(seed)
+    for group, everyone in _with_everyone(dataset, instances):
+        _load_meshes(dataset, everyone, meshes, max_faces)
+        w, h = frame_size(group[0])
+        yield group, rendered_depth(renderer, everyone, meshes, w, h, rng)
+
+
+def _with_everyone(
+    dataset: BopDataset, instances: Sequence[Instance]
+) -> Iterator[tuple[list[Instance], list[Instance]]]:
+    """Per frame of `instances`: (its instances, every annotated instance of the frame): every annotated
+    object occludes, not only the selected ones."""
+    scenes = {i.scene_id for i in instances}
+    everyone_by_frame = by_frame([a for s in scenes for a in dataset.instances(s)])
+    for frame_id, group in by_frame(instances).items():
+        yield group, everyone_by_frame[frame_id]
+
+
+def _load_meshes(
+    dataset: BopDataset, instances: Sequence[Instance], meshes: dict[int, trimesh.Trimesh], max_faces: int
+) -> None:
+    for inst in instances:
+        if inst.obj_id not in meshes:
+            meshes[inst.obj_id] = dataset.mesh(inst.obj_id, max_faces=max_faces)
+
+
+def frame_size(inst: Instance) -> tuple[int, int]:
     """(width, height) of the instance's frame: from its image when there is one, else from K."""
     import cv2
 

@@ -7,6 +7,8 @@ Every object of the dataset (or of `--objects`) is registered by the service's o
 image bytes (the dataset's own PNG/JPEG file; a synthetic frame encoded as PNG), the camera's fx, fy, cx,
 cy, the centre (u, v) where the object's origin projects, and for colour the distance to the origin
 along that ray (‖t‖); with depth, the frame's depth image and no distance (the service measures it).
+A dataset with colour but no depth (LM-O) sends its real colour with depth rendered from the frame's
+ground truth (`evaluation.masks.rendered_depth`, 16-bit PNG in mm), unless synthetic scenes are asked for.
 
 Each of the k = 22 distinct answers gives a pose: view_to_pose(View(azimuth, elevation, in-plane)) along
 the ray through (u, v). It is scored by the 3-D rotation error against the annotated R (symmetry-aware,
@@ -21,6 +23,7 @@ from __future__ import annotations
 import tempfile
 import time
 from collections.abc import Iterator, Mapping, Sequence
+from contextlib import closing, nullcontext
 from pathlib import Path
 from typing import TypedDict
 
@@ -33,7 +36,15 @@ from evaluation.masks import black_outside, visible_masks
 from evaluation.metric import K_MAX, WRONG_OBJECT
 from evaluation.neighbours import distinct_rows
 from evaluation.run import SYNTHETIC_NOTE, Config, Evaluation, MethodResult, bar, instances_of, rank
-from evaluation.samples import Samples, by_frame, needs_synthetic, synthetic_frames
+from evaluation.samples import (
+    RENDERED,
+    SYNTHETIC,
+    Samples,
+    by_frame,
+    rendered_depth_frames,
+    served_data,
+    synthetic_frames,
+)
 from evaluation.templates import render_template_set, service_symmetry
 from index.bop import BopDataset, Instance
 from index.embed import Embedder
@@ -50,6 +61,16 @@ from service.state import AppState, close_state, load_state
 SENDABLE = (".png", ".jpg", ".jpeg")
 
 
+def rendered_note(kind: str) -> str:
+    """What the depth of `kind` (real colour, rendered depth; rendered depth) shows and what it lacks."""
+    return (
+        f"{kind}: annotated objects and the table only; unannotated clutter has the table's depth (none "
+        "where no table plane is found). The depth is rendered from the ground-truth poses of every "
+        "annotated object of the frame, the table plane under them where no object is, through the "
+        "sensor model, and sent as a 16-bit PNG in mm"
+    )
+
+
 class _Options(TypedDict, total=False):
     inplane_step: float
     inplane_max: float
@@ -60,7 +81,7 @@ def evaluate_served(cfg: Config) -> Evaluation:
     dataset = BopDataset(cfg.dataset)
     obj_ids = list(cfg.objects) if cfg.objects else dataset.obj_ids
     instances = instances_of(cfg, dataset, obj_ids)
-    synthetic = needs_synthetic(cfg.modality, instances) if cfg.synthetic is None else cfg.synthetic
+    kind = served_data(cfg.modality, instances, cfg.synthetic)
     options: _Options = {}  # the command's options override the settings only where given
     if cfg.inplane_step is not None:
         options["inplane_step"] = cfg.inplane_step
@@ -83,14 +104,7 @@ def evaluate_served(cfg: Config) -> Evaluation:
             t0 = time.perf_counter()
             depth_errors: list[tuple[float, float]] = []
             samples, answers, call_ms, refused = _ask(
-                state,
-                dataset,
-                instances,
-                synthetic,
-                cfg,
-                dataset_ids,
-                meshes if cfg.oracle_mask else None,
-                depth_errors,
+                state, dataset, instances, kind, cfg, dataset_ids, meshes, depth_errors
             )
             seconds["ours"] = time.perf_counter() - t0
             n_templates = state.store.snapshot.models[cfg.modality].size
@@ -99,7 +113,7 @@ def evaluate_served(cfg: Config) -> Evaluation:
 
     step = embedder.info.inplane_step
     variants = len(state.templates.inplane(step))
-    notes = [SYNTHETIC_NOTE] if synthetic else []
+    notes = [SYNTHETIC_NOTE] if kind == SYNTHETIC else [rendered_note(kind)] if kind in RENDERED else []
     if cfg.oracle_mask:
         notes.append("oracle mask: each frame was sent black outside the instance's true visible mask")
     if refused:
@@ -185,23 +199,38 @@ def _register(state: AppState, dataset: BopDataset, obj_ids: Sequence[int]):
 
 
 def _frames(
-    dataset: BopDataset, instances: Sequence[Instance], modality: str, synthetic: bool, seed: int
+    dataset: BopDataset,
+    instances: Sequence[Instance],
+    modality: str,
+    kind: str,
+    seed: int,
+    renderer: Renderer | None = None,
+    meshes: dict[int, trimesh.Trimesh] | None = None,
+    max_faces: int = 200_000,
 ) -> Iterator[tuple[list[Instance], bytes | None, bytes | None, float]]:
-    """Per frame: its instances, and the rgb and depth files a user would send, with the depth scale."""
+    """Per frame: its instances, and the rgb and depth files a user would send, with the depth scale.
+    `kind`: `evaluation.samples.served_data`; the rendered-depth kinds need `renderer` (of this thread)
+    and `meshes` (dataset object id -> mesh; objects it lacks are added, with at most `max_faces`)."""
     colour, ranged = modality in ("rgb", "rgbd"), modality in ("depth", "rgbd")
-    if synthetic:
+    if kind == SYNTHETIC:
         for group, rgb, depth in synthetic_frames(dataset, instances, seed):
-            depth16 = np.clip(np.round(depth), 0, 65535).astype(np.uint16)
-            yield group, _png(rgb[..., ::-1]) if colour else None, _png(depth16) if ranged else None, 1.0
+            yield group, _png(rgb[..., ::-1]) if colour else None, _png(_mm16(depth)) if ranged else None, 1.0
+        return
+    if kind in RENDERED:
+        if renderer is None or meshes is None:
+            raise ValueError(f"{kind} frames need a renderer and the meshes")
+        for group, depth in rendered_depth_frames(dataset, instances, renderer, meshes, max_faces, seed):
+            yield group, _rgb_file(group[0]) if colour else None, _png(_mm16(depth)), 1.0
         return
     for group in by_frame(instances).values():
         first = group[0]
-        rgb_file = depth_file = None
-        if colour:
-            rgb_file = _sendable(first.rgb_path) or _png(first.load_rgb()[..., ::-1])  # type: ignore[index]
-        if ranged:
-            depth_file = _sendable(first.depth_path) or _png(_depth16(first))
+        rgb_file = _rgb_file(first) if colour else None
+        depth_file = (_sendable(first.depth_path) or _png(_depth16(first))) if ranged else None
         yield group, rgb_file, depth_file, first.depth_scale
+
+
+def _rgb_file(inst: Instance) -> bytes:
+    return _sendable(inst.rgb_path) or _png(inst.load_rgb()[..., ::-1])  # type: ignore[index]
 
 
 def _sendable(path: Path | None) -> bytes | None:
@@ -210,8 +239,12 @@ def _sendable(path: Path | None) -> bytes | None:
 
 
 def _depth16(inst: Instance) -> np.ndarray:
-    d = inst.load_depth() / inst.depth_scale  # type: ignore[operator]
-    return np.clip(np.round(d), 0, 65535).astype(np.uint16)
+    """The instance's depth file as 16-bit in its own unit (sent with its depth_scale)."""
+    return _mm16(inst.load_depth() / inst.depth_scale)  # type: ignore[operator,arg-type]
+
+
+def _mm16(depth: np.ndarray) -> np.ndarray:
+    return np.clip(np.round(depth), 0, 65535).astype(np.uint16)
 
 
 def _png(image: np.ndarray) -> bytes:
@@ -244,30 +277,35 @@ def _ask(
     state,
     dataset,
     instances,
-    synthetic: bool,
+    kind: str,
     cfg: Config,
     dataset_ids: dict[int, int],
-    oracle_meshes: Mapping[int, trimesh.Trimesh] | None = None,
+    meshes: Mapping[int, trimesh.Trimesh],
     depth_errors: list[tuple[float, float]] | None = None,
 ):
     """Every instance through `recognise`; the unturned patches the service cut (for the baselines),
     its answers, each call's milliseconds, and the reasons of the queries it refused. With
-    `oracle_meshes`, each instance's frame is sent black outside its true visible mask. `depth_errors`
+    `cfg.oracle_mask`, each instance's frame is sent black outside its true visible mask. `depth_errors`
     gets, for each query sent without a distance whose best answer is the right object, the errors (mm)
     of the distance it was cut at (the surface) and of where the answer puts the origin, against ‖t‖."""
-    renderer = Renderer() if oracle_meshes is not None else None
+    # one renderer for the oracle masks and the rendered depth, on this thread (EGL: a context a thread)
+    renderer = Renderer() if cfg.oracle_mask or kind in RENDERED else None
+    cache = dict(meshes)  # the frames' other annotated objects join it; `meshes` stays the registered ones
+    frames = _frames(
+        dataset, instances, cfg.modality, kind, cfg.seed, renderer, cache, state.settings.max_faces
+    )
     embedder = state.embedders[cfg.modality]
     spec = embedder.info.spec
     ordered: list[Instance] = []
     views, rgbs, depths, cut_mm, call_ms, refused = [], [], [], [], [], []
     obj = np.full((len(instances), K_MAX), -1, int)
     answer_views = np.zeros((len(instances), K_MAX, 3))
-    with bar(len(instances), "recognise") as b:
-        for group, rgb, depth, scale in _frames(dataset, instances, cfg.modality, synthetic, cfg.seed):
+    with bar(len(instances), "recognise") as b, closing(renderer) if renderer else nullcontext():
+        for group, rgb, depth, scale in frames:
             sent = [rgb] * len(group)
-            if renderer is not None and oracle_meshes is not None and rgb is not None:
+            if cfg.oracle_mask and renderer is not None and rgb is not None:
                 frame: np.ndarray = cv2.imdecode(np.frombuffer(rgb, np.uint8), cv2.IMREAD_COLOR)  # type: ignore[assignment]  # a file the dataset holds
-                masks = visible_masks(renderer, group, oracle_meshes, frame.shape[1], frame.shape[0])
+                masks = visible_masks(renderer, group, meshes, frame.shape[1], frame.shape[0])
                 sent = [_png(black_outside(frame, m)) for m in masks]
             decoded, decoded_of = None, None
             for inst, rgb in zip(group, sent, strict=True):
@@ -296,8 +334,6 @@ def _ask(
                 depths.append(None if p is None or p.depth is None else p.depth[0])
                 cut_mm.append(np.nan if p is None else p.distance)
                 b.update()
-    if renderer is not None:
-        renderer.close()
     size = (spec.size, spec.size)
     samples = Samples(
         obj_ids=np.array([i.obj_id for i in ordered], int),
@@ -306,7 +342,7 @@ def _ask(
         views=views,
         rgb=_stack(rgbs, (*size, 3), np.uint8) if cfg.modality in ("rgb", "rgbd") else None,
         depth=_stack(depths, size, np.float32) if cfg.modality in ("depth", "rgbd") else None,
-        source="synthetic" if synthetic else "real",
+        source=kind,
         cut_mm=np.nan_to_num(np.array(cut_mm), nan=400.0),
     )
     return samples, (obj, answer_views), call_ms, refused

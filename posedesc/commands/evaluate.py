@@ -112,7 +112,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="service protocol: the service's QUERY_TURNS setting (default: "
                    "POSEDESC_QUERY_TURNS, else 1)")  # fmt: skip
     p.add_argument("--synthetic", action="store_true",
-                   help="synthetic test scenes even where the dataset has the images")  # fmt: skip
+                   help="synthetic test scenes (colour too) even where the dataset has the images; "
+                   "without it, depth and rgbd on colour frames without depth (LM-O) get the real colour "
+                   "with depth rendered from the ground truth (service protocol)")  # fmt: skip
     p.add_argument(
         "--oracle-mask",
         action="store_true",
