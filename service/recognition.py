@@ -114,6 +114,8 @@ def recognise_decoded(state: AppState, q: Query, d: Decoded, decode_s: float | N
     step = d.embedder.info.inplane_step
     offsets = turn_offsets(state.settings.query_turns, state.templates.inplane_spacing(step))
     p = cut(q, d.rgb, d.depth, d.embedder.info.spec, offsets)
+    if d.embedder.has_mask:
+        p, _ = foreground(d, p)
     t2 = time.perf_counter()
     desc = d.embedder.embed_patches(p.rgb, p.depth, p.distance, fill=True)
     t3 = time.perf_counter()
@@ -170,6 +172,9 @@ def rerank_local(snap: Snapshot, q: Query, d: Decoded, matches: list[Match]) -> 
         return matches
     rolls = sorted({round(matches[i].inplane, 3) for i in have})
     p = cut(q, d.rgb, d.depth, d.embedder.info.spec, rolls)  # undoes each roll: the object upright
+    keep = None
+    if d.embedder.has_mask:
+        p, keep = foreground(d, p)
     x = batch_inputs(d.modality, p.rgb, p.depth, p.distance, d.embedder.info.window_mm, fill=True)
     feats = d.embedder.local(x)
     row = np.array([rolls.index(round(matches[i].inplane, 3)) for i in have])
@@ -179,11 +184,24 @@ def rerank_local(snap: Snapshot, q: Query, d: Decoded, matches: list[Match]) -> 
         score = l2(feats[row], t)
     else:
         t, silhouettes = split_silhouettes(t, grid)
-        query_mask = cell_weights(d.embedder.mask(x), grid)[row] if d.embedder.has_mask else None
+        query_mask = None if keep is None else cell_weights(keep, grid)[row]
         score = masked_distance(cells(feats, grid)[row], cells(t, grid), silhouettes, query_mask)
     order = np.argsort(score, kind="stable")
     out = [replace(matches[have[j]], distance=float(score[j])) for j in order]
     return out + [m for i, m in enumerate(matches) if refs[i] is None]
+
+
+def foreground(d: Decoded, p: Patches) -> tuple[Patches, np.ndarray]:
+    """The query's patches with what the model's mask (`index.embed.MASK_NAME`) says is not the centred
+    object black (colour) and empty (depth), as a template's background is, and that mask (N, S, S)
+    bool. The descriptor and the local features then see the object, not what stands around it:
+    measured on validation frames (README, Evaluation), within 20 deg 44 -> 50 % (rgb, mask head) and
+    40 -> 54 % (RGB-D, the depth's mask) against masking the re-ranking's score only."""
+    x = batch_inputs(d.modality, p.rgb, p.depth, p.distance, d.embedder.info.window_mm, fill=True)
+    keep = d.embedder.mask(x)
+    rgb = None if p.rgb is None else p.rgb * keep[..., None].astype(p.rgb.dtype)
+    depth = None if p.depth is None else np.where(keep, p.depth, 0.0).astype(np.float32)
+    return replace(p, rgb=rgb, depth=depth), keep
 
 
 def decode(state: AppState, q: Query) -> Decoded:
