@@ -88,7 +88,7 @@ def export_onnx(
     if depth_mask is not None:
         module = ColourAndDepthMask(net, *depth_mask, window_mm)
     torch.onnx.export(
-        module,
+        module.eval(),
         (dummy,),
         str(out),
         input_names=[INPUT_NAME],
