@@ -24,6 +24,7 @@ import numpy as np
 import trimesh
 
 from index.embed import Embedder
+from index.local import with_silhouettes
 from index.patches import batch_inputs
 from index.pose import View
 from index.register import TemplateConfig, embed_templates, template_views
@@ -232,8 +233,25 @@ def inplane_template_sets(
                     fill=False,  # a render's zeros are background, as in `index.register.embed_templates`
                 )
                 poses = np.array([(views[i].azimuth, views[i].elevation, views[i].inplane) for i in keep])
+                up = np.flatnonzero(np.abs(poses[:, 2]) < 1e-3)  # local features: upright ones, as stored
+                shown = (t.depth[keep[up]] > 0)[:, None].astype(np.float32)
                 per_shape[name] = [
-                    TemplateSet(poses.astype(np.float32), e(variant_inputs(base, k, colour), batch=128))
+                    TemplateSet(
+                        poses.astype(np.float32),
+                        e(variant_inputs(base, k, colour), batch=128),
+                        *(
+                            (
+                                up,
+                                with_silhouettes(
+                                    e.local(variant_inputs(base[up], k, colour)),
+                                    variant_inputs(shown, k, False)[:, 0],
+                                    e.local_grid,
+                                ),
+                            )
+                            if e.has_local
+                            else ()
+                        ),
+                    )
                     for k in TURN_FREE_VARIANTS[: len(range(a, n, m))]
                 ]
                 if progress:
