@@ -114,10 +114,9 @@ def recognise_decoded(state: AppState, q: Query, d: Decoded, decode_s: float | N
     step = d.embedder.info.inplane_step
     offsets = turn_offsets(state.settings.query_turns, state.templates.inplane_spacing(step))
     p = cut(q, d.rgb, d.depth, d.embedder.info.spec, offsets)
-    if d.embedder.has_mask:
-        p, _ = foreground(d, p)
+    described = foreground(d, p)[0] if d.embedder.has_mask else p
     t2 = time.perf_counter()
-    desc = d.embedder.embed_patches(p.rgb, p.depth, p.distance, fill=True)
+    desc = d.embedder.embed_patches(described.rgb, described.depth, p.distance, fill=True)
     t3 = time.perf_counter()
     variants = len(state.templates.inplane(step))
     snap = state.store.snapshot
@@ -142,7 +141,7 @@ def recognise_decoded(state: AppState, q: Query, d: Decoded, decode_s: float | N
     calibration = read_calibrations(d.embedder.info.extra, d.embedder.path.name).get(score)
     verdict = judge(matches, score, calibration, state.settings.reject_above)
     measured = q.distance_mm is None and p.depth is not None
-    depth0 = None if p.depth is None else p.depth[0]
+    depth0 = None if p.depth is None else p.depth[0]  # the surface as measured, not as masked
     origins = origin_distances(snap, matches, p.distance, depth0, d.embedder.info.window_mm, measured)
     return Result(
         state.model_names[d.modality],

@@ -98,7 +98,8 @@ def test_loopback_is_the_default(tmp_path, posedesc_models):
 def test_make_serve_takes_host_and_port():
     def command(*variables: str) -> str:
         out = subprocess.run(["make", "-n", "serve", *variables], cwd=ROOT, capture_output=True, text=True)
-        return out.stdout.strip().splitlines()[-1]
+        # under `make test` this make is a sub-make: it also prints "Entering/Leaving directory" lines
+        return [line for line in out.stdout.splitlines() if "posedesc serve" in line][-1]
 
     assert "posedesc serve --host 127.0.0.1 --port 8000 " in command()
     assert "posedesc serve --host 0.0.0.0 --port 9123 " in command("HOST=0.0.0.0", "PORT=9123")
