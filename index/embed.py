@@ -93,9 +93,6 @@ class Embedder:
         self.info = ModelInfo.from_metadata(self.session.get_modelmeta().custom_metadata_map)
         outputs = {o.name for o in self.session.get_outputs()}
         self.has_local, self.has_mask = LOCAL_NAME in outputs, MASK_NAME in outputs
-        #: a pixel is the object's where the mask logit exceeds this (metadata `mask_logit`, chosen on
-        #: validation frames at export: cutting the object hurts more than keeping a little clutter)
-        self.mask_logit = float(self.info.extra.get("mask_logit") or 0.0)
         #: cells on a side of the `local` map (metadata `local_grid`; the trunk's map is a quarter of the
         #: input's side)
         self.local_grid = int(self.info.extra.get("local_grid") or self.info.size // 4)
@@ -136,7 +133,7 @@ class Embedder:
             self.session.run(
                 [MASK_NAME], {INPUT_NAME: np.ascontiguousarray(inputs[i : i + batch], np.float32)}
             )[0][:, 0]
-            > self.mask_logit
+            > 0.0
             for i in range(0, len(inputs), batch)
         ]
         s = self.info.size
