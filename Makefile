@@ -8,9 +8,16 @@ SERVE_APT_PACKAGES := libegl1 libegl-mesa0 libgl1-mesa-dri libgl1 libopengl0 pyt
 # curl: the README's examples, run as written by tests/service/test_readme.py
 APT_PACKAGES := $(SERVE_APT_PACKAGES) curl podman buildah uidmap runc debootstrap iptables podman-compose
 STAMP := $(VENV)/.setup-stamp
+SERVE_STAMP := $(VENV)/.serve-stamp
+# Both compiled from pyproject.toml by `make lock`: every extra (setup, test), and the service's (serve, the image).
+LOCK := requirements.lock
+SERVE_LOCK := deploy/requirements-serve.txt
+PIP := $(BIN)/pip install -q --disable-pip-version-check
 # `make serve HOST=0.0.0.0 PORT=9000`; loopback by default, as `posedesc serve` (other hosts: set an API key)
 HOST ?= 127.0.0.1
 PORT ?= 8000
+# `make lock UPGRADE=--upgrade` re-resolves every pin
+UPGRADE ?=
 
 .PHONY: setup setup-serve test lint serve bench clean models lock
 

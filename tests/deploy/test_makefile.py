@@ -1,0 +1,39 @@
+"""The Makefile's set-up recipes, as a fresh clone runs them: every variable they use is defined (a lost
+definition once turned `$(PIP) -r $(LOCK)` into `-r`, which make runs as the command `r`, errors
+ignored, and CI failed on a machine without a venv while every machine with one stayed green)."""
+
+from __future__ import annotations
+
+import subprocess
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+TARGETS = ("setup", "setup-serve", "lint", "test", "serve", "bench", "lock")
+
+
+@pytest.mark.parametrize("target", TARGETS)
+def test_recipe_uses_only_defined_variables(target: str) -> None:
+    # -n prints the recipes without running them, -B as if nothing were built yet (a fresh clone).
+    run = subprocess.run(
+        ["make", "-n", "-B", "--no-print-directory", "--warn-undefined-variables", target],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        check=False,
+    )
+    assert run.returncode == 0, run.stderr
+    assert "undefined variable" not in run.stderr, run.stderr
+
+
+def test_setup_installs_from_the_locks() -> None:
+    run = subprocess.run(
+        ["make", "-n", "-B", "--no-print-directory", "setup"],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        check=True,
+    )
+    assert "pip install" in run.stdout and "-r requirements.lock" in run.stdout, run.stdout
+    assert not any(line.startswith(("-r", "r ")) for line in run.stdout.splitlines()), run.stdout
