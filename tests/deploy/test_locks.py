@@ -21,7 +21,6 @@ SERVE_LOCK = ROOT / "deploy" / "requirements-serve.txt"
 LOCKS = {LOCK: ("serve", "train", "eval", "dev"), SERVE_LOCK: ("serve",)}
 NOT_SERVED = {
     "torch",
-    "onnx",
     "onnxscript",
     "pytest",
     "ruff",

@@ -2,21 +2,26 @@
 
 import numpy as np
 
-from index.local import cell_weights, cells, l2, masked_cosine
+from index.local import cell_cosines, cell_weights, l2, masked_cosine
 
 
 def _maps(rng, n=2, c=5, g=4):
     return rng.normal(size=(n, c, g, g)).astype(np.float32)
 
 
-def test_cells_are_unit_vectors_of_each_grid_position():
+def test_cell_cosines_compare_each_grid_position_over_its_channels():
     rng = np.random.default_rng(0)
-    m = _maps(rng)
-    out = cells(m.reshape(2, -1), 4)
-    assert out.shape == (2, 16, 5)
-    np.testing.assert_allclose(np.linalg.norm(out, axis=2), 1.0, atol=1e-5)
-    v = m[1, :, 2, 3]  # channels first, row-major grid: cell 2 * 4 + 3
-    np.testing.assert_allclose(out[1, 11], v / np.linalg.norm(v), atol=1e-5)
+    q, t = _maps(rng), _maps(rng)
+    cos = cell_cosines(q.reshape(2, -1), t.reshape(2, -1).astype(np.float16), 4)
+    assert cos.shape == (2, 16)
+    a, b = q[1, :, 2, 3], t[1, :, 2, 3].astype(np.float16).astype(np.float32)  # channels first: cell 11
+    np.testing.assert_allclose(cos[1, 11], a @ b / np.linalg.norm(a) / np.linalg.norm(b), atol=1e-5)
+    # a cell's scale does not matter, only its direction
+    q2 = q.copy()
+    q2[1, :, 2, 3] *= 7.0
+    np.testing.assert_allclose(
+        cell_cosines(q2.reshape(2, -1), t.reshape(2, -1), 4)[1, 11], cos[1, 11], atol=1e-3
+    )
 
 
 def test_cell_weights_are_the_share_of_each_cell_the_mask_covers():
@@ -35,13 +40,16 @@ def test_clutter_outside_the_mask_does_not_count_but_inside_it_does():
     mask = np.zeros((1, 4, 4), bool)
     mask[0, 1:3, 1:3] = True  # the object: the four centre cells
     w = cell_weights(mask, 4)
-    t = cells(template.reshape(1, -1), 4)
-    assert masked_cosine(cells(query.reshape(1, -1), 4), t, w)[0] < 1e-5
+    t = template.reshape(1, -1)
+
+    def distance(q: np.ndarray, weights: np.ndarray) -> float:
+        return float(masked_cosine(cell_cosines(q.reshape(1, -1), t, 4), weights)[0])
+
+    assert distance(query, w) < 1e-5
     query[0, :, 0, :] = rng.normal(size=(5, 4))  # clutter along the top row
-    cluttered = cells(query.reshape(1, -1), 4)
-    assert masked_cosine(cluttered, t, w)[0] < 1e-5
-    assert l2(query.reshape(1, -1), template.reshape(1, -1))[0] > 0.1  # the whole map sees it
-    query[0, :, 1, 1] = -template[0, :, 1, 1]  # one object cell opposite: 1 - cos = 2, a quarter of it
-    assert abs(masked_cosine(cells(query.reshape(1, -1), 4), t, w)[0] - 0.5) < 1e-5
+    assert distance(query, w) < 1e-5
+    assert l2(query.reshape(1, -1), t)[0] > 0.1  # the whole map sees it
     # a query whose mask found nothing weighs every cell alike
-    assert masked_cosine(cluttered, t, np.zeros_like(w))[0] > 0.0
+    assert distance(query, np.zeros_like(w)) > 0.0
+    query[0, :, 1, 1] = -template[0, :, 1, 1]  # one object cell opposite: 1 - cos = 2, a quarter of it
+    assert abs(distance(query, w) - 0.5) < 1e-5

@@ -1,3 +1,4 @@
+import cv2
 import numpy as np
 import pytest
 
@@ -5,11 +6,13 @@ from index.patches import (
     MODALITY_CHANNELS,
     PatchSpec,
     batch_inputs,
+    crop,
     fill_depth,
     network_input,
     normalise_depth,
     normalise_rgb,
     surface_depth,
+    turn_masks,
 )
 
 
@@ -169,3 +172,24 @@ def test_batch_input_shapes_are_checked():
         batch_inputs("rgbd", rgb[:3], depth[:2], 400.0, 200.0)
     with pytest.raises(ValueError, match=r"one depth patch must be \(S, S\)"):
         network_input("depth", None, depth, 400.0, 200.0)
+
+
+@pytest.mark.parametrize(("a", "b"), [(0.0, 30.0), (0.0, -70.0), (20.0, 110.0), (-150.0, 170.0)])
+def test_turned_masks_are_those_of_the_patch_cut_at_the_other_in_plane(a, b):
+    """`turn_masks` of a patch cut at in-plane a is the mask of the patch cut at b, for any frame camera
+    (here an off-centre object seen by a Kinect-like camera), up to resampling at the edges."""
+    frame = np.zeros((480, 640, 3), np.uint8)
+    cv2.rectangle(frame, (300, 200), (360, 230), (255, 255, 255), -1)  # an L of a box and a disc
+    cv2.circle(frame, (350, 260), 15, (255, 255, 255), -1)
+    K = np.array([[572.0, 0.0, 325.0], [0.0, 573.0, 242.0], [0.0, 0.0, 1.0]])
+    spec = PatchSpec()
+    pa, _ = crop(frame, None, K, (330, 235), 700.0, spec, inplane=a)
+    pb, _ = crop(frame, None, K, (330, 235), 700.0, spec, inplane=b)
+    ma, mb = pa[None, ..., 0] > 127, pb[..., 0] > 127
+
+    def iou(x: np.ndarray, y: np.ndarray) -> float:
+        return float((x & y).sum() / max((x | y).sum(), 1))
+
+    assert iou(turn_masks(ma, b - a, spec)[0], mb) > 0.9
+    assert iou(turn_masks(ma, a - b, spec)[0], mb) < 0.6  # the other way round is another mask
+    assert turn_masks(np.zeros((0, 64, 64), bool), 10.0, spec).shape == (0, 64, 64)

@@ -59,3 +59,35 @@ def test_clutter_outside_the_depth_mask_does_not_change_the_answer(tmp_path, rgb
         assert cluttered.matches[0].distance == pytest.approx(clean.matches[0].distance, abs=0.02)
     finally:
         close_state(state)
+
+
+def test_the_mask_is_found_once_and_turned_to_each_candidates_roll(tmp_path, rgbd_masked, l_shape, t_shape):
+    """The mask of the query cut upright is turned to each roll the re-ranking looks at (`turn_masks`),
+    rather than found again per roll: one mask pass per query, whatever the rolls of the candidates."""
+    settings = Settings(
+        data_dir=tmp_path,
+        models_dir=rgbd_masked,
+        demo_objects=False,
+        level=1,
+        rerank=50,
+        inplane_step=60.0,
+        inplane_max=180.0,
+    )
+    state = load_state(settings)
+    try:
+        e = state.embedders["rgbd"]
+        for mesh, name in ((l_shape, "L"), (t_shape, "T")):
+            register(
+                mesh, name, "none", worker=state.worker, embedders=state.embedders, store=state.store,
+                cfg=state.templates,
+            )  # fmt: skip
+        view = View(30.0, 40.0, 0.0, 400.0)
+        t = state.worker.submit(lambda r: r.render(l_shape, [view])).result()
+        calls: list[int] = []
+        whole = e.mask
+        e.mask = lambda x, batch=256: calls.append(len(x)) or whole(x, batch)  # type: ignore[method-assign]
+        result = recognise(state, Query(png(t.rgb[0]), depth_png(t.depth[0]), k=50))
+        assert len({round(m.inplane) for m in result.matches}) > 1  # candidates of several rolls
+        assert calls == [1]
+    finally:
+        close_state(state)
