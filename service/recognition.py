@@ -23,11 +23,13 @@ import numpy as np
 from index.embed import Embedder
 from index.local import cell_cosines, cell_weights, l2, masked_distance, split_silhouettes
 from index.patches import PatchSpec, batch_inputs, crop, patch_camera, turn_masks
+from index.pose import wrap_degrees
 from index.store import Match, Snapshot, local_key
 from service.depth_units import check_frame_distance, check_given_distance, check_patch_distance
 from service.errors import ApiError
 from service.images import read_depth, read_rgb
 from service.origin import origin_distances
+from service.refine import TABLES, Key
 from service.rejection import judge, read_calibrations
 from service.state import AppState
 
@@ -124,7 +126,9 @@ def recognise_decoded(state: AppState, q: Query, d: Decoded, decode_s: float | N
     matches = snap.answers(d.modality, desc, max(q.k, rerank), p.offsets, variants)
     t4 = time.perf_counter()
     if rerank:
-        matches = rerank_local(snap, q, d, matches, None if keep is None else (p.offsets[0], keep[0]))
+        mask = None if keep is None else (float(p.offsets[0]), keep[0])
+        spacing = state.templates.inplane_spacing(step)
+        matches = rerank_local(snap, q, d, matches, mask, state.settings.roll_refine, spacing)
     matches = matches[: q.k]
     t5 = time.perf_counter()
     before = {} if decode_s is None else {"decode": decode_s}
@@ -162,6 +166,8 @@ def rerank_local(
     d: Decoded,
     matches: list[Match],
     mask: tuple[float, np.ndarray] | None = None,
+    refine: int = 0,
+    spacing: float = 0.0,
 ) -> list[Match]:
     """The answers re-ranked by local similarity: the query is cut once per roll the answers give
     (turned upright for each), and its local features (`index.embed.LOCAL_NAME`, the pretrained trunk's
@@ -171,34 +177,88 @@ def rerank_local(
     cut at that in-plane, as the descriptor's stage found it: turned to each roll (`turn_masks`) rather
     than found again, which would run the mask head once a roll. Templates stored without silhouettes
     (older stores) are compared as whole maps (`l2`). An answer whose viewpoint has no local features
-    keeps its place after those that have. Measured on validation frames (README, Evaluation)."""
+    keeps its place after those that have. `refine` > 0: the best `refine` answers are also compared at
+    the viewpoints around theirs and at their roll +- `spacing` / 3 (`spacing`: the templates' in-plane
+    step), and keep the pose that scores best (`service.refine`). Measured on validation frames (README,
+    Evaluation)."""
     local = snap.models[d.modality].local
     refs = [local.get(local_key(m.object_id, m.azimuth, m.elevation)) for m in matches]
     have = [i for i, r in enumerate(refs) if r is not None]
     if not have:
         return matches
-    rolls = sorted({round(matches[i].inplane, 3) for i in have})
-    p = cut(q, d.rgb, d.depth, d.embedder.info.spec, rolls)  # undoes each roll: the object upright
+    found = [r for r in refs if r is not None]  # in the order of `have`
+    rolls = [round(matches[i].inplane, 3) for i in have]
+    score = local_scores(q, d, found, rolls, mask)
+    keys = [local_key(matches[i].object_id, matches[i].azimuth, matches[i].elevation) for i in have]
+    first = list(zip(keys, rolls, strict=True))
+    if refine > 0:
+        score, keys, rolls = _refined(q, d, local, score, keys, rolls, mask, refine, spacing)
+    order, seen, out = np.argsort(score, kind="stable"), set(), []
+    for j in order:  # two answers refined to one viewpoint: the better one stays
+        if keys[j] in seen:
+            continue
+        seen.add(keys[j])
+        m = replace(matches[have[j]], distance=float(score[j]))
+        if (keys[j], rolls[j]) != first[j]:  # refined
+            m = replace(m, azimuth=keys[j][1], elevation=keys[j][2], inplane=rolls[j])
+        out.append(m)
+    return out + [m for i, m in enumerate(matches) if refs[i] is None]
+
+
+#: viewpoint refinement: the nearest other viewpoints tried (within 1.5 neighbour steps: `service.refine`)
+NEAR_VIEWS = 6
+
+
+def _refined(q, d, local, score, keys, rolls, mask, refine: int, spacing: float):
+    """The best `refine` answers compared also at the viewpoints around theirs and at their roll +- a
+    third of the in-plane `spacing` (`service.refine`); each keeps the (viewpoint, roll) scoring best."""
+    table = TABLES.of(local)
+    turns = (0.0, -spacing / 3, spacing / 3) if spacing > 0 else (0.0,)
+    score, keys, rolls = score.copy(), list(keys), list(rolls)
+    tried: list[tuple[int, Key, float]] = []
+    for j in np.argsort(score, kind="stable")[:refine]:
+        views = [keys[j], *table[keys[j][0]].near(keys[j], NEAR_VIEWS)]
+        for o in turns:
+            r = round(float(wrap_degrees(rolls[j] + o)), 3)
+            tried += [(int(j), v, r) for v in views if (v, r) != (keys[j], rolls[j])]
+    if not tried:
+        return score, keys, rolls
+    more = local_scores(q, d, [local[v] for _, v, _ in tried], [r for _, _, r in tried], mask)
+    for (j, v, r), s in zip(tried, more, strict=True):
+        if s < score[j]:
+            score[j], keys[j], rolls[j] = s, v, r
+    return score, keys, rolls
+
+
+def local_scores(
+    q: Query,
+    d: Decoded,
+    refs: Sequence[np.ndarray],
+    rolls: Sequence[float],
+    mask: tuple[float, np.ndarray] | None = None,
+) -> np.ndarray:
+    """The re-ranking's score of each stored template (`refs`, local features and silhouettes) against the
+    query cut upright at its roll (`rolls`, degrees; each distinct roll cut once). Shape: (N,)."""
+    distinct = sorted(set(rolls))
+    p = cut(q, d.rgb, d.depth, d.embedder.info.spec, distinct)  # undoes each roll: the object upright
     keep = None
     if mask is not None:
-        keep = np.stack([turn_masks(mask[1][None], r - mask[0], d.embedder.info.spec)[0] for r in rolls])
+        spec = d.embedder.info.spec
+        keep = np.stack([turn_masks(mask[1][None], r - mask[0], spec)[0] for r in distinct])
         p = masked(p, keep)
     elif d.embedder.has_mask:
         p, keep = foreground(d, p)
     x = batch_inputs(d.modality, p.rgb, p.depth, p.distance, d.embedder.info.window_mm, fill=True)
     feats = d.embedder.local(x)
-    row = np.array([rolls.index(round(matches[i].inplane, 3)) for i in have])
-    t = np.stack([np.asarray(refs[i]) for i in have])
+    where = {r: i for i, r in enumerate(distinct)}
+    row = np.array([where[r] for r in rolls])
+    t = np.stack([np.asarray(r) for r in refs])
     grid = d.embedder.local_grid
     if t.shape[1] == feats.shape[1]:  # no silhouettes stored
-        score = l2(feats[row], t)
-    else:
-        t, silhouettes = split_silhouettes(t, grid)
-        query_mask = None if keep is None else cell_weights(keep, grid)[row]
-        score = masked_distance(cell_cosines(feats, t, grid, row), silhouettes, query_mask)
-    order = np.argsort(score, kind="stable")
-    out = [replace(matches[have[j]], distance=float(score[j])) for j in order]
-    return out + [m for i, m in enumerate(matches) if refs[i] is None]
+        return l2(feats[row], t)
+    t, silhouettes = split_silhouettes(t, grid)
+    query_mask = None if keep is None else cell_weights(keep, grid)[row]
+    return masked_distance(cell_cosines(feats, t, grid, row), silhouettes, query_mask)
 
 
 def foreground(d: Decoded, p: Patches) -> tuple[Patches, np.ndarray]:

@@ -47,6 +47,12 @@ class Settings(BaseSettings):
         200, ge=0, le=1000, description="with a model that has local features: re-rank this many nearest "
         "distinct answers by the local similarity of the query turned to each one's roll (0: off)",
     )  # fmt: skip
+    # 10: chosen on validation frames among 0, 5, 10, 20, 40 (README, Evaluation)
+    roll_refine: int = Field(
+        10, ge=0, le=100, description="re-ranking: compare this many best answers also at the viewpoints "
+        "around theirs and at their roll +- a third of the templates' in-plane step, and keep the pose that "
+        "fits best (0: off)",
+    )  # fmt: skip
     # A number replaces every model's calibrated threshold (`service.rejection`); "off": never reject.
     reject_above: Annotated[float, Field(ge=0, allow_inf_nan=False)] | Literal["off"] | None = Field(
         None, description="answer best = null when the best answer's score (distance) is above this; "

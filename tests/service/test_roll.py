@@ -94,6 +94,24 @@ def test_query_turns_refine_the_roll(tmp_path_factory, shipped_rgb, renderer, l_
         c.__exit__(None, None, None)
 
 
+def test_refinement_finds_a_roll_between_templates(tmp_path_factory, shipped_rgb, renderer, l_shape, t_shape):
+    """Templates every 30°, no query turns: an object rolled 10° (or -50°...) is 10° from the nearest
+    template's roll; the refinement compares the best answers at their roll +- 10° too and finds it."""
+    c = serve(
+        tmp_path_factory, shipped_rgb, l_shape, t_shape, inplane_step=30, inplane_max=180, roll_refine=5
+    )
+    try:
+        errors = []
+        for phi in (10.0, -50.0, 100.0, 160.0, -110.0):  # each 10° from the nearest template's roll
+            best = ask(c, renderer, l_shape, View(AZ, EL, phi, 600.0))["best"]
+            assert best["name"] == "L", (phi, best)
+            errors.append(roll_error(best, phi))
+        # measured: three found exactly, two on the neighbouring template's side (10° off, as unrefined)
+        assert max(errors) <= 10.0 + 1e-6 and sum(e < 1e-3 for e in errors) >= 3, errors
+    finally:
+        c.__exit__(None, None, None)
+
+
 def test_turns_of_an_upright_store_span_the_whole_turn(
     tmp_path_factory, shipped_rgb, renderer, l_shape, t_shape
 ):
