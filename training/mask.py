@@ -164,7 +164,7 @@ def train_mask(
     budget, step, elapsed, best = cfg.minutes * 60, 0, 0.0, -1.0
     if resume:
         ckpt = torch.load(out / "mask.pt", map_location="cpu", weights_only=False)
-        state = resume_state(ckpt, asdict(cfg))
+        state = resume_state(ckpt, asdict(cfg), name=str(out / "mask.pt"))
         net.head.load_state_dict(ckpt["head"])
         opt.load_state_dict(state["optimizer"])
         step, elapsed, best = ckpt["step"], state["elapsed"], state["best"]

@@ -43,7 +43,8 @@ def config_differences(theirs: dict, ours: dict, prefix: str = "") -> list[tuple
 
 
 def describe(differences: list[tuple[str, object, object]], options: dict[str, str] | None = None) -> str:
-    """ "name (--option): was A, now B; ..." for `config_differences`; options: field -> command option."""
+    """`config_differences` as one line, "name (--option): was A, now B; ...": options maps fields to the
+    command's options."""
     options = options or {}
     return "; ".join(
         f"{k}{f' ({options[k]})' if k in options else ''}: was {json.dumps(a)}, now {json.dumps(b)}"
@@ -51,21 +52,23 @@ def describe(differences: list[tuple[str, object, object]], options: dict[str, s
     )
 
 
-def resume_state(ckpt: dict, config: dict, options: dict[str, str] | None = None) -> dict:
+def resume_state(
+    ckpt: dict, config: dict, options: dict[str, str] | None = None, name: str = "the checkpoint"
+) -> dict:
     """The checkpoint's "resume" state, once it is known to be a run of `config` (asdict of the trainer's
-    config, with `minutes` and `max_steps`) with budget left; ValueError (one line) when it cannot be
-    resumed. options: field -> command option, to name them in the message."""
+    config, with `minutes` and `max_steps`) with budget left; ValueError (one line, about `name`) when it
+    cannot be resumed. options: field -> command option, to name them in the message."""
     if "resume" not in ckpt:
-        raise ValueError("its checkpoint was written before training could resume (no optimiser state)")
+        raise ValueError(f"{name} was written before training could resume (no optimiser state)")
     differ = config_differences(ckpt["config"], config)
     if differ:
-        raise ValueError(f"its checkpoint was made with other settings: {describe(differ, options)}")
+        raise ValueError(f"{name} was made with other settings: {describe(differ, options)}")
     spent, step = ckpt["resume"]["elapsed"], ckpt["step"]
     minutes, max_steps = config["minutes"], config.get("max_steps", 0)
     if spent >= minutes * 60 or (max_steps and step >= max_steps):
         of = f" of {max_steps}" if max_steps else ""
         raise ValueError(
-            f"the run already used its whole budget ({spent / 60:.1f} of {minutes:g} min, step {step}{of}): "
-            "nothing to resume"
+            f"{name} ends a run that already used its whole budget "
+            f"({spent / 60:.1f} of {minutes:g} min, step {step}{of}): nothing to resume"
         )
     return ckpt["resume"]

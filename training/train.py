@@ -211,7 +211,7 @@ def train(
     batches_rng: Mapping[str, Any] | None = None
     if resume:
         ckpt = torch.load(out / "checkpoint.pt", map_location="cpu", weights_only=False)
-        state = resume_state(ckpt, asdict(cfg))
+        state = resume_state(ckpt, asdict(cfg), name=str(out / "checkpoint.pt"))
         net.load_state_dict(ckpt["net"])
         opt.load_state_dict(state["optimizer"])
         step, epoch, elapsed, best = ckpt["step"], ckpt["epoch"], state["elapsed"], state["best"]
