@@ -3,8 +3,10 @@
 A killed run goes on from its last checkpoint rather than starting over (the target is a model in 60 min
 on a shared 2-core machine, where runs get killed). Both trainers store, under the checkpoint's "resume"
 key, what their next step depends on besides the network: the optimiser's moments, the wall-clock spent
-(the budget and the cosine schedule are fractions of it), the best validation score (so the best-file
-stays the best of the whole run), and the random states, so that the batches go on rather than repeat.
+(the budget and the cosine schedule are fractions of it; bootstrapping starts at a fraction of it too),
+the best validation score (so the best-file stays the best of the whole run), the descriptor trainer's
+mining bank (rebuilding it would embed all templates again, and differently), and the random states, so
+that the batches go on rather than repeat.
 Given the same config, the resumed run makes the steps the killed one would have made
 (`tests/training/test_train.py`, `test_mask.py`)."""
 

@@ -12,6 +12,8 @@ import json
 import shlex
 import sys
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import asdict
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -115,8 +117,6 @@ def check_run_folder(
     """Refuses (UserError) to train over a run without --resume, or to resume what cannot be: no
     checkpoint, other settings (`config`: the command's TrainConfig as a dict; `mask_config`: its
     MaskConfig's, for --arch mask; `data`: the dataset folders), or no budget left."""
-    import torch
-
     from training.resume import config_differences, describe, resume_state
 
     held = [c for c in CHECKPOINTS if (out / c).is_file()]
@@ -144,11 +144,32 @@ def check_run_folder(
             raise UserError(
                 f"--resume: the run in {out} was trained on --data {' '.join(rec['data'])}, not {' '.join(data)}"
             )
-    ckpt = torch.load(out / name, map_location="cpu", weights_only=False)
+    ckpt = _load(out / name)
     try:
         resume_state(ckpt, mask_config if arch == "mask" else config, OPTIONS, str(out / name))
     except ValueError as e:
         raise UserError(f"--resume: {e}") from None
+
+
+@contextmanager
+def _resume_hint(checkpoint: Path) -> Iterator[None]:
+    """On Ctrl-C, says how to go on (the CLI then prints "interrupted" and exits 130)."""
+    try:
+        yield
+    except KeyboardInterrupt:
+        if checkpoint.is_file():
+            step = _load(checkpoint)["step"]
+            print(
+                f"the last checkpoint is step {step}: the same command with --resume goes on from it",
+                file=sys.stderr,
+            )
+        raise
+
+
+def _load(path: Path) -> dict:
+    import torch
+
+    return torch.load(path, map_location="cpu", weights_only=False)
 
 
 def _code_version() -> str:
@@ -255,7 +276,8 @@ def run(args: argparse.Namespace) -> int:
     if arch == "mask":
         from training.mask import train_mask
 
-        train_mask(mcfg, data, args.out, command, _code_version(), resume=args.resume)
+        with _resume_hint(args.out / "mask.pt"):
+            train_mask(mcfg, data, args.out, command, _code_version(), resume=args.resume)
         print(f"trained the mask head for {(time.perf_counter() - t1) / 60:.1f} min -> {args.out}")
         return 0
     if arch == "pca":
@@ -264,7 +286,8 @@ def run(args: argparse.Namespace) -> int:
         net = fit_pca(cfg, data, args.out, command)
     else:
         validation = None if args.no_validate or not has_real else validate
-        net = train(cfg, data, args.out, validation, command, resume=args.resume)
+        with _resume_hint(args.out / "checkpoint.pt"):
+            net = train(cfg, data, args.out, validation, command, resume=args.resume)
     train_minutes = (time.perf_counter() - t1) / 60
     report = {
         "command": command,
