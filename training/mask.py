@@ -30,6 +30,7 @@ from torch import nn
 
 from index.patches import crop, network_input
 from training.data import TrainingData
+from training.resume import resume_state, save_atomic
 from training.trunk import EARLY_CHANNELS, TRUNK_CHANNELS, DeepStages, Trunk
 
 log = logging.getLogger(__name__)
@@ -40,7 +41,7 @@ class MaskConfig:
     minutes: float = 12.0  # wall-clock budget
     max_steps: int = 0  # also stop after this many steps (0: only the budget)
     batch: int = 64
-    lr: float = 2e-3  # Adam, cosine decay to lr * 0.05
+    lr: float = 2e-3  # Adam, cosine decay to lr * 0.05 over the budget (or max_steps, if they end first)
     real_fraction: float = 0.6  # of a BOP object's samples, real patches of training frames
     real_paste: float = 0.3  # of those, pasted on a random background (the rest keep their real clutter)
     steps_per_epoch: int = 200  # a validation and a checkpoint each
@@ -147,8 +148,11 @@ def predict(net: MaskNet, x: np.ndarray, batch: int = 256) -> np.ndarray:
         )
 
 
-def train_mask(cfg: MaskConfig, data: TrainingData, out: Path, command: str = "", code: str = "") -> MaskNet:
-    """Trains the head for `cfg.minutes`; keeps `mask.pt` (last) and `mask-best.pt` (best validation IoU)."""
+def train_mask(
+    cfg: MaskConfig, data: TrainingData, out: Path, command: str = "", code: str = "", resume: bool = False
+) -> MaskNet:
+    """Trains the head for `cfg.minutes` (or `cfg.max_steps`); keeps `mask.pt` (every `steps_per_epoch`
+    and the last step) and `mask-best.pt` (best validation IoU). `resume`: continue the run of `out/mask.pt` (made with the same `cfg`)."""
     torch.manual_seed(cfg.seed)
     torch.set_num_threads(cfg.threads)
     rng = np.random.default_rng(cfg.seed + 7)
@@ -157,14 +161,57 @@ def train_mask(cfg: MaskConfig, data: TrainingData, out: Path, command: str = ""
     opt = torch.optim.Adam([p for p in net.head.parameters() if p.requires_grad], lr=cfg.lr)
     val_x, val_m = validation_set(data)
     out.mkdir(parents=True, exist_ok=True)
-    budget, t0, step, best = cfg.minutes * 60, time.perf_counter(), 0, -1.0
+    budget, step, elapsed, best = cfg.minutes * 60, 0, 0.0, -1.0
+    if resume:
+        ckpt = torch.load(out / "mask.pt", map_location="cpu", weights_only=False)
+        state = resume_state(ckpt, asdict(cfg), name=str(out / "mask.pt"))
+        net.head.load_state_dict(ckpt["head"])
+        opt.load_state_dict(state["optimizer"])
+        step, elapsed, best = ckpt["step"], state["elapsed"], state["best"]
+        rng.bit_generator.state = state["rng"]["batches"]
+        torch.set_rng_state(state["rng"]["torch"])
+    t0 = time.perf_counter() - elapsed  # the budget and the schedule go on from the time already spent
     log_path = out / "mask-log.jsonl"
+
+    def checkpoint(loss: float) -> None:
+        nonlocal best
+        score = float(iou(predict(net, val_x), val_m).mean()) if len(val_x) else 0.0
+        rec = {"step": step, "minutes": round(elapsed / 60, 2), "loss": loss, "val_iou": score}
+        log.info("mask %s", rec)
+        print(json.dumps(rec), flush=True)
+        state = {
+            "head": net.head.state_dict(),
+            "config": asdict(cfg),
+            "step": step,
+            "val_iou": score,
+            "command": command,
+            "code": code,
+        }
+        if score > best:
+            best = score
+            save_atomic(state, out / "mask-best.pt")
+        # mask-best.pt before mask.pt: a run killed between the two redoes these steps and both
+        state["resume"] = {
+            "optimizer": opt.state_dict(),
+            "elapsed": time.perf_counter() - t0,
+            "best": best,
+            "rng": {"batches": rng.bit_generator.state, "torch": torch.get_rng_state()},
+        }
+        save_atomic(state, out / "mask.pt")
+        with log_path.open("a") as f:
+            f.write(json.dumps(rec) + "\n")
+
+    saved, loss = step, torch.zeros(())
     while True:
         elapsed = time.perf_counter() - t0
         if elapsed >= budget or (cfg.max_steps and step >= cfg.max_steps):
+            if step > saved:  # the last steps, so that mask.pt is the end of the run
+                checkpoint(float(loss.detach()))
             break
-        for g in opt.param_groups:  # cosine decay over the budget
-            g["lr"] = cfg.lr * (0.05 + 0.95 * 0.5 * (1 + math.cos(math.pi * min(1.0, elapsed / budget))))
+        # cosine decay over the budget, or over max_steps when they end first (so --seed runs repeat)
+        progress = max(elapsed / budget, step / cfg.max_steps if cfg.max_steps else 0.0)
+        for g in opt.param_groups:
+            g["lr"] = cfg.lr * (0.05 + 0.95 * 0.5 * (1 + math.cos(math.pi * min(1.0, progress))))
         net.head.train()
         x, m = _batch(data, cfg, rng)
         logits = net(x)
@@ -174,29 +221,8 @@ def train_mask(cfg: MaskConfig, data: TrainingData, out: Path, command: str = ""
         opt.step()
         step += 1
         if step % cfg.steps_per_epoch == 0:
-            score = float(iou(predict(net, val_x), val_m).mean()) if len(val_x) else 0.0
-            rec = {
-                "step": step,
-                "minutes": round(elapsed / 60, 2),
-                "loss": float(loss.detach()),
-                "val_iou": score,
-            }
-            log.info("mask %s", rec)
-            print(json.dumps(rec), flush=True)
-            with log_path.open("a") as f:
-                f.write(json.dumps(rec) + "\n")
-            state = {
-                "head": net.head.state_dict(),
-                "config": asdict(cfg),
-                "step": step,
-                "val_iou": score,
-                "command": command,
-                "code": code,
-            }
-            torch.save(state, out / "mask.pt")
-            if score > best:
-                best = score
-                torch.save(state, out / "mask-best.pt")
+            checkpoint(float(loss.detach()))
+            saved = step
     return net
 
 

@@ -52,6 +52,16 @@ class TemplateBank:
             flat_f[i:j] = embed(flat_in[i:j].astype(np.float32))
         self.refreshed_at = step
 
+    def state_dict(self) -> dict:
+        """What a resumed run needs to mine as this one would: the descriptors and where refreshing is."""
+        return {"f": self.f.copy(), "refreshed_at": self.refreshed_at, "next_part": self._next_part}
+
+    def load_state_dict(self, state: dict) -> None:
+        if state["f"].shape != self.f.shape:
+            raise ValueError(f"mining bank of shape {state['f'].shape}, expected {self.f.shape}")
+        self.f[...] = state["f"]
+        self.refreshed_at, self._next_part = state["refreshed_at"], state["next_part"]
+
     def due(self, step: int) -> bool:
         return self.refreshed_at is None or step - self.refreshed_at >= self.refresh_every
 

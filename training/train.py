@@ -3,6 +3,10 @@
 The paper's schedule (SGD + Nesterov, ~1,300 epochs, two bootstrapping rounds) takes days on a CPU; here
 Adam with a cosine decay over a fixed wall-clock budget, bootstrapping switched on after `bootstrap_after`
 of it. Batches are made by a producer thread while the network trains on the previous one.
+
+A run can be resumed from its last checkpoint (`train(..., resume=True)`): the checkpoint carries, under
+"resume", what the next step depends on besides the network (optimiser, time spent, best score, mining
+bank, random states), so the resumed run makes the steps the killed one would have made.
 """
 
 from __future__ import annotations
@@ -13,8 +17,10 @@ import math
 import queue
 import threading
 import time
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -25,6 +31,7 @@ from training.data import DataConfig, TrainingData
 from training.losses import DescriptorLoss
 from training.mining import TemplateBank, mine
 from training.model import DescriptorNet, NetConfig
+from training.resume import resume_state, save_atomic
 
 log = logging.getLogger(__name__)
 
@@ -60,13 +67,24 @@ class TrainConfig:
 class BatchProducer:
     """A thread that draws samples, builds batches and the samples' network inputs, ahead of the optimiser.
     A batch's first rows are its samples (`x`, in row order); the rest are templates, whose stems the
-    training loop takes from `template_stems`."""
+    training loop takes from `template_stems`. `rng_state` is the generator's state after the batches `get`
+    has handed out (the thread runs ahead of it): a producer started from it makes the batches that follow."""
 
-    def __init__(self, data: TrainingData, cfg: TrainConfig, depth: int = 3, start: bool = True):
+    def __init__(
+        self,
+        data: TrainingData,
+        cfg: TrainConfig,
+        depth: int = 3,
+        start: bool = True,
+        rng_state: Mapping[str, Any] | None = None,
+    ):
         self.data, self.cfg = data, cfg
         self.rng = np.random.default_rng(cfg.seed + 1)
+        if rng_state is not None:
+            self.rng.bit_generator.state = rng_state
+        self.rng_state: Mapping[str, Any] = self.rng.bit_generator.state
         self.builder = BatchBuilder(data.template_R, data.symmetries)
-        self.queue: queue.Queue[tuple[Batch, torch.Tensor]] = queue.Queue(maxsize=depth)
+        self.queue: queue.Queue[tuple[Batch, torch.Tensor, Mapping[str, Any]]] = queue.Queue(maxsize=depth)
         self._stop = threading.Event()
         self.thread = threading.Thread(target=self._run, daemon=True, name="batches")
         if start:
@@ -95,7 +113,7 @@ class BatchProducer:
 
     def _run(self) -> None:
         while not self._stop.is_set():
-            item = self.make()
+            item = (*self.make(), self.rng.bit_generator.state)
             while not self._stop.is_set():
                 try:
                     self.queue.put(item, timeout=0.5)
@@ -104,7 +122,8 @@ class BatchProducer:
                     continue
 
     def get(self) -> tuple[Batch, torch.Tensor]:
-        return self.queue.get()
+        batch, x, self.rng_state = self.queue.get()
+        return batch, x
 
     def stop(self) -> None:
         self._stop.set()
@@ -160,10 +179,12 @@ def train(
     out: Path,
     validate=None,
     command: str = "",
+    resume: bool = False,
 ) -> DescriptorNet:
     """Trains a network on `data`, writing `out/checkpoint.pt` every epoch and `out/log.jsonl`.
     `validate(net, template_f) -> dict` (optional) is called after every epoch and logged; template_f(o)
-    gives the descriptors of object o's templates (from their cached stems)."""
+    gives the descriptors of object o's templates (from their cached stems). `resume`: continue the run
+    of `out/checkpoint.pt` (made with the same `cfg`) where it was, appending to its log."""
     torch.manual_seed(cfg.seed)
     torch.set_num_threads(cfg.threads)
     out.mkdir(parents=True, exist_ok=True)
@@ -185,11 +206,22 @@ def train(
     def template_f(o: int) -> np.ndarray:
         return embed_stems(stems[o])
 
-    producer = BatchProducer(data, cfg)
-    budget = cfg.minutes * 60.0
-    t0 = time.monotonic()
-    step, epoch = 0, 0
+    step, epoch, elapsed = 0, 0, 0.0
     best = -1.0
+    batches_rng: Mapping[str, Any] | None = None
+    if resume:
+        ckpt = torch.load(out / "checkpoint.pt", map_location="cpu", weights_only=False)
+        state = resume_state(ckpt, asdict(cfg), name=str(out / "checkpoint.pt"))
+        net.load_state_dict(ckpt["net"])
+        opt.load_state_dict(state["optimizer"])
+        step, epoch, elapsed, best = ckpt["step"], ckpt["epoch"], state["elapsed"], state["best"]
+        batches_rng = state["rng"]["batches"]
+        torch.set_rng_state(state["rng"]["torch"])
+        if bank is not None:
+            bank.load_state_dict(state["bank"])
+    producer = BatchProducer(data, cfg, rng_state=batches_rng)
+    budget = cfg.minutes * 60.0
+    t0 = time.monotonic() - elapsed  # the budget and the schedule go on from the time already spent
     logf = (out / "log.jsonl").open("a")
     try:
         done = False
@@ -251,13 +283,21 @@ def train(
                 "command": command,
                 "val": record.get("val"),
             }
-            torch.save(ckpt, out / "checkpoint.pt")
             # the checkpoint chosen on validation frames: 3-D pose error < 20 deg, then recognition
             score = _val_score(record.get("val"))
             if score is not None and score > best:
                 best = score
-                torch.save(ckpt, out / "best.pt")
+                save_atomic(ckpt, out / "best.pt")
                 record["best"] = True
+            # best.pt before checkpoint.pt: a run killed between the two redoes this epoch and both
+            ckpt["resume"] = {
+                "optimizer": opt.state_dict(),
+                "elapsed": time.monotonic() - t0,
+                "best": best,
+                "bank": bank.state_dict() if bank is not None else None,
+                "rng": {"batches": producer.rng_state, "torch": torch.get_rng_state()},
+            }
+            save_atomic(ckpt, out / "checkpoint.pt")
             logf.write(json.dumps(record) + "\n")
             logf.flush()
             log.info("%s", record)

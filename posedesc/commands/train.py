@@ -1,7 +1,8 @@
 """Train a descriptor network (BOP data, procedural shapes).
 
 The paper's method (Wohlhart & Lepetit 2015) in PyTorch on BOP meshes and frames plus procedural shapes;
-the run folder gets checkpoints, a log and a report.
+the run folder gets checkpoints, a log and a report. `--resume` continues a killed run from its last
+checkpoint (the same command with `--resume`).
 """
 
 from __future__ import annotations
@@ -11,10 +12,17 @@ import json
 import shlex
 import sys
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import asdict
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from posedesc.cli import UserError
+
+if TYPE_CHECKING:
+    from training.mask import MaskConfig
+    from training.train import TrainConfig
 
 
 def _blocks(text: str) -> tuple[tuple[float, float], ...]:
@@ -73,6 +81,95 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--cache", type=Path, default=Path("runs/cache"), help="rendered training data cache")
     p.add_argument("--no-validate", action="store_true", help="skip the per-epoch and final validation")
+    p.add_argument(
+        "--resume",
+        action="store_true",
+        help="continue the run in --out from its last checkpoint (checkpoint.pt, or mask.pt for --arch mask): "
+        "weights, optimiser, steps, time spent, best score, random states; the log is appended",
+    )
+
+
+# the command's option for each config field, to name them when a resumed run's settings differ
+OPTIONS = {
+    "modality": "--modality",
+    "arch": "--arch",
+    "descriptor_dim": "--dim",
+    "pool": "--pool",
+    "minutes": "--minutes",
+    "max_steps": "--max-steps",
+    "samples_per_batch": "--batch",
+    "lr": "--lr",
+    "seed": "--seed",
+    "data.shapes": "--shapes",
+    "data.roll": "--roll",
+    "data.template_inplane_step": "--inplane-step",
+    "data.exclude": "--exclude-objects",
+    "data.seed": "--seed",
+    "data.split.val": "--val",
+    "data.split.test": "--test",
+}
+CHECKPOINTS = ("checkpoint.pt", "best.pt", "mask.pt", "mask-best.pt")
+
+
+def check_run_folder(
+    out: Path, arch: str, resume: bool, config: dict, mask_config: dict, data: list[str]
+) -> None:
+    """Refuses (UserError) to train over a run without --resume, or to resume what cannot be: no
+    checkpoint, other settings (`config`: the command's TrainConfig as a dict; `mask_config`: its
+    MaskConfig's, for --arch mask; `data`: the dataset folders), or no budget left."""
+    from training.resume import config_differences, describe, resume_state
+
+    held = [c for c in CHECKPOINTS if (out / c).is_file()]
+    if not resume:
+        if held:
+            raise UserError(
+                f"{out} already holds a run ({held[0]}): add --resume to continue it, or choose another --out"
+            )
+        return
+    if arch == "pca":
+        raise UserError("--resume: --arch pca is fitted in one pass, there is nothing to resume")
+    name = "mask.pt" if arch == "mask" else "checkpoint.pt"
+    if not (out / name).is_file():
+        raise UserError(f"--resume: no {name} in {out}, nothing to resume (train without --resume)")
+    recorded = out / "config.json"
+    if recorded.is_file():  # the command's settings and data folders when the run started
+        rec = json.loads(recorded.read_text())
+        differ = config_differences(rec.get("config", {}), config)
+        if differ:
+            raise UserError(
+                f"--resume: the run in {out} was made with other settings: {describe(differ, OPTIONS)}"
+            )
+        theirs = [str(Path(d).resolve()) for d in rec.get("data", [])]
+        if theirs and theirs != [str(Path(d).resolve()) for d in data]:
+            raise UserError(
+                f"--resume: the run in {out} was trained on --data {' '.join(rec['data'])}, not {' '.join(data)}"
+            )
+    ckpt = _load(out / name)
+    try:
+        resume_state(ckpt, mask_config if arch == "mask" else config, OPTIONS, str(out / name))
+    except ValueError as e:
+        raise UserError(f"--resume: {e}") from None
+
+
+@contextmanager
+def _resume_hint(checkpoint: Path) -> Iterator[None]:
+    """On Ctrl-C, says how to go on (the CLI then prints "interrupted" and exits 130)."""
+    try:
+        yield
+    except KeyboardInterrupt:
+        if checkpoint.is_file():
+            step = _load(checkpoint)["step"]
+            print(
+                f"the last checkpoint is step {step}: the same command with --resume goes on from it",
+                file=sys.stderr,
+            )
+        raise
+
+
+def _load(path: Path) -> dict:
+    import torch
+
+    return torch.load(path, map_location="cpu", weights_only=False)
 
 
 def _code_version() -> str:
@@ -92,21 +189,17 @@ def _code_version() -> str:
     return head.stdout.strip() + ("+changes" if dirty.stdout.strip() else "")
 
 
-def run(args: argparse.Namespace) -> int:
-    for d in args.data:
-        if not (d / "models" / "models_info.json").is_file():
-            raise UserError(f"{d} is not a BOP dataset (no models/models_info.json)")
+def configs(args: argparse.Namespace) -> tuple[TrainConfig, MaskConfig]:
+    """The trainers' configs for the command's options."""
     from training.data import DataConfig
-    from training.render_cache import build
+    from training.mask import MaskConfig
     from training.splits import SplitConfig
-    from training.train import TrainConfig, train
-    from training.validate import validate_real, validate_synthetic
+    from training.train import TrainConfig
 
     if args.arch == "mask" and args.modality != "rgb":
         raise UserError("--arch mask: the mask head reads colour; train it with --modality rgb")
     arch = args.arch if args.modality == "rgb" else "paper"  # the pretrained trunk takes colour only
     dim = args.dim or {"trunk": 32, "pca": 64}.get(arch, 16)
-
     try:
         exclude = tuple(int(x) for x in args.exclude_objects.split(",") if x.strip())
     except ValueError:
@@ -134,12 +227,28 @@ def run(args: argparse.Namespace) -> int:
         seed=args.seed,
         data=data_cfg,
     )
+    mcfg = MaskConfig(minutes=args.minutes, max_steps=args.max_steps, threads=args.threads, seed=args.seed)
+    return cfg, mcfg
+
+
+def run(args: argparse.Namespace) -> int:
+    for d in args.data:
+        if not (d / "models" / "models_info.json").is_file():
+            raise UserError(f"{d} is not a BOP dataset (no models/models_info.json)")
+    from training.render_cache import build
+    from training.train import train
+    from training.validate import validate_real, validate_synthetic
+
+    cfg, mcfg = configs(args)
+    arch, exclude = cfg.arch, cfg.data.exclude
+    # before the data, which takes minutes to render or load
+    check_run_folder(args.out, arch, args.resume, asdict(cfg), asdict(mcfg), [str(d) for d in args.data])
     command = (
         "posedesc " + shlex.join(sys.argv[1:]) if sys.argv[0].endswith("posedesc") else shlex.join(sys.argv)
     )
     args.out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
-    data = build(args.data, data_cfg, args.cache)
+    data = build(args.data, cfg.data, args.cache)
     data_minutes = (time.perf_counter() - t0) / 60
     (args.out / "config.json").write_text(
         json.dumps(
@@ -165,12 +274,10 @@ def run(args: argparse.Namespace) -> int:
 
     t1 = time.perf_counter()
     if arch == "mask":
-        from training.mask import MaskConfig, train_mask
+        from training.mask import train_mask
 
-        mcfg = MaskConfig(
-            minutes=args.minutes, max_steps=args.max_steps, threads=args.threads, seed=args.seed
-        )
-        train_mask(mcfg, data, args.out, command, _code_version())
+        with _resume_hint(args.out / "mask.pt"):
+            train_mask(mcfg, data, args.out, command, _code_version(), resume=args.resume)
         print(f"trained the mask head for {(time.perf_counter() - t1) / 60:.1f} min -> {args.out}")
         return 0
     if arch == "pca":
@@ -178,7 +285,9 @@ def run(args: argparse.Namespace) -> int:
 
         net = fit_pca(cfg, data, args.out, command)
     else:
-        net = train(cfg, data, args.out, None if args.no_validate or not has_real else validate, command)
+        validation = None if args.no_validate or not has_real else validate
+        with _resume_hint(args.out / "checkpoint.pt"):
+            net = train(cfg, data, args.out, validation, command, resume=args.resume)
     train_minutes = (time.perf_counter() - t1) / 60
     report = {
         "command": command,

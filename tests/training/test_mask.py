@@ -1,11 +1,16 @@
 """The foreground mask: the samples' masks are their centred object's pixels, and the head learns them."""
 
+import _thread
+import json
+import threading
+import time
+
 import numpy as np
 import pytest
 import torch
 
 from training.data import DataConfig, TrainingData
-from training.mask import MaskConfig, MaskNet, iou, predict, train_mask
+from training.mask import MaskConfig, MaskNet, iou, load_mask, predict, train_mask
 from training.render_cache import build
 
 
@@ -55,3 +60,44 @@ def test_iou_of_known_masks():
     logits[1, 0, 1] = 1.0  # one extra pixel: 4 / 5
     assert np.allclose(iou(logits, m), [1.0, 0.8])
     assert MaskNet(pretrained=False)(torch.zeros(1, 3, 64, 64)).shape == (1, 1, 64, 64)
+
+
+def test_a_mask_run_interrupted_and_resumed_ends_as_an_uninterrupted_one(shapes, tmp_path):
+    """Ctrl-C once the first checkpoint (step 3 of 7) is logged; resumed, the run ends with the head, log
+    and checkpoints of the run nobody stopped, bit for bit (one thread, the schedule over steps: the
+    budget is far off). The last checkpoint is step 7, not a multiple of 3: the run's end. mask-best.pt
+    stays step 3 (no validation frames: every IoU is 0), which it would not were the best score lost."""
+    data = shapes
+    data.cfg.occlude, data.cfg.clutter = 0.3, 0.6
+    cfg = MaskConfig(minutes=600.0, max_steps=7, batch=4, steps_per_epoch=3, threads=1)
+    whole, stopped = tmp_path / "whole", tmp_path / "stopped"
+    net = train_mask(cfg, data, whole)
+
+    def press_ctrl_c() -> None:
+        while not (stopped / "mask-log.jsonl").is_file():
+            time.sleep(0.01)
+        _thread.interrupt_main()
+
+    watcher = threading.Thread(target=press_ctrl_c, daemon=True)
+    watcher.start()
+    with pytest.raises(KeyboardInterrupt):
+        train_mask(cfg, data, stopped)
+    watcher.join()
+    assert load_mask(stopped, "last")[1]["step"] == 3
+    again = train_mask(cfg, data, stopped, resume=True)
+
+    for k, v in net.head.state_dict().items():
+        assert torch.equal(v, again.head.state_dict()[k]), k
+
+    def lines(run) -> list[dict]:
+        return [
+            {k: v for k, v in json.loads(s).items() if k != "minutes"} for s in open(run / "mask-log.jsonl")
+        ]
+
+    assert lines(stopped) == lines(whole) and [r["step"] for r in lines(whole)] == [3, 6, 7]
+    for run in (whole, stopped):
+        assert (load_mask(run, "last")[1]["step"], load_mask(run, "best")[1]["step"]) == (7, 3)
+    with pytest.raises(ValueError, match="whole budget"):
+        train_mask(cfg, data, stopped, resume=True)
+    with pytest.raises(ValueError, match="batch: was 4, now 8"):
+        train_mask(MaskConfig(**{**cfg.__dict__, "batch": 8, "max_steps": 9}), data, stopped, resume=True)

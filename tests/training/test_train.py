@@ -103,3 +103,59 @@ def test_trunk_training_runs_on_cached_template_stems(two_shapes, tmp_path):
     train(cfg, data, tmp_path)
     again, ckpt = load_checkpoint(tmp_path)
     assert ckpt["config"]["arch"] == "trunk" and ckpt["step"] == 4
+
+
+class Scripted:
+    """A validation with given scores per epoch (the best is epoch 2) that also reports a number made
+    from the network's template descriptors; `stop_at`: the epoch at which the user presses Ctrl-C."""
+
+    SCORES = (0.2, 0.9, 0.5, 0.4)
+
+    def __init__(self, done: int = 0, stop_at: int = 0):
+        self.epoch, self.stop_at = done, stop_at
+
+    def __call__(self, net, template_f) -> dict:
+        self.epoch += 1
+        if self.epoch == self.stop_at:
+            raise KeyboardInterrupt
+        return {"within_3d_20": self.SCORES[self.epoch - 1], "f0": float(np.abs(template_f(0)).sum())}
+
+
+def test_a_killed_run_resumed_ends_as_an_uninterrupted_one(two_shapes, tmp_path):
+    """8 steps in epochs of 2, bootstrapping and mining from step 3 (bank refreshed by halves every 3
+    steps): killed during epoch 3's validation, resumed from epoch 2's checkpoint, the run ends with the
+    weights, log and best checkpoint of the run nobody killed, bit for bit (one thread, steps not time:
+    the budget is far off). Without the batch generator's state the batches would repeat, without the
+    bank's the mining would differ, without the best score best.pt would become epoch 3."""
+    cfg = TrainConfig(modality="rgb", descriptor_dim=8, minutes=600.0, max_steps=8, steps_per_epoch=2,
+                      samples_per_batch=4, bootstrap_after=0.25, mine_refresh=3, mine_parts=2, threads=1,
+                      data=two_shapes.cfg)  # fmt: skip
+    whole, killed = tmp_path / "whole", tmp_path / "killed"
+    net = train(cfg, two_shapes, whole, Scripted())
+    with pytest.raises(KeyboardInterrupt):
+        train(cfg, two_shapes, killed, Scripted(stop_at=3))
+    assert torch.load(killed / "checkpoint.pt", weights_only=False)["step"] == 4
+    assert len((killed / "log.jsonl").read_text().splitlines()) == 2
+    again = train(cfg, two_shapes, killed, Scripted(done=2), resume=True)
+
+    for k, v in net.state_dict().items():
+        assert torch.equal(v, again.state_dict()[k]), k
+
+    def lines(run) -> list[dict]:
+        return [{k: v for k, v in json.loads(s).items() if k != "minutes"} for s in open(run / "log.jsonl")]
+
+    assert lines(killed) == lines(whole)
+    assert [r["step"] for r in lines(killed)] == [2, 4, 6, 8] and lines(killed)[1]["best"]
+    for run in (whole, killed):
+        last, best = load_checkpoint(run)[1], load_checkpoint(run, "best")[1]
+        assert (last["epoch"], last["step"], best["epoch"]) == (4, 8, 2)
+        assert "resume" not in best  # best.pt keeps only what export reads
+    with pytest.raises(ValueError, match="whole budget"):
+        train(cfg, two_shapes, killed, Scripted(done=4), resume=True)
+    with pytest.raises(ValueError, match=r"descriptor_dim: was 8, now 16"):
+        train(
+            TrainConfig(**{**cfg.__dict__, "descriptor_dim": 16, "max_steps": 9}),
+            two_shapes,
+            killed,
+            resume=True,
+        )
