@@ -50,6 +50,7 @@ __all__ = [
     "StoreUnavailable",
     "TemplateSet",
     "TemplateStore",
+    "check_location",
     "check_store",
     "local_key",
     "open_store",
@@ -111,6 +112,8 @@ def open_store(
     data_dir: str | Path,
     models: Mapping[str, tuple[int, str]],
     kind: str = "flat",
+    sweep_seconds: float = 600.0,
+    prefix: str = "posedesc",
 ) -> TemplateStore:
     """`location`: "embedded", or a Milvus URI (`http://host:19530`; `data_dir` then is the directory
     the replicas share for meshes, local features and job states)."""
@@ -122,7 +125,27 @@ def open_store(
         )
     from index.milvus_store import MilvusStore  # pymilvus only where Milvus is used
 
-    return MilvusStore(location, data_dir, models)
+    return MilvusStore(location, data_dir, models, prefix=prefix, sweep_seconds=sweep_seconds)
+
+
+def check_location(location: str, timeout: float = 10.0) -> None:
+    """Raises StoreError (one line) when `location` is neither "embedded" nor a Milvus that answers."""
+    if location == EMBEDDED:
+        return
+    if "://" not in location:
+        raise StoreError(
+            f"POSEDESC_STORE={location!r}: use 'embedded' or a Milvus URI such as http://host:19530"
+        )
+    from pymilvus import MilvusClient
+
+    try:
+        client = MilvusClient(location, timeout=timeout)
+        client.list_collections(timeout=timeout)
+        client.close()
+    except Exception as e:
+        raise StoreError(
+            f"the template store (Milvus at {location}) does not answer: {str(e).splitlines()[0][:200]}"
+        ) from None
 
 
 def set_threads(n: int) -> None:

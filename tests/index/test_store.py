@@ -14,7 +14,7 @@ import faiss
 import numpy as np
 import pytest
 
-from index.store import NameTaken, Store, StoreError, TemplateSet
+from index.store import Store, StoreError, TemplateSet
 
 MODELS = {"rgb": (4, "fp-rgb"), "depth": (4, "fp-depth")}
 ROOT = Path(__file__).resolve().parents[2]
@@ -30,7 +30,6 @@ def templates(centre: float, n: int = 5, dim: int = 4) -> TemplateSet:
 
 def add(store: Store, name: str, centre: float) -> int:
     return store.add_object(name, "none", {m: templates(centre) for m in MODELS}).object_id
-
 
 
 def test_reopen_keeps_state_and_uses_the_snapshot(tmp_path, caplog):
@@ -130,7 +129,6 @@ store.add_object("b", "none", {{m: templates(5.0) for m in MODELS}})
     assert again.missing() == {"rgb": [], "depth": []}
 
 
-
 def test_bad_inputs(tmp_path):
     with pytest.raises(StoreError, match="index kind"):
         Store(tmp_path, MODELS, kind="hnsw")
@@ -200,8 +198,6 @@ def test_readers_never_see_half_an_object(tmp_path):
         t.join()
     assert errors == []
     assert len(store.snapshot.objects) == 20
-
-
 
 
 def test_a_store_from_before_local_features_opens(tmp_path):
