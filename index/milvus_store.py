@@ -24,7 +24,7 @@ leaves only a pending record and templates no one sees; a sweep removes them onc
 `sweep_seconds`. A deletion turns the record *deleted* first (from then on no replica returns the object
 once it has polled), then removes the templates and files.
 
-Visibility: every replica polls the records with a strong read every `poll_seconds` (0.25 s; a strong
+Visibility: every replica polls the records with a strong read every `poll_seconds` (0.2 s; a strong
 read takes ~0.2 s here): a registration or deletion on one replica is seen by the others within ~0.5 s,
 bounded by 1 s. Searches themselves are "Bounded" reads (~2 ms instead of ~200 ms for "Strong"): the
 filter on known live ids, not the search's consistency, is what keeps deleted objects out.
@@ -124,7 +124,7 @@ class MilvusStore:
         data_dir: str | Path,
         models: Mapping[str, tuple[int, str]],
         prefix: str = "posedesc",
-        poll_seconds: float = 0.25,
+        poll_seconds: float = 0.2,
         timeout: float = 5.0,
         sweep_seconds: float = 600.0,
         hnsw_m: int = 16,
@@ -152,7 +152,6 @@ class MilvusStore:
             m: {} for m in models
         }
         self._generation = 0
-        self._last_sweep = 0.0
         try:
             self.client = MilvusClient(uri, timeout=timeout)
         except Exception as e:
@@ -165,6 +164,9 @@ class MilvusStore:
         self._call(self._sweep)
         self._poller = threading.Thread(target=self._poll, name="milvus-poll", daemon=True)
         self._poller.start()
+        # apart from the poll: a sweep's deletes take a time tick each and must not delay what replicas see
+        self._sweeper = threading.Thread(target=self._sweeps, name="milvus-sweep", daemon=True)
+        self._sweeper.start()
 
     # -- reading -----------------------------------------------------------------------------------
 
@@ -303,6 +305,7 @@ class MilvusStore:
     def close(self) -> None:
         self._stop.set()
         self._poller.join(timeout=5)
+        self._sweeper.join(timeout=5)
         try:
             self.client.close()
         except Exception as e:  # closing a client whose server is gone
@@ -329,6 +332,10 @@ class MilvusStore:
 
         have = set(self.client.list_collections(timeout=self.timeout))
         todo: list[tuple[str, Any, Any]] = []
+        # collections made earlier: loaded (a no-op when they are, as after a Milvus restart they become)
+        for c in [self.objects_collection, *self.collections.values()]:
+            if c in have:
+                self._load(c)
         if self.objects_collection not in have:
             s = MilvusClient.create_schema(auto_id=False)
             s.add_field("token", DataType.VARCHAR, is_primary=True, max_length=64)
@@ -375,15 +382,29 @@ class MilvusStore:
         except Exception:
             if not self.client.has_collection(name, timeout=self.timeout):
                 raise
+            # made by another replica, maybe still without its index or not loaded yet: wait for both
+            self._load(name)
 
-    def _query(self, expr: str, fields: Sequence[str], limit: int = MAX_ROWS) -> list[dict[str, Any]]:
+    def _load(self, name: str) -> None:
+        for _ in range(100):
+            try:
+                self.client.load_collection(name, timeout=30)
+                return
+            except Exception as e:  # "index not found" while the creator is still indexing it
+                last = e
+                time.sleep(0.2)
+        raise last
+
+    def _query(
+        self, expr: str, fields: Sequence[str], limit: int = MAX_ROWS, consistency: str = "Strong"
+    ) -> list[dict[str, Any]]:
         return list(
             self.client.query(
                 self.objects_collection,
                 filter=expr,
                 output_fields=list(fields),
                 limit=limit,
-                consistency_level="Strong",
+                consistency_level=consistency,
                 timeout=self.timeout,
             )
         )
@@ -489,7 +510,6 @@ class MilvusStore:
         """Removes what registrations killed midway and deletions cut short left: pending records older
         than `sweep_seconds` (turned deleted), and the templates of deleted objects."""
         now = time.time()
-        self._last_sweep = now
         rows = self._query(f"state == {PENDING} and updated < {now - self.sweep_seconds}", ["*"])
         for r in rows:
             log.warning("object %d (%s): a registration left unfinished, swept", r["object_id"], r["name"])
@@ -557,13 +577,20 @@ class MilvusStore:
             if not changed and not gone:
                 return
             fresh = [t for t in changed if seen[t][0] == LIVE]
+            got: set[str] = set()
             for s in range(0, len(fresh), 1000):
                 part = fresh[s : s + 1000]
-                for r in self._query(f"token in {json.dumps(part)}", ["*"]):
-                    self._records[r["token"]] = r
+                # the strong read above has made the query node current: an "Eventually" read of what it
+                # listed costs no wait for a time tick; a record it misses is fetched at the next poll
+                for r in self._query(f"token in {json.dumps(part)}", ["*"], consistency="Eventually"):
+                    if (int(r["state"]), float(r["updated"]), int(r["object_id"])) == seen[r["token"]]:
+                        self._records[r["token"]] = r
+                        got.add(r["token"])
             for t in list(self._records):
                 if seen.get(t, (DELETED, 0.0, 0))[0] != LIVE:
                     del self._records[t]
+            for t in set(fresh) - got:
+                del seen[t]  # not fetched: still "changed" at the next poll
             self._rows = seen
             self._rebuild()
 
@@ -593,12 +620,19 @@ class MilvusStore:
         self._generation += 1
         self._snap = MilvusSnapshot(self._generation, live, models, self, expr)
 
+    def _sweeps(self) -> None:
+        while not self._stop.wait(self.sweep_seconds / 2):
+            try:
+                self._call(self._sweep)
+            except StoreUnavailable as e:  # the poll reports it
+                log.debug("sweep: %s", e)
+            except Exception:
+                log.exception("sweeping the template store")
+
     def _poll(self) -> None:
         while not self._stop.wait(self.poll_seconds):
             try:
                 self._call(self._refresh)
-                if time.time() - self._last_sweep > self.sweep_seconds / 2:
-                    self._call(self._sweep)
                 if self._problem is not None:
                     log.info("the template store (Milvus at %s) answers again", self.uri)
                 self._problem = None

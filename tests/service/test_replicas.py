@@ -190,7 +190,9 @@ def test_a_replica_killed_mid_registration_leaves_no_half_object(replicas, posed
 def test_milvus_restarted_under_the_replicas(replicas, milvus, l_shape):
     (a, b), _, _ = replicas
     job = finish(a.url, post(b.url, l_shape, "survivor").json()["job_id"])
+    assert job["status"] == "done", job
     oid = job["object_id"]
+    within(BOUND, lambda: oid in listed(a.url))
     milvus.stop()
     try:
         for url in (a.url, b.url):
