@@ -87,14 +87,32 @@ def run(cfg: MilvusConfig) -> dict:
         try:
             sizes = [cfg.objects * TEMPLATES_PER_OBJECT, *cfg.large]
             for n in tqdm(sizes, desc="milvus vs embedded: store sizes", unit="size", disable=None):
-                out["by_size"][str(n)] = _one_size(cfg, uri, n, Path(tmp) / f"s{n}", bulk=n != sizes[0])
+                before = _server_rss(server)
+                row = _one_size(
+                    cfg, uri, n, Path(tmp) / f"s{n}", bulk=n != sizes[0], rss=lambda: _server_rss(server)
+                )
+                row["milvus_server_rss_bytes_before"] = before
+                out["by_size"][str(n)] = row
         finally:
             if server is not None:
                 server.stop()
     return out
 
 
-def _one_size(cfg: MilvusConfig, uri: str, n: int, tmp: Path, bulk: bool) -> dict:
+def _server_rss(server) -> int | None:
+    """The local Milvus process's resident memory (VmRSS), bytes; None for a remote one."""
+    proc = getattr(getattr(server, "server", None), "server_proc", None)
+    if proc is None:
+        return None
+    try:
+        status = Path(f"/proc/{proc.pid}/status").read_text()
+    except OSError:
+        return None
+    line = next((ln for ln in status.splitlines() if ln.startswith("VmRSS:")), None)
+    return int(line.split()[1]) * 1024 if line else None
+
+
+def _one_size(cfg: MilvusConfig, uri: str, n: int, tmp: Path, bulk: bool, rss=lambda: None) -> dict:
     from index.milvus_store import MilvusStore
 
     rng = np.random.default_rng([cfg.seed, n])
@@ -145,6 +163,7 @@ def _one_size(cfg: MilvusConfig, uri: str, n: int, tmp: Path, bulk: bool) -> dic
             **({"embedded": _registrations(embedded, new, cfg.registrations)} if embedded else {}),
         }
         row["milvus_memory"] = _milvus_memory(milvus)
+        row["milvus_server_rss_bytes_loaded"] = rss()  # with this store's collection loaded
     finally:
         milvus.client.drop_collection(milvus.collections[MODEL])
         milvus.client.drop_collection(milvus.objects_collection)

@@ -620,6 +620,15 @@ class MilvusStore:
         self._generation += 1
         self._snap = MilvusSnapshot(self._generation, live, models, self, expr)
 
+    def _loaded(self) -> bool:
+        from pymilvus.client.types import LoadState
+
+        for c in [self.objects_collection, *self.collections.values()]:
+            state = self.client.get_load_state(c, timeout=self.timeout)["state"]
+            if state != LoadState.Loaded:
+                return False
+        return True
+
     def _sweeps(self) -> None:
         while not self._stop.wait(self.sweep_seconds / 2):
             try:
@@ -634,6 +643,13 @@ class MilvusStore:
             try:
                 self._call(self._refresh)
                 if self._problem is not None:
+                    # back after a restart: ready once every collection is loaded again (Milvus reloads
+                    # them itself, ~20 s here), so that searches work, not only the record reads
+                    if not self._call(self._loaded):
+                        self._problem = (
+                            f"the template store (Milvus at {self.uri}) is loading its collections"
+                        )
+                        continue
                     log.info("the template store (Milvus at %s) answers again", self.uri)
                 self._problem = None
             except StoreUnavailable as e:

@@ -22,7 +22,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--data-dir", type=Path, required=True,
                    help="the store to add them to (made if missing); with --store URI, the replicas' shared directory")  # fmt: skip
     p.add_argument("--store", default=os.environ.get("POSEDESC_STORE", "embedded"),
-                   help="'embedded' (default: POSEDESC_STORE or embedded) or a Milvus URI, http://host:19530")  # fmt: skip
+                   help="'embedded' or a Milvus URI, http://host:19530; POSEDESC_STORE sets the default")  # fmt: skip
     p.add_argument("--models", type=Path, default=Path("models"), help="folder of posedesc-*.onnx models")
     p.add_argument("--units", choices=UNITS, default="mm", help="units of the mesh files")
     p.add_argument("--symmetry", choices=("none", "180", "full"), default="none", help="of every mesh")

@@ -39,6 +39,14 @@ def open_store(request, tmp_path) -> Opener:
     yield opener
     for s in opened:
         s.close()
+    if request.param == "milvus":  # a restart of the session's Milvus reloads every collection left loaded
+        from pymilvus import MilvusClient
+
+        client = MilvusClient(server.uri)
+        for c in client.list_collections():
+            if c.startswith(prefix):
+                client.drop_collection(c)
+        client.close()
 
 
 def templates(centre: float, n: int = 5, dim: int = 4) -> TemplateSet:
