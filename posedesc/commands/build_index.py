@@ -20,7 +20,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
     p.add_argument("--meshes", type=Path, required=True, help=f"folder of meshes: {FORMATS_TEXT}")
     p.add_argument("--data-dir", type=Path, required=True,
-                   help="the store to add them to (made if missing); with --store URI, the replicas' shared directory")  # fmt: skip
+                   help="the store to add them to (made if missing); for a Milvus store, the directory its replicas share")  # fmt: skip
     p.add_argument("--store", default=os.environ.get("POSEDESC_STORE", "embedded"),
                    help="'embedded' or a Milvus URI, http://host:19530; POSEDESC_STORE sets the default")  # fmt: skip
     p.add_argument("--models", type=Path, default=Path("models"), help="folder of posedesc-*.onnx models")
