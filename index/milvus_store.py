@@ -266,8 +266,13 @@ class MilvusStore:
         return self._to_record(record)
 
     def add_templates(self, object_id: int, model: str, ts: TemplateSet) -> None:
-        """Adds one model's templates to a live object (re-embedding after a model changed)."""
+        """Adds one model's templates to a live object (re-embedding after a model changed). Every replica
+        of a new model finds the same objects missing at start: the first to claim the (object, model)
+        in the shared directory makes them, the others leave it (they see them at their next poll)."""
         check_set(model, self.dims, ts)
+        if not self.files.claim(f"claims/{self.collections[model]}/{int(object_id)}", self.sweep_seconds):
+            log.info("object %d, %s: another replica makes these templates", object_id, model)
+            return
         with self._write:
             rows = self._call(self._query, f"object_id == {int(object_id)} and state == {LIVE}", ["*"])
             if not rows:
@@ -424,7 +429,8 @@ class MilvusStore:
                 for r in rows
                 if r["token"] != record["token"]
                 and (r["object_id"] == oid or (r["name"] == record["name"] and r["state"] != DELETED))
-                and (r["created"], r["token"]) < me
+                # a live or deleted record has won already, whatever the replicas' clocks say
+                and (r["state"] != PENDING or (r["created"], r["token"]) < me)
             ]
             if not rivals:
                 record["object_id"] = oid

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import io
 import os
+import time
 import uuid
 from pathlib import Path
 
@@ -45,6 +46,22 @@ class SharedFiles:
 
     def remove(self, name: str) -> None:
         self.path(name).unlink(missing_ok=True)
+
+    def claim(self, name: str, stale_seconds: float) -> bool:
+        """Creates `name` if it does not exist (O_EXCL: one replica wins, on local file systems and NFS v3+);
+        a claim older than `stale_seconds` (its replica died) is taken over. True for the winner."""
+        p = self.path(name)
+        p.parent.mkdir(parents=True, exist_ok=True)
+        try:
+            if time.time() - p.stat().st_mtime > stale_seconds:
+                p.unlink(missing_ok=True)
+        except FileNotFoundError:
+            pass
+        try:
+            os.close(os.open(p, os.O_CREAT | os.O_EXCL | os.O_WRONLY))
+        except FileExistsError:
+            return False
+        return True
 
     def names(self, folder: str) -> list[str]:
         d = self.path(folder)
