@@ -24,9 +24,9 @@ leaves only a pending record and templates no one sees; a sweep removes them onc
 `sweep_seconds`. A deletion turns the record *deleted* first (from then on no replica returns the object
 once it has polled), then removes the templates and files.
 
-Visibility: every replica polls the records with a strong read every `poll_seconds` (0.2 s; a strong
-read takes ~0.2 s here): a registration or deletion on one replica is seen by the others within ~0.5 s,
-bounded by 1 s. Searches themselves are "Bounded" reads (~2 ms instead of ~200 ms for "Strong"): the
+Visibility: every replica polls the records with a strong read, `poll_seconds` (50 ms) after the last one
+ended (a strong read waits for Milvus's 200 ms time tick, so a poll every ~0.25 s): a registration or
+deletion on one replica is seen by the others within ~0.5 s, bounded by 1 s. Searches themselves are "Bounded" reads (~2 ms instead of ~200 ms for "Strong"): the
 filter on known live ids, not the search's consistency, is what keeps deleted objects out.
 
 Two registrations of one name on two replicas: both write a pending record, then read the records back;
@@ -124,7 +124,7 @@ class MilvusStore:
         data_dir: str | Path,
         models: Mapping[str, tuple[int, str]],
         prefix: str = "posedesc",
-        poll_seconds: float = 0.2,
+        poll_seconds: float = 0.05,
         timeout: float = 5.0,
         sweep_seconds: float = 600.0,
         hnsw_m: int = 16,
