@@ -139,6 +139,7 @@ def test_image_replicas_share_a_milvus_store(podman, image, milvus, tmp_path, l_
     data.mkdir()
     os.chown(data, CONTAINER_UID, CONTAINER_UID)
     names = [f"posedesc-test-{uuid.uuid4().hex[:8]}" for _ in range(2)]
+    prefix = f"img{uuid.uuid4().hex[:8]}"  # one store: both replicas name the same collections
     urls = []
     try:
         for name in names:
@@ -146,7 +147,7 @@ def test_image_replicas_share_a_milvus_store(podman, image, milvus, tmp_path, l_
             urls.append(f"http://127.0.0.1:{port}")
             podman(
                 *f"run -d --name {name} --network host --health-interval=disable -v {data}:/data "
-                f"-e POSEDESC_API_KEY={API_KEY} -e POSEDESC_STORE={milvus.uri} -e POSEDESC_STORE_PREFIX=img{name[-8:]} "
+                f"-e POSEDESC_API_KEY={API_KEY} -e POSEDESC_STORE={milvus.uri} -e POSEDESC_STORE_PREFIX={prefix} "
                 f"-e POSEDESC_DEMO_OBJECTS=false -e POSEDESC_LEVEL=1 "
                 f"{image} serve --host 127.0.0.1 --port {port} --data-dir /data".split()
             )
@@ -166,3 +167,10 @@ def test_image_replicas_share_a_milvus_store(podman, image, milvus, tmp_path, l_
     finally:
         for name in names:
             podman("rm", "-f", name, check=False)
+        from pymilvus import MilvusClient
+
+        client = MilvusClient(milvus.uri)  # a later restart of the session's Milvus would reload them
+        for c in client.list_collections():
+            if c.startswith(prefix):
+                client.drop_collection(c)
+        client.close()
