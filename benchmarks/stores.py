@@ -1,7 +1,7 @@
 """Template stores of many objects for the benchmarks, searched by the service's own code.
 
 `flat_snapshot` builds in one go what `index.store.Store` would hold after registering the objects one by
-one with the default index kind (`IndexIDMap2(IndexFlatL2)`), as an `index.store.Snapshot`, whose
+one with the default index kind (`IndexIDMap2(IndexFlatL2)`), as an `index.search.FaissSnapshot`, whose
 `search` is the very call a recognition makes. Registering 1,000 objects through `Store.add_object`
 instead would rewrite every model's index snapshot file once per object (quadratic in the store size).
 `fill_data_dir` and `fill_store` do go through `Store.add_object`, for a data dir the real service (or
@@ -18,10 +18,10 @@ import numpy as np
 
 from benchmarks.objects import ObjectSet
 from index.embed import Embedder, fingerprint
-from index.store import ModelIndex, ObjectRecord, Snapshot, Store, TemplateSet
+from index.store import FaissSnapshot, ModelIndex, ObjectRecord, Store, TemplateSet
 
 
-def flat_snapshot(model: str, sets: list[TemplateSet]) -> Snapshot:
+def flat_snapshot(model: str, sets: list[TemplateSet]) -> FaissSnapshot:
     """Objects 1..N with these templates (one set per object) in one model's exact index."""
     desc = np.ascontiguousarray(np.concatenate([s.descriptors for s in sets]), np.float32)
     poses = np.concatenate([s.poses for s in sets]).astype(np.float32)
@@ -34,7 +34,7 @@ def flat_snapshot(model: str, sets: list[TemplateSet]) -> Snapshot:
         j + 1: ObjectRecord(j + 1, f"object-{j + 1}", "none", 0, now, {model: len(s.poses)})
         for j, s in enumerate(sets)
     }
-    return Snapshot(1, objects, {model: ModelIndex(index, ids, object_ids, poses)})
+    return FaissSnapshot(1, objects, {model: ModelIndex(index, ids, object_ids, poses)})
 
 
 def fill_data_dir(

@@ -5,7 +5,8 @@ Sections: "descriptor" (throughput vs HOG), "recognition" (vs LineMOD at 8 / 100
 "register" (`POST /objects`, 20k faces), "roll" (the roll-estimating set-up: from a decoded patch to the
 answer over in-plane templates with query turns, beside upright templates and LineMOD; a 640x480 frame
 over HTTP; registration with in-plane templates; `benchmarks/roll.py`), "train" (the network's training
-throughput). The headline figures are copied to the top of the JSON (`summary`, and the issue's keys
+throughput), "milvus" (the template store through Milvus beside the embedded one, at 100 objects and
+10^6 templates, and HNSW's recall; `benchmarks/milvus.py`; not in the default run: `--only milvus`). The headline figures are copied to the top of the JSON (`summary`, and the issue's keys
 `recognize_vs_linemod_speedup_100` and `register_20k_faces_s`) with the issue's targets."""
 
 from __future__ import annotations
@@ -18,16 +19,18 @@ from pathlib import Path
 
 from tqdm import tqdm
 
-from benchmarks import descriptor, knn, over_http, recognition, registration, roll, train_step
+from benchmarks import descriptor, knn, milvus, over_http, recognition, registration, roll, train_step
 from benchmarks.descriptor import DescriptorConfig
 from benchmarks.knn import KnnConfig
+from benchmarks.milvus import MilvusConfig
 from benchmarks.over_http import HttpConfig
 from benchmarks.recognition import RecognitionConfig
 from benchmarks.roll import RollConfig
 from benchmarks.timing import machine, pin_threads
 from benchmarks.train_step import TrainStepConfig
 
-SECTIONS = ("descriptor", "recognition", "knn", "http", "register", "roll", "train")
+SECTIONS = ("descriptor", "recognition", "knn", "http", "register", "roll", "train", "milvus")
+DEFAULT_SECTIONS = SECTIONS[:-1]  # milvus starts a server and bulk-loads 10^6 templates: on request
 TARGETS = {  # the issue's
     "recognize_p50_ms_100": ("<", 5.0, "recognition p50 in-process, 100 objects (ms)"),
     "http_p50_ms_100": ("<", 15.0, "recognition p50 over HTTP, 1 client, 100 objects (ms)"),
@@ -51,7 +54,7 @@ TARGETS = {  # the issue's
 class BenchConfig:
     models: Path = Path("models")
     modality: str = "rgb"
-    sections: tuple[str, ...] = SECTIONS
+    sections: tuple[str, ...] = DEFAULT_SECTIONS
     quick: bool = False
     seed: int = 0
     distinct: int | None = None  # shapes rendered (x48 image variants, benchmarks/objects.py); None: enough
@@ -65,6 +68,7 @@ class BenchConfig:
     http: HttpConfig = field(default_factory=HttpConfig)
     train: TrainStepConfig = field(default_factory=TrainStepConfig)
     roll: RollConfig = field(default_factory=RollConfig)
+    milvus: MilvusConfig = field(default_factory=MilvusConfig)
 
     def shapes_needed(self) -> int:
         if self.distinct is not None:
@@ -93,6 +97,9 @@ class BenchConfig:
             http=HttpConfig(objects=8, concurrency=(1, 2), requests=10, rounds=1, warmup=4),
             train=TrainStepConfig(steps=2, warmup=1, samples_per_batch=8),
             roll=replace(self.roll, objects=8, queries=20, warmup=2, http_requests=10, http_warmup=2),
+            milvus=replace(
+                self.milvus, objects=3, large=(2000,), queries=20, recall_queries=20, registrations=1
+            ),
         )
 
 
@@ -159,6 +166,8 @@ def run(cfg: BenchConfig) -> dict:
             notes += out["sections"][name]["notes"]
         elif name == "train":
             out["sections"][name] = train_step.run(cfg.modality, cfg.train, cfg.seed)
+        elif name == "milvus":
+            out["sections"][name] = milvus.run(cfg.milvus)
         elif name in ("http", "register"):
             if "service" in seconds:  # both ran on the one service
                 continue
@@ -264,6 +273,14 @@ def _summary(sections: dict) -> dict:
         s |= _roll_summary(ro, s)
     if t := sections.get("train"):
         s["train_patches_per_s"] = t["train_patches_per_s"]
+    if mv := sections.get("milvus"):
+        for n, row in mv["by_size"].items():
+            for store in ("embedded", "milvus"):
+                for q in ("p50", "p99"):
+                    s[f"store_{store}_recognize_{q}_ms_{n}"] = row["recognition"][store][f"{q}_ms"]
+                if store in row["registration"]:
+                    s[f"store_{store}_register_p50_ms_{n}"] = row["registration"][store]["p50_ms"]
+            s[f"store_milvus_recall_at_{mv['k']}_{n}"] = row["recall_at_k"]
     return s
 
 

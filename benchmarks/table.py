@@ -193,6 +193,27 @@ def render(result: dict) -> str:
             ["patches/s", "samples/s", "step ms"],
             [[_num(t["train_patches_per_s"]), _num(t["train_samples_per_s"]), _num(t["step_median_ms"])]],
         )
+    if mv := sec.get("milvus"):
+        rows = []
+        for n, row in mv["by_size"].items():
+            rec, reg = row["recognition"], row["registration"]
+            rows.append(
+                [
+                    f"{int(n):,} ({row['filled']})",
+                    f"{_num(rec['embedded']['p50_ms'], 2)} / {_num(rec['embedded']['p99_ms'], 2)}",
+                    f"{_num(rec['milvus']['p50_ms'], 2)} / {_num(rec['milvus']['p99_ms'], 2)}",
+                    _num(reg["embedded"]["p50_ms"]) if "embedded" in reg else "-",
+                    _num(reg["milvus"]["p50_ms"]),
+                    _num(row["recall_at_k"], 3),
+                ]
+            )
+        lines += _table(
+            f"template store: embedded (FAISS flat + SQLite) vs Milvus ({mv['milvus']['uri']}; HNSW), "
+            f"{mv['dim']}-d, k = {mv['k']}; ms",
+            ["templates", "embedded answers p50 / p99", "Milvus answers p50 / p99", "embedded add_object",
+             "Milvus add_object", f"Milvus recall@{mv['k']}"],
+            rows,
+        )  # fmt: skip
     if result.get("targets"):
         rows = []
         for v in result["targets"].values():

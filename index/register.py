@@ -38,7 +38,7 @@ from index.local import with_silhouettes
 from index.mesh import MeshError, load_mesh, simplify
 from index.pose import View
 from index.render import INVISIBLE, Renderer, RenderWorker, Templates
-from index.store import ObjectRecord, Store, TemplateSet
+from index.store import ObjectRecord, TemplateSet, TemplateStore
 from index.surface import SURFACE_KEY, template_offsets
 from index.symmetry import SYMMETRIES
 from index.viewpoints import inplane_steps, sphere_views
@@ -238,7 +238,7 @@ def register(
     *,
     worker: RenderWorker,
     embedders: Mapping[str, Embedder],
-    store: Store,
+    store: TemplateStore,
     cfg: TemplateConfig = TemplateConfig(),
     pool: ThreadPoolExecutor | None = None,
     extra: Mapping[str, object] | None = None,
@@ -260,7 +260,7 @@ def register(
 
 
 def reembed(
-    store: Store,
+    store: TemplateStore,
     worker: RenderWorker,
     embedders: Mapping[str, Embedder],
     cfg: TemplateConfig = TemplateConfig(),

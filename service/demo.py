@@ -10,6 +10,7 @@ from __future__ import annotations
 import logging
 
 from index.register import reembed, register
+from index.store import NameTaken
 from service.state import AppState
 
 log = logging.getLogger("service")
@@ -50,17 +51,20 @@ def seed(state: AppState) -> None:
             return
         if name in present:
             continue
-        reg = register(
-            mesh,
-            name,
-            "none",
-            worker=state.worker,
-            embedders=state.embedders,
-            store=store,
-            cfg=state.templates,
-            pool=state.embed_pool,
-            extra={"demo": True},
-        )
+        try:
+            reg = register(
+                mesh,
+                name,
+                "none",
+                worker=state.worker,
+                embedders=state.embedders,
+                store=store,
+                cfg=state.templates,
+                pool=state.embed_pool,
+                extra={"demo": True},
+            )
+        except NameTaken:  # another replica of a shared store seeding at the same time
+            continue
         state.metrics.observe_registration(reg.timings)
         log.info("demo object %s registered in %.2f s", name, reg.timings["total"])
     store.set_meta(SEEDED, "1")

@@ -12,6 +12,7 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
+from index.records import StoreError
 from service.schemas import ErrorOut
 
 log = logging.getLogger("service")
@@ -28,7 +29,7 @@ MEANING = {
     413: "request body or image over the limit",
     422: "bad input: what is wrong is in `detail`",
     500: "internal error (a bug)",
-    503: "the service is starting or too busy; retry later",
+    503: "the service is starting or too busy, or its template store does not answer; retry later",
     507: "the server's disk is full; nothing was changed",
 }
 
@@ -68,6 +69,12 @@ def install(app: FastAPI) -> None:
         return JSONResponse(
             {"detail": str(exc.detail)}, status_code=exc.status_code, headers=getattr(exc, "headers", None)
         )
+
+    @app.exception_handler(StoreError)
+    async def store_down(request: Request, exc: StoreError) -> JSONResponse:
+        # the Milvus store's server unreachable or restarting: nothing was changed, retry later
+        log.warning("%s %s: %s", request.method, request.url.path, exc)
+        return JSONResponse({"detail": str(exc)}, status_code=503)
 
     @app.exception_handler(Exception)
     async def unexpected(request: Request, exc: Exception) -> JSONResponse:

@@ -153,7 +153,7 @@ class Health(BaseModel):
 
 
 class Ready(BaseModel):
-    status: str = Field(description="ready | starting")
+    status: str = Field(description="ready | starting | unavailable (the template store does not answer)")
     models: dict[str, str] = Field(description="modality -> model name")
     objects: int
     templates: dict[str, int]

@@ -12,7 +12,24 @@ from pydantic_settings import BaseSettings, SettingsConfigDict
 class Settings(BaseSettings):
     model_config = SettingsConfigDict(env_prefix="POSEDESC_", env_file=None, extra="ignore")
 
-    data_dir: Path = Field(Path("data/default"), description="store (SQLite + FAISS snapshots) lives here")
+    # The template store: "embedded" (SQLite + FAISS in data_dir, one process) or a Milvus URI as pymilvus
+    # takes it (http://host:19530): replicas pointed at one Milvus and one shared data_dir serve one store.
+    store: str = Field(
+        "embedded", description="'embedded', or a Milvus URI (http://host:19530) replicas share"
+    )
+    data_dir: Path = Field(
+        Path("data/default"),
+        description="embedded store: SQLite + FAISS snapshots; Milvus store: the directory every replica "
+        "shares for meshes, local features and job states",
+    )
+    store_prefix: str = Field(
+        "posedesc", pattern=r"^[A-Za-z][A-Za-z0-9_]{0,60}$",
+        description="Milvus store: its collections' name prefix (several stores on one Milvus)",
+    )  # fmt: skip
+    store_sweep_seconds: float = Field(
+        600.0, gt=0, description="Milvus store: a registration pending this long was cut short; its "
+        "templates are swept",
+    )  # fmt: skip
     models_dir: Path = Field(Path("models"), description="posedesc-{rgb,depth,rgbd}.onnx, any of them")
     api_key: SecretStr | None = Field(None, description="when set, POST/DELETE /objects need it (X-API-Key)")
     allow_open_writes: bool = Field(

@@ -12,7 +12,8 @@ from dataclasses import dataclass, field
 from index.embed import Embedder, fingerprint, load_models
 from index.register import TemplateConfig
 from index.render import RenderWorker
-from index.store import Store
+from index.shared_files import SharedFiles
+from index.store import EMBEDDED, TemplateStore, open_store
 from service.jobs import Jobs
 from service.metrics import Metrics
 from service.settings import Settings
@@ -25,7 +26,7 @@ log = logging.getLogger("service")
 class AppState:
     settings: Settings
     embedders: dict[str, Embedder]
-    store: Store
+    store: TemplateStore
     worker: RenderWorker
     templates: TemplateConfig
     #: the pools below are made from `settings.threads` (service/threads.py)
@@ -69,15 +70,25 @@ def load_state(settings: Settings, embedders: dict[str, Embedder] | None = None)
     sizes = {e.info.size for e in embedders.values()}
     if len(sizes) != 1:
         raise ValueError(f"the models disagree about the patch size: {sorted(sizes)}")
-    store = Store(
+    store = open_store(
+        settings.store,
         settings.data_dir,
         {m: (e.dim, fingerprint(e.path)) for m, e in embedders.items()},
         kind=settings.index_kind,
+        sweep_seconds=settings.store_sweep_seconds,
+        prefix=settings.store_prefix,
     )
     worker = RenderWorker(size=sizes.pop(), window_mm=min(windows))
     cfg = TemplateConfig(settings.level, settings.inplane_step, settings.inplane_max)
-    log.info("models %s, %d objects in %s", sorted(embedders), len(store.snapshot.objects), settings.data_dir)
-    return AppState(settings, embedders, store, worker, cfg)
+    where = (
+        settings.data_dir
+        if settings.store == EMBEDDED
+        else f"{settings.store} (files in {settings.data_dir})"
+    )
+    log.info("models %s, %d objects in %s", sorted(embedders), len(store.snapshot.objects), where)
+    # behind a load balancer a job is polled on any replica: with a shared store, job states are shared files
+    jobs = Jobs() if settings.store == EMBEDDED else Jobs(files=SharedFiles(settings.data_dir))
+    return AppState(settings, embedders, store, worker, cfg, jobs=jobs)
 
 
 def close_state(state: AppState) -> None:
@@ -87,4 +98,5 @@ def close_state(state: AppState) -> None:
     state.embed_pool.shutdown(wait=True)
     state.recognizer.shutdown(wait=True)
     state.worker.close()
+    state.jobs.close()
     state.store.close()

@@ -74,3 +74,16 @@ def render_worker():
     worker = RenderWorker()
     yield worker
     worker.close()
+
+
+@pytest.fixture(scope="session")
+def milvus(tmp_path_factory):
+    """The real standalone Milvus server (PyPI `milvus` 2.3.5), started once per session of tests on free
+    loopback ports in a temporary directory, stopped at the end. Tests keep apart by collection prefix."""
+    pytest.importorskip("milvus")
+    from benchmarks.milvus_server import LocalMilvus
+
+    server = LocalMilvus(tmp_path_factory.mktemp("milvus"))
+    server.start()
+    yield server
+    server.stop()

@@ -29,7 +29,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--only",
         default=None,
-        help="comma-separated sections: descriptor,recognition,knn,http,register,roll,train",
+        help="comma-separated sections: descriptor,recognition,knn,http,register,roll,train,milvus "
+        "(default: all but milvus)",
     )
     p.add_argument("--models", type=Path, default=Path("models"), help="folder of posedesc-*.onnx models")
     p.add_argument("--modality", choices=("rgb", "depth", "rgbd"), default="rgb", help="the model measured")
@@ -60,6 +61,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--roll-objects", type=int, default=None, help="objects in the roll section's stores (100)"
     )
     p.add_argument("--query-turns", default=None, help="query turns of the roll section (1,2,3)")
+    p.add_argument("--milvus-uri", default=None,
+                   help="the milvus section against this Milvus (default: the PyPI server, started for the run)")  # fmt: skip
+    p.add_argument("--milvus-templates", default=None,
+                   help="large store sizes of the milvus section, templates (default 1e6)")  # fmt: skip
     p.add_argument("--seed", type=int, default=0, help="seed of the generated data")  # fmt: skip
 
 
@@ -111,6 +116,10 @@ def run(args: argparse.Namespace) -> int:
         if max(turns) > 36:
             raise UserError(f"--query-turns {args.query_turns}: at most 36 (the service's limit)")
         cfg = replace(cfg, roll=replace(cfg.roll, query_turns=turns))
+    if args.milvus_uri:
+        cfg = replace(cfg, milvus=replace(cfg.milvus, uri=args.milvus_uri))
+    if args.milvus_templates:
+        cfg = replace(cfg, milvus=replace(cfg.milvus, large=_ints(args.milvus_templates)))
     if cfg.distinct is not None:  # --quick: few shapes, but enough for the largest count
         needed = max(cfg.recognition.counts) if "recognition" in cfg.sections else 0
         cfg = replace(cfg, distinct=max(cfg.distinct, -(-needed // VARIANTS)))

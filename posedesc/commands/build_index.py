@@ -6,6 +6,7 @@ The same code path as POST /objects; a service already serving that data dir see
 from __future__ import annotations
 
 import argparse
+import os
 import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
@@ -18,7 +19,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     from index.units import UNITS
 
     p.add_argument("--meshes", type=Path, required=True, help=f"folder of meshes: {FORMATS_TEXT}")
-    p.add_argument("--data-dir", type=Path, required=True, help="the store to add them to (made if missing)")
+    p.add_argument("--data-dir", type=Path, required=True,
+                   help="the store to add them to (made if missing); for a Milvus store, the directory its replicas share")  # fmt: skip
+    p.add_argument("--store", default=os.environ.get("POSEDESC_STORE", "embedded"),
+                   help="'embedded' or a Milvus URI, http://host:19530; POSEDESC_STORE sets the default")  # fmt: skip
     p.add_argument("--models", type=Path, default=Path("models"), help="folder of posedesc-*.onnx models")
     p.add_argument("--units", choices=UNITS, default="mm", help="units of the mesh files")
     p.add_argument("--symmetry", choices=("none", "180", "full"), default="none", help="of every mesh")
@@ -38,7 +42,7 @@ def run(args: argparse.Namespace) -> int:
     from index.mesh import FORMATS_TEXT, MESH_FORMATS, MeshError, load_mesh
     from index.register import TemplateConfig, register
     from index.render import RenderWorker
-    from index.store import Store, StoreError
+    from index.store import StoreError, open_store
 
     if not args.meshes.is_dir():
         raise UserError(f"--meshes {args.meshes}: not a folder")
@@ -47,7 +51,9 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"no meshes ({FORMATS_TEXT}) in {args.meshes}")
     embedders = load_models(args.models)
     try:
-        store = Store(args.data_dir, {m: (e.dim, fingerprint(e.path)) for m, e in embedders.items()})
+        store = open_store(
+            args.store, args.data_dir, {m: (e.dim, fingerprint(e.path)) for m, e in embedders.items()}
+        )
     except StoreError as e:
         raise UserError(str(e)) from None
     present = {r.name for r in store.snapshot.objects.values()}

@@ -29,7 +29,7 @@ def run(args: argparse.Namespace) -> int:
     from pydantic import ValidationError
 
     from index.embed import MODEL_FILES
-    from index.store import StoreError, check_store
+    from index.store import EMBEDDED, StoreError, check_location, check_store
     from service.main import create_app
     from service.settings import Settings
 
@@ -49,7 +49,10 @@ def run(args: argparse.Namespace) -> int:
     except OSError as e:
         raise UserError(f"data dir {settings.data_dir}: {e.strerror or e}") from None
     try:  # here, not in the lifespan: uvicorn would print a start-up failure as a traceback
-        check_store(settings.data_dir)
+        if settings.store == EMBEDDED:
+            check_store(settings.data_dir)
+        else:
+            check_location(settings.store)
     except StoreError as e:
         raise UserError(str(e)) from None
     if not 0 < args.port < 65536:

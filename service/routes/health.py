@@ -28,14 +28,16 @@ def healthz() -> Health:
 def readyz(state: StateDep) -> Response:
     snap = state.store.snapshot
     ready = state.ready.is_set()
+    problem = state.store.problem()  # a shared store's server unreachable: a load balancer looks elsewhere
     body = Ready(
-        status="ready" if ready else "starting",
+        status="unavailable" if problem else "ready" if ready else "starting",
         models=state.model_names,
         objects=len(snap.objects),
         templates={m: mi.size for m, mi in snap.models.items()},
-        detail=state.startup_error if ready else "making templates of demo objects or changed models",
+        detail=problem
+        or (state.startup_error if ready else "making templates of demo objects or changed models"),
     )
-    return JSONResponse(body.model_dump(), status_code=200 if ready else 503)
+    return JSONResponse(body.model_dump(), status_code=200 if ready and not problem else 503)
 
 
 @router.get(

@@ -14,7 +14,7 @@ from fastapi.responses import JSONResponse
 
 from index.mesh import FORMATS_TEXT, MeshError, MeshTooLarge, load_mesh
 from index.register import register
-from index.store import NameTaken
+from index.store import NameTaken, StoreError
 from index.units import LARGEST, SMALLEST, Units
 from service.deps import ApiKeyDep, StateDep
 from service.errors import DISK_FULL, ApiError, responses
@@ -128,7 +128,15 @@ def _load(data: bytes, units: str, file_type: str, max_faces: int, max_upload_fa
 
 
 def _run(state: AppState, job: Job, mesh, name: str, symmetry: str) -> None:
-    """The registration, on the registration thread; its outcome goes into the job."""
+    """The registration, on the registration thread; its outcome goes into the job (shared with the other
+    replicas when the store is)."""
+    try:
+        _register(state, job, mesh, name, symmetry)
+    finally:
+        state.jobs.save(job)
+
+
+def _register(state: AppState, job: Job, mesh, name: str, symmetry: str) -> None:
     try:
         reg = register(
             mesh,
@@ -143,8 +151,11 @@ def _run(state: AppState, job: Job, mesh, name: str, symmetry: str) -> None:
     except MeshError as e:
         job.fail(422, f"mesh: {e}")
         return
-    except NameTaken as e:  # registered meanwhile, by an upload queued before this one
+    except NameTaken as e:  # registered meanwhile, by an upload queued before this one (or another replica)
         job.fail(409, _taken(e))
+        return
+    except StoreError as e:  # the Milvus store does not answer: nothing is live (a pending rest is swept)
+        job.fail(503, f"{e}; nothing was registered")
         return
     except Exception as e:
         if isinstance(e, OSError) and e.errno == errno.ENOSPC:  # rolled back: nothing was stored

@@ -129,3 +129,48 @@ def test_compose_file_serves_on_a_named_volume(podman, image) -> None:
     finally:
         down = compose("down", "-v", "-t", "5")
         assert down.returncode == 0, down.stdout + down.stderr
+
+
+def test_image_replicas_share_a_milvus_store(podman, image, milvus, tmp_path, l_shape) -> None:
+    """Two containers of the image (pymilvus in it, from the serve lock) on the host's network, pointed at
+    the session's real Milvus and one shared /data: registered through one, listed and deleted through
+    the other. (The compose file's official Milvus images cannot be pulled here: no registry.)"""
+    data = tmp_path / "shared"
+    data.mkdir()
+    os.chown(data, CONTAINER_UID, CONTAINER_UID)
+    names = [f"posedesc-test-{uuid.uuid4().hex[:8]}" for _ in range(2)]
+    prefix = f"img{uuid.uuid4().hex[:8]}"  # one store: both replicas name the same collections
+    urls = []
+    try:
+        for name in names:
+            port = podman.free_port()
+            urls.append(f"http://127.0.0.1:{port}")
+            podman(
+                *f"run -d --name {name} --network host --health-interval=disable -v {data}:/data "
+                f"-e POSEDESC_API_KEY={API_KEY} -e POSEDESC_STORE={milvus.uri} -e POSEDESC_STORE_PREFIX={prefix} "
+                f"-e POSEDESC_DEMO_OBJECTS=false -e POSEDESC_LEVEL=1 "
+                f"{image} serve --host 127.0.0.1 --port {port} --data-dir /data".split()
+            )
+        for url, name in zip(urls, names, strict=True):
+            podman.wait_ready(url, name)
+        object_id = register(urls[0], l_shape, "l-shape")
+        deadline = time.monotonic() + 1.0
+        while object_id not in {o["object_id"] for o in httpx.get(f"{urls[1]}/objects", timeout=10).json()}:
+            assert time.monotonic() < deadline, "not seen on the other replica within 1 s"
+            time.sleep(0.05)
+        r = httpx.delete(f"{urls[1]}/objects/{object_id}", headers={"X-API-Key": API_KEY}, timeout=30)
+        assert r.status_code == 204, r.text
+        deadline = time.monotonic() + 1.0
+        while httpx.get(f"{urls[0]}/objects/{object_id}", timeout=10).status_code != 404:
+            assert time.monotonic() < deadline, "deletion not seen on the first replica within 1 s"
+            time.sleep(0.05)
+    finally:
+        for name in names:
+            podman("rm", "-f", name, check=False)
+        from pymilvus import MilvusClient
+
+        client = MilvusClient(milvus.uri)  # a later restart of the session's Milvus would reload them
+        for c in client.list_collections():
+            if c.startswith(prefix):
+                client.drop_collection(c)
+        client.close()

@@ -1,4 +1,5 @@
-"""The template store: real FAISS and SQLite files in a temporary data dir, hand-made descriptors."""
+"""The embedded template store's own behaviour: real FAISS and SQLite files in a temporary data dir,
+hand-made descriptors. What every backend does: test_store_contract.py."""
 
 from __future__ import annotations
 
@@ -13,7 +14,7 @@ import faiss
 import numpy as np
 import pytest
 
-from index.store import NameTaken, Store, StoreError, TemplateSet
+from index.store import Store, StoreError, TemplateSet
 
 MODELS = {"rgb": (4, "fp-rgb"), "depth": (4, "fp-depth")}
 ROOT = Path(__file__).resolve().parents[2]
@@ -29,21 +30,6 @@ def templates(centre: float, n: int = 5, dim: int = 4) -> TemplateSet:
 
 def add(store: Store, name: str, centre: float) -> int:
     return store.add_object(name, "none", {m: templates(centre) for m in MODELS}).object_id
-
-
-def test_add_search_remove(tmp_path):
-    store = Store(tmp_path, MODELS)
-    a, b = add(store, "a", 0.0), add(store, "b", 5.0)
-    q = np.array([[5.2, 5.0, 5.0, 5.0]], np.float32)
-    (matches,) = store.search("rgb", q, 3)
-    assert [m.name for m in matches] == ["b", "b", "b"]
-    assert matches[0].azimuth == 20.0 and matches[0].elevation == 30.0
-    assert matches[0].distance == pytest.approx(0.0, abs=1e-5)
-    assert store.snapshot.objects[a].templates == {"rgb": 5, "depth": 5}
-    assert store.remove_object(b) is True
-    assert store.remove_object(b) is False
-    (matches,) = store.search("depth", q, 10)
-    assert {m.object_id for m in matches} == {a} and len(matches) == 5  # k larger than the store
 
 
 def test_reopen_keeps_state_and_uses_the_snapshot(tmp_path, caplog):
@@ -143,19 +129,6 @@ store.add_object("b", "none", {{m: templates(5.0) for m in MODELS}})
     assert again.missing() == {"rgb": [], "depth": []}
 
 
-def test_changed_model_drops_its_templates(tmp_path):
-    store = Store(tmp_path, MODELS)
-    a = add(store, "a", 0.0)
-    store.close()
-    again = Store(tmp_path, {"rgb": (4, "fp-rgb"), "depth": (4, "retrained"), "rgbd": (8, "new")})
-    assert again.missing() == {"rgb": [], "depth": [a], "rgbd": [a]}
-    assert again.snapshot.models["depth"].size == 0
-    assert again.search("depth", np.zeros((1, 4), np.float32), 5) == [[]]
-    again.add_templates(a, "depth", templates(0.0))
-    assert again.missing()["depth"] == []
-    assert again.snapshot.objects[a].templates == {"rgb": 5, "depth": 5}
-
-
 def test_bad_inputs(tmp_path):
     with pytest.raises(StoreError, match="index kind"):
         Store(tmp_path, MODELS, kind="hnsw")
@@ -227,46 +200,6 @@ def test_readers_never_see_half_an_object(tmp_path):
     assert len(store.snapshot.objects) == 20
 
 
-def test_answers_are_distinct_viewpoints_at_their_best(tmp_path):
-    """Three in-plane variants of each of four viewpoints: k answers are k viewpoints, each at its nearest
-    variant; a turn of the query adds its offset to the template's in-plane angle (wrapped)."""
-    store = Store(tmp_path, {"rgb": (2, "fp")})
-    poses = np.array([(az, 30.0, ip) for az in (0.0, 90.0, 180.0, 270.0) for ip in (-120.0, 0.0, 120.0)])
-    desc = np.array([[az / 90.0, ip / 1000.0] for az, _, ip in poses], np.float32)
-    store.add_object("a", "none", {"rgb": TemplateSet(poses, desc)})
-    snap = store.snapshot
-    q = np.array([[1.0, 0.121]], np.float32)  # nearest: azimuth 90, in-plane 120
-    answers = snap.answers("rgb", q, 3, variants=3)
-    assert [(m.azimuth, m.inplane) for m in answers] == [(90.0, 120.0), (0.0, 120.0), (180.0, 120.0)]
-    assert [m.distance for m in answers] == sorted(m.distance for m in answers)
-    assert len(snap.answers("rgb", q, 10, variants=1)) == 4  # searches further for distinct ones
-    turned = snap.answers("rgb", np.array([[5.0, 0.0], [1.0, 0.12]], np.float32), 1, np.array([0.0, 90.0]))
-    assert (turned[0].azimuth, turned[0].inplane) == (90.0, -150.0)  # 120 + 90, wrapped
-
-
-def test_local_features_persist_and_leave_with_their_object(tmp_path):
-    from index.store import local_key
-
-    ts = templates(1.0, n=4)
-    rows = np.array([0, 2])
-    local = np.random.default_rng(0).normal(size=(2, 6)).astype(np.float16)
-    with_local = TemplateSet(ts.poses, ts.descriptors, rows, local)
-    store = Store(tmp_path, MODELS)
-    oid = store.add_object("a", "none", {"rgb": with_local, "depth": ts}).object_id
-    plain = add(store, "b", 5.0)
-    keys = {local_key(oid, *ts.poses[r, :2]) for r in rows}
-    assert set(store.snapshot.models["rgb"].local) == keys
-    assert not store.snapshot.models["depth"].local
-    store.close()
-    again = Store(tmp_path, MODELS)
-    got = again.snapshot.models["rgb"].local
-    assert set(got) == keys
-    np.testing.assert_array_equal(got[local_key(oid, *ts.poses[2, :2])], local[1])
-    assert again.remove_object(oid)
-    assert not again.snapshot.models["rgb"].local and plain in again.snapshot.objects
-    again.close()
-
-
 def test_a_store_from_before_local_features_opens(tmp_path):
     import sqlite3
 
@@ -281,28 +214,3 @@ def test_a_store_from_before_local_features_opens(tmp_path):
     oid = add(store, "a", 1.0)
     assert oid in store.snapshot.objects and not store.snapshot.models["rgb"].local
     store.close()
-
-
-def test_a_name_is_stored_once(tmp_path):
-    store = Store(tmp_path, MODELS)
-    a = add(store, "a", 0.0)
-    before = store.snapshot
-    with pytest.raises(NameTaken) as taken:
-        add(store, "a", 5.0)
-    assert taken.value.object_id == a and f"object_id {a}" in str(taken.value)
-    assert store.snapshot is before  # nothing was added, not even in SQLite
-    assert store.snapshot.named("a").object_id == a and store.snapshot.named("b") is None
-    store.remove_object(a)
-    assert add(store, "a", 5.0) != a  # a removed object's name is free again
-
-
-def test_has_held_objects_outlives_the_objects(tmp_path):
-    store = Store(tmp_path, MODELS)
-    assert not store.has_held_objects()
-    with pytest.raises(ValueError):  # a refused write leaves no trace
-        store.add_object("bad", "none", {"rgb": TemplateSet(np.zeros((1, 3)), np.full((1, 4), np.nan))})
-    assert not store.has_held_objects()
-    store.remove_object(add(store, "a", 0.0))
-    assert store.snapshot.objects == {}
-    store.close()
-    assert Store(tmp_path, MODELS).has_held_objects()

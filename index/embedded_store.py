@@ -1,0 +1,461 @@
+"""The embedded template store (the default, `POSEDESC_STORE=embedded`): descriptors of every object's
+templates, one FAISS index per model in memory, SQLite as truth, all in one data directory that one
+process owns.
+
+Layout of a data directory:
+- `store.sqlite`: objects (name, symmetry, the mesh as GLB so templates can be made again), templates
+  (object, model, azimuth, elevation, in-plane, the descriptor itself), the models' fingerprints and a
+  `generation` counter bumped by every write. One SQLite transaction per write, so after a crash an
+  object is wholly present or wholly absent, for every model at once.
+- `<model>.faiss` + `<model>.faiss.json`: a snapshot of that model's index (`index.snapshot_files`).
+  A damaged `store.sqlite` (SQLite's own `quick_check` fails) is refused with a one-line `StoreError`.
+
+A full disk: a write that SQLite cannot commit is rolled back and raises `OSError(ENOSPC)`; the store keeps
+its previous state. A snapshot that cannot be written after a commit is only a warning (its tag is
+removed, so it is rebuilt at the next start); so is one rebuilt on open that cannot be saved.
+
+Readers never see a half-added object: the live state is an immutable `FaissSnapshot` (indexes +
+metadata). A write builds the next one on copies (copy-on-write) and swaps the reference under a lock; a
+search runs lock-free on whichever snapshot it picked up. Writers are serialised.
+"""
+
+from __future__ import annotations
+
+import errno
+import json
+import logging
+import sqlite3
+import threading
+import time
+from collections.abc import Iterator, Mapping
+from contextlib import contextmanager
+from dataclasses import replace
+from pathlib import Path
+
+import faiss
+import numpy as np
+
+from index.records import Match, NameTaken, ObjectRecord, StoreError, TemplateSet, check_set, local_key
+from index.search import FaissSnapshot, ModelIndex
+from index.snapshot_files import (
+    INDEX_KINDS,
+    build_index,
+    paths,
+    read_snapshot,
+    save_snapshot,
+    tune,
+    write_atomic,
+)
+
+log = logging.getLogger("index.store")
+
+SCHEMA = """
+CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
+CREATE TABLE IF NOT EXISTS models (name TEXT PRIMARY KEY, fingerprint TEXT NOT NULL, dim INTEGER NOT NULL);
+CREATE TABLE IF NOT EXISTS objects (
+    id INTEGER PRIMARY KEY AUTOINCREMENT,
+    name TEXT NOT NULL,
+    symmetry TEXT NOT NULL,
+    faces INTEGER NOT NULL,
+    created REAL NOT NULL,
+    extra TEXT NOT NULL,
+    mesh BLOB
+);
+CREATE TABLE IF NOT EXISTS templates (
+    id INTEGER PRIMARY KEY AUTOINCREMENT,
+    object_id INTEGER NOT NULL REFERENCES objects(id) ON DELETE CASCADE,
+    model TEXT NOT NULL,
+    azimuth REAL NOT NULL,
+    elevation REAL NOT NULL,
+    inplane REAL NOT NULL,
+    descriptor BLOB NOT NULL,
+    local BLOB
+);
+CREATE INDEX IF NOT EXISTS templates_model ON templates(model, object_id);
+INSERT OR IGNORE INTO meta VALUES ('generation', '0');
+"""
+
+
+def check_store(data_dir: str | Path) -> None:
+    """Raises StoreError (one line) when `data_dir/store.sqlite` exists and SQLite finds it damaged;
+    `posedesc serve` calls it before starting, so a damaged store stops it with a message, not a traceback."""
+    path = Path(data_dir) / "store.sqlite"
+    if not path.is_file():
+        return
+    try:
+        db = sqlite3.connect(path)
+    except sqlite3.Error as e:
+        raise StoreError(f"{path} is not a usable store: {e}") from None
+    try:
+        _check(db, path)
+    finally:
+        db.close()
+
+
+def _check(db: sqlite3.Connection, path: Path) -> None:
+    try:
+        problems = [row[0] for row in db.execute("PRAGMA quick_check(3)")]
+    except sqlite3.DatabaseError as e:
+        raise StoreError(f"{path} is not a usable store: {e}") from None
+    if problems != ["ok"]:
+        # a problem may span lines ("*** in database main ***\nPage 8: ..."): the first real one
+        lines = [ln for p in problems for ln in p.splitlines() if ln.strip() and not ln.startswith("***")]
+        raise StoreError(
+            f"{path} is damaged ({(lines or problems)[0]}); restore it from a backup, or move it away "
+            "to start empty"
+        )
+
+
+def _disk_full(e: BaseException) -> bool:
+    return isinstance(e, sqlite3.Error) and getattr(e, "sqlite_errorcode", None) == sqlite3.SQLITE_FULL
+
+
+class EmbeddedStore:
+    """Templates of all objects for a fixed set of models, persisted in `data_dir`.
+
+    `models` maps a model name to (descriptor dim, fingerprint of the model file). A model whose
+    fingerprint changed since the last run has its templates dropped: `missing()` then lists the
+    objects to embed again (see `register.reembed`)."""
+
+    def __init__(
+        self,
+        data_dir: str | Path,
+        models: Mapping[str, tuple[int, str]],
+        kind: str = "flat",
+        nlist: int = 256,
+        nprobe: int = 16,
+    ):
+        if kind not in INDEX_KINDS:
+            raise StoreError(f"unknown index kind {kind!r}; use one of {INDEX_KINDS}")
+        if not models:
+            raise StoreError("a store needs at least one model")
+        self.dir = Path(data_dir)
+        self.dir.mkdir(parents=True, exist_ok=True)
+        self.dims = {m: int(d) for m, (d, _) in models.items()}
+        self.kind, self.nlist, self.nprobe = kind, nlist, nprobe
+        self._write = threading.Lock()
+        self._tags: dict[str, dict] = {}  # the snapshot files' tags, as last written
+        path = self.dir / "store.sqlite"
+        try:
+            self._db = sqlite3.connect(path, check_same_thread=False, isolation_level=None)
+            self._db.execute("PRAGMA journal_mode=WAL")
+            self._db.execute("PRAGMA synchronous=FULL")  # a committed registration survives a power cut
+            self._db.execute("PRAGMA foreign_keys=ON")
+            _check(self._db, path)
+            self._db.executescript(SCHEMA)
+            columns = {row[1] for row in self._db.execute("PRAGMA table_info(templates)")}
+            if "local" not in columns:  # a store made before local features existed
+                self._db.execute("ALTER TABLE templates ADD COLUMN local BLOB")
+            self._forget_changed_models(models)
+            self._snap = self._load()
+        except sqlite3.DatabaseError as e:  # damage quick_check cannot see: a bad row, a bad descriptor
+            raise StoreError(f"{path} is not a usable store: {e}") from None
+        except StoreError:
+            self._db.close()
+            raise
+
+    # -- reading -----------------------------------------------------------------------------------
+
+    @property
+    def snapshot(self) -> FaissSnapshot:
+        """The current state; hold on to it for a consistent view across several calls."""
+        return self._snap
+
+    def search(self, model: str, queries: np.ndarray, k: int) -> list[list[Match]]:
+        return self._snap.search(model, queries, k)
+
+    def missing(self) -> dict[str, list[int]]:
+        """Per model, the objects that have no templates for it (new or changed model, interrupted run)."""
+        snap = self._snap
+        return {
+            m: [oid for oid, rec in snap.objects.items() if rec.templates.get(m, 0) == 0] for m in self.dims
+        }
+
+    def mesh_bytes(self, object_id: int) -> bytes | None:
+        """The object's mesh as GLB, as registered (mm)."""
+        with self._write:
+            row = self._db.execute("SELECT mesh FROM objects WHERE id = ?", (object_id,)).fetchone()
+        return None if row is None else row[0]
+
+    def get_meta(self, key: str) -> str | None:
+        with self._write:
+            row = self._db.execute("SELECT value FROM meta WHERE key = ?", (key,)).fetchone()
+        return None if row is None else row[0]
+
+    def has_held_objects(self) -> bool:
+        """Whether an object was ever added here, even if all were removed since: the objects table's
+        AUTOINCREMENT counter (`sqlite_sequence`) only grows, and only with a committed insert."""
+        with self._write:
+            row = self._db.execute("SELECT seq FROM sqlite_sequence WHERE name = 'objects'").fetchone()
+        return row is not None and int(row[0]) > 0
+
+    def set_meta(self, key: str, value: str) -> None:
+        with self._write, self._transaction() as cur:
+            cur.execute("INSERT OR REPLACE INTO meta VALUES (?, ?)", (key, value))
+
+    # -- writing -----------------------------------------------------------------------------------
+
+    def add_object(
+        self,
+        name: str,
+        symmetry: str,
+        templates: Mapping[str, TemplateSet],
+        faces: int = 0,
+        mesh: bytes | None = None,
+        extra: Mapping[str, object] | None = None,
+    ) -> ObjectRecord:
+        """Adds an object with its templates for every model in one transaction; returns its record.
+        Raises NameTaken when an object of that name is stored already (checked in the transaction, so
+        two registrations of one name cannot both pass)."""
+        for m, ts in templates.items():
+            self._check_set(m, ts)
+        with self._write:
+            with self._transaction() as cur:
+                row = cur.execute("SELECT id FROM objects WHERE name = ? LIMIT 1", (name,)).fetchone()
+                if row is not None:
+                    raise NameTaken(name, int(row[0]))
+                created = time.time()
+                cur.execute(
+                    "INSERT INTO objects (name, symmetry, faces, created, extra, mesh) VALUES (?, ?, ?, ?, ?, ?)",
+                    (name, symmetry, int(faces), created, json.dumps(dict(extra or {})), mesh),
+                )
+                oid = int(cur.lastrowid)  # type: ignore[arg-type]
+                new_ids = {m: self._insert_templates(cur, oid, m, ts) for m, ts in templates.items()}
+                rec = ObjectRecord(
+                    oid,
+                    name,
+                    symmetry,
+                    int(faces),
+                    created,
+                    {m: len(ids) for m, ids in new_ids.items()},
+                    extra or {},
+                )
+                snap = self._next(
+                    cur, add={m: (oid, ids, templates[m]) for m, ids in new_ids.items()}, put=rec
+                )
+            self._swap(snap)
+        return rec
+
+    def add_templates(self, object_id: int, model: str, ts: TemplateSet) -> None:
+        """Adds one model's templates to an existing object (re-embedding after a model changed)."""
+        self._check_set(model, ts)
+        with self._write:
+            old = self._snap.objects.get(object_id)
+            if old is None:
+                raise KeyError(object_id)
+            with self._transaction() as cur:
+                ids = self._insert_templates(cur, object_id, model, ts)
+                counts = {**old.templates, model: old.templates.get(model, 0) + len(ids)}
+                rec = replace(old, templates=counts)
+                snap = self._next(cur, add={model: (object_id, ids, ts)}, put=rec)
+            self._swap(snap)
+
+    def remove_object(self, object_id: int) -> bool:
+        """Removes an object and all its templates; False when there is no such object."""
+        with self._write:
+            if object_id not in self._snap.objects:
+                return False
+            with self._transaction() as cur:
+                cur.execute("DELETE FROM templates WHERE object_id = ?", (object_id,))
+                cur.execute("DELETE FROM objects WHERE id = ?", (object_id,))
+                snap = self._next(cur, remove=object_id)
+            self._swap(snap)
+        return True
+
+    def close(self) -> None:
+        with self._write:
+            self._db.close()
+
+    # -- internals ---------------------------------------------------------------------------------
+
+    @contextmanager
+    def _transaction(self) -> Iterator[sqlite3.Cursor]:
+        """One SQLite transaction (the caller holds the write lock): committed, or rolled back and
+        re-raised; SQLite's "database or disk is full" comes out as OSError(ENOSPC)."""
+        cur = self._db.cursor()
+        try:
+            cur.execute("BEGIN IMMEDIATE")
+            yield cur
+            cur.execute("COMMIT")
+        except BaseException as e:
+            # SQLite may have rolled back already (it does on some SQLITE_FULL errors): a second
+            # ROLLBACK would fail and hide the real error.
+            if self._db.in_transaction:
+                try:
+                    self._db.execute("ROLLBACK")
+                except sqlite3.Error as rollback:
+                    log.error("rollback failed after %s: %s", e, rollback)
+            if _disk_full(e):
+                raise OSError(errno.ENOSPC, f"disk full: could not write {self.dir / 'store.sqlite'}") from e
+            raise
+
+    def _check_set(self, model: str, ts: TemplateSet) -> None:
+        check_set(model, self.dims, ts)
+
+    def _insert_templates(self, cur: sqlite3.Cursor, oid: int, model: str, ts: TemplateSet) -> np.ndarray:
+        desc = np.ascontiguousarray(ts.descriptors, np.float32)
+        poses = np.asarray(ts.poses, float)
+        local: list[bytes | None] = [None] * len(desc)
+        if ts.local_rows is not None and ts.local is not None:
+            for r, f in zip(ts.local_rows, np.asarray(ts.local, np.float16), strict=True):
+                local[int(r)] = f.tobytes()
+        first = cur.execute("SELECT COALESCE(MAX(id), 0) + 1 FROM templates").fetchone()[0]
+        ids = np.arange(first, first + len(desc), dtype=np.int64)
+        cur.executemany(
+            "INSERT INTO templates (id, object_id, model, azimuth, elevation, inplane, descriptor, local) "
+            "VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
+            (
+                (int(i), oid, model, float(p[0]), float(p[1]), float(p[2]), d.tobytes(), f)
+                for i, p, d, f in zip(ids, poses, desc, local, strict=True)
+            ),
+        )
+        return ids
+
+    def _next(
+        self,
+        cur: sqlite3.Cursor,
+        add: Mapping[str, tuple[int, np.ndarray, TemplateSet]] | None = None,
+        remove: int | None = None,
+        put: ObjectRecord | None = None,
+    ) -> FaissSnapshot:
+        """The snapshot after this write (copies of the changed indexes), with the generation bumped."""
+        cur.execute("UPDATE meta SET value = CAST(value AS INTEGER) + 1 WHERE key = 'generation'")
+        old = self._snap
+        objects = dict(old.objects)
+        models = dict(old.models)
+        if remove is not None:
+            del objects[remove]
+            for m, mi in old.models.items():
+                gone = mi.object_ids == remove
+                if gone.any():
+                    index = faiss.clone_index(mi.index)
+                    index.remove_ids(mi.ids[gone])
+                    local = {k: v for k, v in mi.local.items() if k[0] != remove}
+                    models[m] = ModelIndex(index, mi.ids[~gone], mi.object_ids[~gone], mi.poses[~gone], local)
+        for m, (oid, ids, ts) in (add or {}).items():
+            mi = old.models[m]
+            index = faiss.clone_index(mi.index)
+            index.add_with_ids(np.ascontiguousarray(ts.descriptors, np.float32), ids)
+            local = dict(mi.local)
+            if ts.local_rows is not None and ts.local is not None:
+                for r, f in zip(ts.local_rows, np.asarray(ts.local, np.float16), strict=True):
+                    p = ts.poses[int(r)]
+                    local[local_key(oid, p[0], p[1])] = f
+            models[m] = ModelIndex(
+                index,
+                np.concatenate([mi.ids, ids]),  # new ids are larger than all old ones: still ascending
+                np.concatenate([mi.object_ids, np.full(len(ids), oid, np.int64)]),
+                np.concatenate([mi.poses, np.asarray(ts.poses, np.float32)]),
+                local,
+            )
+        if put is not None:
+            objects[put.object_id] = put
+        return FaissSnapshot(old.generation + 1, objects, models)
+
+    def _swap(self, snap: FaissSnapshot) -> None:
+        old = self._snap
+        self._snap = snap  # one reference assignment: readers get the old or the new state, never a mix
+        for m, mi in snap.models.items():
+            try:
+                if old.models.get(m) is not mi:
+                    self._save_index(m, mi, snap.generation)
+                elif m in self._tags:  # unchanged index: only its tag moves to the new generation
+                    tag = {**self._tags[m], "generation": snap.generation}
+                    write_atomic(self._paths(m)[1], json.dumps(tag).encode())
+                    self._tags[m] = tag
+            except OSError as e:  # the write is committed; a stale snapshot is rebuilt at the next start
+                log.warning("could not write the %s index snapshot to %s: %s", m, self.dir, e)
+                # Forget the tag and remove its file: a later write must not re-tag a file that lacks
+                # this write as current (ntotal would catch most such files, not all).
+                self._tags.pop(m, None)
+                self._paths(m)[1].unlink(missing_ok=True)
+
+    def _forget_changed_models(self, models: Mapping[str, tuple[int, str]]) -> None:
+        known = {n: (f, d) for n, f, d in self._db.execute("SELECT name, fingerprint, dim FROM models")}
+        for name, (dim, fingerprint) in models.items():
+            if known.get(name) == (fingerprint, dim):
+                continue
+            if name in known:
+                log.warning("model %s changed since its templates were made: they will be made again", name)
+            with self._db:
+                self._db.execute("BEGIN IMMEDIATE")
+                self._db.execute("DELETE FROM templates WHERE model = ?", (name,))
+                self._db.execute("INSERT OR REPLACE INTO models VALUES (?, ?, ?)", (name, fingerprint, dim))
+                self._db.execute(
+                    "UPDATE meta SET value = CAST(value AS INTEGER) + 1 WHERE key = 'generation'"
+                )
+
+    def _load(self) -> FaissSnapshot:
+        db = self._db
+        generation = int(db.execute("SELECT value FROM meta WHERE key = 'generation'").fetchone()[0])
+        counts: dict[int, dict[str, int]] = {}
+        for oid, m, n in db.execute(
+            "SELECT object_id, model, COUNT(*) FROM templates GROUP BY object_id, model"
+        ):
+            if m in self.dims:  # templates of a model not loaded now stay in SQLite, unseen
+                counts.setdefault(oid, {})[m] = n
+        objects = {
+            oid: ObjectRecord(oid, name, sym, faces, created, counts.get(oid, {}), json.loads(extra))
+            for oid, name, sym, faces, created, extra in db.execute(
+                "SELECT id, name, symmetry, faces, created, extra FROM objects"
+            )
+        }
+        models = {m: self._load_model(m, generation) for m in self.dims}
+        return FaissSnapshot(generation, objects, models)
+
+    def _load_model(self, model: str, generation: int) -> ModelIndex:
+        rows = self._db.execute(
+            "SELECT id, object_id, azimuth, elevation, inplane FROM templates WHERE model = ? ORDER BY id",
+            (model,),
+        ).fetchall()
+        meta = np.array(rows, dtype=float).reshape(-1, 5)
+        ids, object_ids = meta[:, 0].astype(np.int64), meta[:, 1].astype(np.int64)
+        poses = meta[:, 2:].astype(np.float32)
+        local = {
+            local_key(oid, az, el): np.frombuffer(blob, np.float16)
+            for oid, az, el, blob in self._db.execute(
+                "SELECT object_id, azimuth, elevation, local FROM templates "
+                "WHERE model = ? AND local IS NOT NULL",
+                (model,),
+            )
+        }
+        index = self._read_snapshot(model, generation, len(ids))
+        if index is None:
+            index = self._build(model, ids)
+            try:
+                self._save_index(model, ModelIndex(index, ids, object_ids, poses), generation)
+            except OSError as e:  # a full disk: SQLite is intact and the index is built, so serve on
+                log.warning(
+                    "could not save the %s index snapshot to %s (%s): serving from SQLite; it is rebuilt "
+                    "at each start until it can be saved",
+                    model,
+                    self.dir,
+                    e,
+                )
+                self._paths(model)[1].unlink(missing_ok=True)  # as in `_swap`: no tag for a file it lacks
+        return ModelIndex(index, ids, object_ids, poses, local)
+
+    def _paths(self, model: str) -> tuple[Path, Path]:
+        return paths(self.dir, model)
+
+    def _read_snapshot(self, model: str, generation: int, ntotal: int) -> faiss.Index | None:
+        found = read_snapshot(self.dir, model, generation, ntotal, self.dims[model], self.kind)
+        if found is None:
+            return None
+        index, tag = found
+        tune(index, self.nprobe)
+        self._tags[model] = tag
+        return index
+
+    def _build(self, model: str, ids: np.ndarray) -> faiss.Index:
+        desc = np.zeros((len(ids), self.dims[model]), np.float32)
+        rows = self._db.execute("SELECT descriptor FROM templates WHERE model = ? ORDER BY id", (model,))
+        for i, (blob,) in enumerate(rows):
+            desc[i] = np.frombuffer(blob, np.float32)
+        return build_index(desc, ids, self.kind, self.nlist, self.nprobe)
+
+    def _save_index(self, model: str, mi: ModelIndex, generation: int) -> None:
+        self._tags[model] = save_snapshot(self.dir, model, mi.index, generation, self.kind)
+
+    def problem(self) -> str | None:
+        return None  # in this process: it serves as long as the process does

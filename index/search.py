@@ -1,0 +1,137 @@
+"""Searching a store's state: a `Snapshot` is what one search sees from start to end (the objects and, per
+model, the templates), whatever the backend; `FaissSnapshot` is the embedded store's, its indexes in
+memory. Both answer through the same code: the k nearest templates of each query (`search`) and the k
+best distinct (object, viewpoint) answers of a query cut several times (`answers`)."""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Protocol
+
+import faiss
+import numpy as np
+
+from index.answers import distinct
+from index.pose import wrap_degrees
+from index.records import Match, ObjectRecord
+
+#: local features of a model's viewpoints, by `index.records.local_key`: (F,) float16 each
+LocalFeatures = Mapping[tuple[int, float, float], np.ndarray]
+
+
+class ModelTemplates(Protocol):
+    """What every backend tells of one model's templates in a snapshot."""
+
+    @property
+    def size(self) -> int: ...
+
+    @property
+    def local(self) -> LocalFeatures: ...
+
+
+@dataclass(frozen=True)
+class ModelIndex:
+    """One model's FAISS index and, aligned with its ids (ascending), each template's object and pose."""
+
+    index: faiss.Index
+    ids: np.ndarray
+    object_ids: np.ndarray
+    poses: np.ndarray
+    #: local features of the viewpoints that have them, by `local_key` (F,) float16
+    local: LocalFeatures = field(default_factory=dict)
+
+    @property
+    def size(self) -> int:
+        return len(self.ids)
+
+
+@dataclass(frozen=True)
+class Snapshot(ABC):
+    """An immutable state of a store: what a search sees from start to end."""
+
+    generation: int
+    objects: Mapping[int, ObjectRecord]
+    models: Mapping[str, ModelTemplates]
+
+    @abstractmethod
+    def knn(self, model: str, queries: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The n nearest templates of each query (Q, D) among this snapshot's objects: squared L2
+        distances (Q, n), object ids (Q, n; -1 where fewer were found) and poses (Q, n, 3), nearest first."""
+
+    def named(self, name: str) -> ObjectRecord | None:
+        """The object of this name, if any."""
+        return next((r for r in self.objects.values() if r.name == name), None)
+
+    def _match(self, oid: int, pose: np.ndarray, d2: float, inplane: float | None = None) -> Match:
+        return Match(
+            object_id=int(oid),
+            name=self.objects[int(oid)].name,
+            azimuth=float(pose[0]),
+            elevation=float(pose[1]),
+            inplane=float(pose[2]) if inplane is None else inplane,
+            distance=float(np.sqrt(max(float(d2), 0.0))),
+        )
+
+    def search(self, model: str, queries: np.ndarray, k: int) -> list[list[Match]]:
+        """The k nearest templates of each query descriptor (Q, D), nearest first (fewer if the store is small)."""
+        size = self.models[model].size
+        if size == 0 or k <= 0:
+            return [[] for _ in range(len(queries))]
+        dist, oids, poses = self.knn(model, np.ascontiguousarray(queries, np.float32), min(k, size))
+        return [
+            [self._match(o, p, d) for o, p, d in zip(orow, prow, drow, strict=True) if o >= 0]
+            for drow, orow, prow in zip(dist, oids, poses, strict=True)
+        ]
+
+    def answers(
+        self,
+        model: str,
+        queries: np.ndarray,
+        k: int,
+        offsets: np.ndarray | None = None,
+        variants: int = 1,
+        most: int = 8192,
+    ) -> list[Match]:
+        """The k best distinct (object, viewpoint) answers to one query described by Q descriptors (Q, D):
+        the query cut Q times, turned by `offsets` (Q,) degrees (`index.patches.crop`'s in-plane, undone
+        roll; default 0). A template of in-plane θ found for a turn by o says the object is rolled θ + o,
+        wrapped to (-180, 180]; the in-plane variants and turns of one viewpoint collapse to their
+        nearest (`index.answers.distinct`). Each turn searches k * `variants` neighbours (the templates
+        a viewpoint has), which holds k distinct viewpoints, more (up to `most`) if not; fewer answers
+        than k only when the store is small."""
+        size = self.models[model].size
+        if size == 0 or k <= 0:
+            return []
+        q = np.ascontiguousarray(queries, np.float32)
+        q = q.reshape(len(q), -1) if q.ndim > 1 else q.reshape(1, -1)
+        offsets = np.zeros(len(q)) if offsets is None else np.asarray(offsets, float)
+        n = min(size, max(k, k * variants), most)
+        while True:
+            dist, ids, allposes = self.knn(model, q, n)
+            turn, col = np.nonzero(ids >= 0)
+            oid, poses, d = ids[turn, col], allposes[turn, col], dist[turn, col]
+            best = distinct((oid, poses[:, 0], poses[:, 1]), d, k)
+            if len(best) >= k or n >= min(size, most):
+                break
+            n = min(size, most, 2 * n)
+        return [
+            self._match(oid[b], poses[b], d[b], float(wrap_degrees(float(poses[b, 2]) + offsets[turn[b]])))
+            for b in best
+        ]
+
+
+@dataclass(frozen=True)
+class FaissSnapshot(Snapshot):
+    """The embedded store's state: each model's FAISS index in memory (`ModelIndex`)."""
+
+    models: Mapping[str, ModelIndex]
+
+    def knn(self, model: str, queries: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        mi = self.models[model]
+        dist, ids = mi.index.search(queries.reshape(len(queries), mi.index.d), n)
+        pos = np.searchsorted(mi.ids, np.where(ids >= 0, ids, 0))
+        pos = np.minimum(pos, max(mi.size - 1, 0))
+        oids = np.where(ids >= 0, mi.object_ids[pos], -1)
+        return dist, oids, mi.poses[pos]

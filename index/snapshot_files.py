@@ -1,0 +1,97 @@
+"""The embedded store's index snapshot files: `<model>.faiss` and its tag `<model>.faiss.json`
+(generation, ntotal, index kind, sha256), each written through a temporary file and an atomic rename. A
+snapshot is used only when its tag matches SQLite's generation and its bytes their checksum; otherwise
+(missing, stale, corrupt) the caller rebuilds the index from SQLite (`build_index`)."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import os
+from pathlib import Path
+
+import faiss
+import numpy as np
+
+log = logging.getLogger("index.store")
+
+INDEX_KINDS = ("flat", "ivf")
+
+
+def paths(data_dir: Path, model: str) -> tuple[Path, Path]:
+    p = data_dir / f"{model}.faiss"
+    return p, p.with_name(p.name + ".json")
+
+
+def read_snapshot(
+    data_dir: Path, model: str, generation: int, ntotal: int, dim: int, kind: str
+) -> tuple[faiss.Index, dict] | None:
+    """The snapshot of `model` and its tag when both match (generation, size, dim, kind), else None."""
+    path, tag_path = paths(data_dir, model)
+    if not path.is_file() or not tag_path.is_file():
+        log.info("%s: no index snapshot, building it from SQLite", model)
+        return None
+    try:
+        tag = json.loads(tag_path.read_text())
+        data = path.read_bytes()
+        if tag.get("generation") != generation:
+            log.info("%s: index snapshot is stale, building it from SQLite", model)
+            return None
+        if tag.get("sha256") != hashlib.sha256(data).hexdigest():
+            raise ValueError("checksum mismatch")
+        index = faiss.deserialize_index(np.frombuffer(data, np.uint8))
+        if index.ntotal != ntotal or index.d != dim or tag.get("kind") != kind:
+            raise ValueError(f"holds {index.ntotal} x {index.d}, SQLite {ntotal} x {dim}")
+    except Exception as e:
+        log.warning("%s: index snapshot %s is corrupt (%s): building it from SQLite", model, path, e)
+        return None
+    return index, tag
+
+
+def build_index(desc: np.ndarray, ids: np.ndarray, kind: str, nlist: int, nprobe: int) -> faiss.Index:
+    """ "flat": exact, `IndexIDMap2(IndexFlatL2)`; "ivf": `IndexIVFFlat`, trained on these descriptors,
+    exact (flat) until there are enough to train it (39 per list). HNSW is not offered: it cannot remove ids."""
+    dim = desc.shape[1]
+    if kind == "ivf" and len(ids) >= 39 * nlist:
+        index: faiss.Index = faiss.IndexIVFFlat(faiss.IndexFlatL2(dim), dim, nlist)
+        index.train(desc)
+    else:
+        index = faiss.IndexIDMap2(faiss.IndexFlatL2(dim))
+    tune(index, nprobe)
+    if len(ids):
+        index.add_with_ids(desc, ids)
+    return index
+
+
+def tune(index: faiss.Index, nprobe: int) -> None:
+    if (ivf := faiss.try_extract_index_ivf(index)) is not None:
+        ivf.nprobe = nprobe
+
+
+def save_snapshot(data_dir: Path, model: str, index: faiss.Index, generation: int, kind: str) -> dict:
+    """Writes the snapshot file then its tag; returns the tag."""
+    path, tag_path = paths(data_dir, model)
+    data = faiss.serialize_index(index).tobytes()
+    tag = {
+        "generation": generation,
+        "ntotal": int(index.ntotal),
+        "kind": kind,
+        "sha256": hashlib.sha256(data).hexdigest(),
+    }
+    write_atomic(path, data)
+    write_atomic(tag_path, json.dumps(tag).encode())
+    return tag
+
+
+def write_atomic(path: Path, content: bytes) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    try:
+        with open(tmp, "wb") as f:
+            f.write(content)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except OSError:
+        tmp.unlink(missing_ok=True)  # a half-written file only takes the space a full disk lacks
+        raise

@@ -1,0 +1,221 @@
+"""Two real `posedesc serve` replicas (uvicorn on loopback, subprocesses) sharing one real Milvus (the
+session's server) and one data directory: what one does, the other sees within a second; concurrent
+recognitions while objects come and go; a replica SIGKILLed mid-registration; Milvus restarted under them.
+Answers are k = 100 on plain patches: more than all the templates of these small stores, so each answer
+shows exactly which objects the replica searched."""
+
+from __future__ import annotations
+
+import threading
+import time
+import uuid
+
+import httpx
+import pytest
+from service_helpers import Server, patch_files, ply_bytes
+
+pytestmark = pytest.mark.slow
+
+PATCHES = patch_files()
+BOUND = 1.0  # seconds: what one replica does, the other sees within this
+
+
+def env(milvus, prefix: str) -> dict[str, str]:
+    return {
+        "POSEDESC_STORE": milvus.uri,
+        "POSEDESC_STORE_PREFIX": prefix,
+        "POSEDESC_LEVEL": "1",  # 16 views: short registrations
+        "POSEDESC_SYNC_SECONDS": "0",  # every registration answers 202: its job is polled on the other replica
+        "POSEDESC_STORE_SWEEP_SECONDS": "6",
+    }
+
+
+@pytest.fixture(scope="module")
+def replicas(milvus, posedesc_models, tmp_path_factory):
+    shared = tmp_path_factory.mktemp("replicas") / "data"
+    settings = env(milvus, f"r{uuid.uuid4().hex[:8]}")
+    servers = [Server(shared, posedesc_models, settings), Server(shared, posedesc_models, settings)]
+    for s in servers:
+        s.wait_ready()
+    yield servers, shared, settings
+    for s in servers:
+        s.stop()
+    for s in servers:
+        assert "Traceback" not in s.log.read_text(), s.log.read_text()[-3000:]
+
+
+def post(url: str, mesh, name: str) -> httpx.Response:
+    files = {"mesh": (f"{name}.ply", ply_bytes(mesh))}
+    return httpx.post(f"{url}/objects", files=files, data={"name": name}, timeout=60)
+
+
+def finish(url: str, job_id: str, timeout: float = 60.0) -> dict:
+    end = time.monotonic() + timeout
+    while (job := httpx.get(f"{url}/jobs/{job_id}", timeout=30).json())["status"] == "running":
+        assert time.monotonic() < end, "registration did not finish"
+        time.sleep(0.05)
+    return job
+
+
+def seen(url: str) -> dict[str, set[int]]:
+    """Per model, the objects of every answer to a plain patch (k = 100)."""
+    out = {}
+    for model, files in PATCHES.items():
+        r = httpx.post(f"{url}/recognize", files=files, data={"k": "100"}, timeout=30)
+        assert r.status_code == 200, r.text
+        out[model] = {m["object_id"] for m in r.json()["matches"]}
+    return out
+
+
+def within(bound: float, check) -> float:
+    """Seconds until `check()` is true; fails after `bound`."""
+    t0 = time.monotonic()
+    while not check():
+        assert time.monotonic() - t0 < bound, f"not seen within {bound} s"
+        time.sleep(0.02)
+    return time.monotonic() - t0
+
+
+def listed(url: str) -> dict[int, str]:
+    return {o["object_id"]: o["name"] for o in httpx.get(f"{url}/objects", timeout=30).json()}
+
+
+def test_register_on_one_recognise_and_delete_on_the_other(replicas, l_shape, t_shape):
+    (a, b), _, _ = replicas
+    r = post(a.url, l_shape, "L")
+    assert r.status_code == 202, r.text
+    job = finish(b.url, r.json()["job_id"])  # polled on the replica that does not run it
+    assert job["status"] == "done", job
+    oid = job["object_id"]
+    t_seen = within(BOUND, lambda: oid in listed(b.url))
+    assert all(oid in s for s in seen(b.url).values())
+    # one name, across replicas: 409 at once, naming the object
+    r = post(b.url, t_shape, "L")
+    assert r.status_code == 409 and f"object_id {oid}" in r.json()["detail"]
+    assert httpx.delete(f"{b.url}/objects/{oid}", timeout=30).status_code == 204
+    t_gone = within(BOUND, lambda: httpx.get(f"{a.url}/objects/{oid}", timeout=30).status_code == 404)
+    assert all(oid not in s for s in seen(a.url).values())
+    assert httpx.delete(f"{a.url}/objects/{oid}", timeout=30).status_code == 404
+    print(f"registration seen on the other replica after {t_seen:.2f} s, deletion after {t_gone:.2f} s")
+
+
+def test_recognitions_while_objects_come_and_go(replicas, l_shape, t_shape):
+    (a, b), _, _ = replicas
+    stop = threading.Event()
+    deleted: dict[int, float] = {}  # object -> when its DELETE answered
+    problems: list[str] = []
+    calls = [0]
+
+    def recognise(url: str) -> None:
+        with httpx.Client(base_url=url, timeout=30) as c:
+            while not stop.is_set():
+                for files in PATCHES.values():
+                    t0 = time.monotonic()
+                    r = c.post("/recognize", files=files, data={"k": "100"})
+                    calls[0] += 1
+                    if r.status_code != 200:
+                        problems.append(f"{url}: {r.status_code} {r.text[:200]}")
+                        continue
+                    for m in r.json()["matches"]:
+                        gone = deleted.get(m["object_id"])
+                        if gone is not None and t0 > gone + BOUND:
+                            problems.append(
+                                f"{url}: object {m['object_id']} answered {t0 - gone:.2f} s after its deletion"
+                            )
+
+    threads = [threading.Thread(target=recognise, args=(s.url,)) for s in (a, b)]
+    for t in threads:
+        t.start()
+    try:
+        for i, mesh in enumerate([l_shape, t_shape, l_shape]):
+            here, there = (a, b) if i % 2 == 0 else (b, a)
+            job = finish(there.url, post(here.url, mesh, f"churn-{i}").json()["job_id"])
+            assert job["status"] == "done", job
+            assert httpx.delete(f"{there.url}/objects/{job['object_id']}", timeout=30).status_code == 204
+            deleted[job["object_id"]] = time.monotonic()
+        time.sleep(BOUND + 0.5)  # recognitions go on past the bound of the last deletion
+    finally:
+        stop.set()
+        for t in threads:
+            t.join()
+    assert problems == []
+    assert calls[0] > 20
+
+
+def test_a_replica_killed_mid_registration_leaves_no_half_object(replicas, posedesc_models, t_shape, milvus):
+    (a, b), shared, settings = replicas
+    from pymilvus import MilvusClient
+
+    client = MilvusClient(milvus.uri)
+    before = set(listed(b.url))
+    r = post(a.url, t_shape, "half")
+    assert r.status_code == 202
+    # the templates go in just before the record turns live: kill while they are being written
+    prefix = settings["POSEDESC_STORE_PREFIX"]
+    pending = []
+    end = time.monotonic() + 30
+    while not pending and time.monotonic() < end:
+        pending = client.query(f"{prefix}_objects", filter="state == 0", output_fields=["object_id"])
+    a.kill()
+    assert pending, "the registration never wrote its pending record"
+    oid = pending[0]["object_id"]
+    # the other replica never shows it, nor answers with it, and says the job failed once `a` is stale
+    for _ in range(10):
+        assert oid not in listed(b.url) and all(oid not in s for s in seen(b.url).values())
+    job = finish(b.url, r.json()["job_id"], timeout=30)
+    assert job["status"] in ("failed", "done"), job
+    if job["status"] == "failed":
+        assert "stopped" in job["error"]
+    # its remains are swept (pending for longer than POSEDESC_STORE_SWEEP_SECONDS): no orphan templates
+    collections = [c for c in client.list_collections() if c.startswith(f"{prefix}_t_")]
+
+    def orphans() -> int:
+        return sum(
+            client.query(
+                c, filter=f"object_id == {oid}", output_fields=["count(*)"], consistency_level="Strong"
+            )[0]["count(*)"]
+            for c in collections
+        )
+
+    if oid not in listed(b.url):
+        within(30.0, lambda: orphans() == 0)
+    client.close()
+    # a new replica in place of the killed one serves the same store
+    again = Server(shared, posedesc_models, settings)
+    again.wait_ready()
+    replicas[0][0] = again
+    assert set(listed(again.url)) == set(listed(b.url)) >= before
+
+
+def test_milvus_restarted_under_the_replicas(replicas, milvus, l_shape):
+    (a, b), _, _ = replicas
+    job = finish(a.url, post(b.url, l_shape, "survivor").json()["job_id"])
+    assert job["status"] == "done", job
+    oid = job["object_id"]
+    within(BOUND, lambda: oid in listed(a.url))
+    milvus.stop()
+    try:
+        for url in (a.url, b.url):
+            r = httpx.post(f"{url}/recognize", files=PATCHES["rgb"], data={"k": "5"}, timeout=30)
+            assert r.status_code == 503 and "Milvus" in r.json()["detail"], r.text
+            r = httpx.delete(f"{url}/objects/{oid}", timeout=30)
+            assert r.status_code == 503 and "Milvus" in r.json()["detail"], r.text
+            within(5.0, lambda url=url: httpx.get(f"{url}/readyz", timeout=30).status_code == 503)
+        r = post(a.url, l_shape, "while-down")
+        if r.status_code == 202:  # accepted, then failed in the job: polled on the other replica
+            job = finish(b.url, r.json()["job_id"])
+            assert job["status"] == "failed" and "Milvus" in job["error"], job
+        else:
+            assert r.status_code == 503, r.text
+    finally:
+        milvus.start()
+    # the replicas recover without a restart: ready again, the object found on both
+    for url in (a.url, b.url):
+        within(120.0, lambda url=url: httpx.get(f"{url}/readyz", timeout=30).status_code == 200)
+        # ready means its collections are loaded again: searches work at once
+        assert oid in seen(url)["rgb"]
+
+
+def _answers(url: str) -> bool:
+    r = httpx.post(f"{url}/recognize", files=PATCHES["rgb"], data={"k": "5"}, timeout=30)
+    return r.status_code == 200
