@@ -7,10 +7,11 @@ from __future__ import annotations
 import io
 import os
 import time
-import uuid
 from pathlib import Path
 
 import numpy as np
+
+from index.snapshot_files import write_atomic
 
 
 class SharedFiles:
@@ -27,16 +28,7 @@ class SharedFiles:
     def write(self, name: str, content: bytes) -> None:
         p = self.path(name)
         p.parent.mkdir(parents=True, exist_ok=True)
-        tmp = p.with_name(f".{p.name}.{uuid.uuid4().hex}.tmp")  # unique: replicas may write at once
-        try:
-            with open(tmp, "wb") as f:
-                f.write(content)
-                f.flush()
-                os.fsync(f.fileno())
-            os.replace(tmp, p)
-        except OSError:
-            tmp.unlink(missing_ok=True)
-            raise
+        write_atomic(p, content)
 
     def read(self, name: str) -> bytes | None:
         try:

@@ -9,6 +9,7 @@ import hashlib
 import json
 import logging
 import os
+import uuid
 from pathlib import Path
 
 import faiss
@@ -85,7 +86,9 @@ def save_snapshot(data_dir: Path, model: str, index: faiss.Index, generation: in
 
 
 def write_atomic(path: Path, content: bytes) -> None:
-    tmp = path.with_name(path.name + ".tmp")
+    """`content` into `path` whole or not at all (a temporary file, fsync, rename); the temporary file's
+    name is unique, so writers in several processes (replicas on a shared directory) never share one."""
+    tmp = path.with_name(f"{path.name}.{uuid.uuid4().hex}.tmp")
     try:
         with open(tmp, "wb") as f:
             f.write(content)

@@ -14,7 +14,7 @@ match of template in-plane θ on the turn by o says the object is rolled θ + o 
 from __future__ import annotations
 
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 
 import cv2
@@ -182,17 +182,17 @@ def rerank_local(
     step), and keep the pose that scores best (`service.refine`). Measured on validation frames (README,
     Evaluation)."""
     local = snap.models[d.modality].local
-    refs = [local.get(local_key(m.object_id, m.azimuth, m.elevation)) for m in matches]
-    have = [i for i, r in enumerate(refs) if r is not None]
+    every = [local_key(m.object_id, m.azimuth, m.elevation) for m in matches]
+    have = [i for i, k in enumerate(every) if k in local]
     if not have:
         return matches
-    found = [r for r in refs if r is not None]  # in the order of `have`
+    keys = [every[i] for i in have]
     rolls = [round(matches[i].inplane, 3) for i in have]
-    score = local_scores(q, d, found, rolls, mask)
-    keys = [local_key(matches[i].object_id, matches[i].azimuth, matches[i].elevation) for i in have]
+    cuts: dict[float, tuple[np.ndarray, np.ndarray | None]] = {}  # the query's cuts, shared with refinement
+    score = local_scores(q, d, [local[k] for k in keys], rolls, mask, cuts)
     first = list(zip(keys, rolls, strict=True))
     if refine > 0:
-        score, keys, rolls = _refined(q, d, local, score, keys, rolls, mask, refine, spacing)
+        score, keys, rolls = _refined(q, d, local, score, keys, rolls, mask, refine, spacing, cuts)
     order, seen, out = np.argsort(score, kind="stable"), set(), []
     for j in order:  # two answers refined to one viewpoint: the better one stays
         if keys[j] in seen:
@@ -202,14 +202,25 @@ def rerank_local(
         if (keys[j], rolls[j]) != first[j]:  # refined
             m = replace(m, azimuth=keys[j][1], elevation=keys[j][2], inplane=rolls[j])
         out.append(m)
-    return out + [m for i, m in enumerate(matches) if refs[i] is None]
+    return out + [m for i, m in enumerate(matches) if every[i] not in local]
 
 
 #: viewpoint refinement: the nearest other viewpoints tried (within 1.5 neighbour steps: `service.refine`)
 NEAR_VIEWS = 6
 
 
-def _refined(q, d, local, score, keys, rolls, mask, refine: int, spacing: float):
+def _refined(
+    q: Query,
+    d: Decoded,
+    local: Mapping[Key, np.ndarray],
+    score: np.ndarray,
+    keys: list[Key],
+    rolls: list[float],
+    mask: tuple[float, np.ndarray] | None,
+    refine: int,
+    spacing: float,
+    cuts: dict[float, tuple[np.ndarray, np.ndarray | None]],
+) -> tuple[np.ndarray, list[Key], list[float]]:
     """The best `refine` answers compared also at the viewpoints around theirs and at their roll +- a
     third of the in-plane `spacing` (`service.refine`); each keeps the (viewpoint, roll) scoring best."""
     table = TABLES.of(local)
@@ -223,7 +234,7 @@ def _refined(q, d, local, score, keys, rolls, mask, refine: int, spacing: float)
             tried += [(int(j), v, r) for v in views if (v, r) != (keys[j], rolls[j])]
     if not tried:
         return score, keys, rolls
-    more = local_scores(q, d, [local[v] for _, v, _ in tried], [r for _, _, r in tried], mask)
+    more = local_scores(q, d, [local[v] for _, v, _ in tried], [r for _, _, r in tried], mask, cuts)
     for (j, v, r), s in zip(tried, more, strict=True):
         if s < score[j]:
             score[j], keys[j], rolls[j] = s, v, r
@@ -236,20 +247,28 @@ def local_scores(
     refs: Sequence[np.ndarray],
     rolls: Sequence[float],
     mask: tuple[float, np.ndarray] | None = None,
+    cuts: dict[float, tuple[np.ndarray, np.ndarray | None]] | None = None,
 ) -> np.ndarray:
     """The re-ranking's score of each stored template (`refs`, local features and silhouettes) against the
-    query cut upright at its roll (`rolls`, degrees; each distinct roll cut once). Shape: (N,)."""
+    query cut upright at its roll (`rolls`, degrees). `cuts`: the query's local features and mask by roll,
+    filled here; a roll found in it is not cut again (the refinement asks again for rolls the re-ranking
+    cut). Shape: (N,)."""
+    cuts = {} if cuts is None else cuts
+    missing = sorted(set(rolls) - cuts.keys())
+    if missing:
+        p = cut(q, d.rgb, d.depth, d.embedder.info.spec, missing)  # undoes each roll: the object upright
+        keep = None
+        if mask is not None:
+            spec = d.embedder.info.spec
+            keep = np.stack([turn_masks(mask[1][None], r - mask[0], spec)[0] for r in missing])
+            p = masked(p, keep)
+        elif d.embedder.has_mask:
+            p, keep = foreground(d, p)
+        x = batch_inputs(d.modality, p.rgb, p.depth, p.distance, d.embedder.info.window_mm, fill=True)
+        for i, (r, f) in enumerate(zip(missing, d.embedder.local(x), strict=True)):
+            cuts[r] = (f, None if keep is None else keep[i])
     distinct = sorted(set(rolls))
-    p = cut(q, d.rgb, d.depth, d.embedder.info.spec, distinct)  # undoes each roll: the object upright
-    keep = None
-    if mask is not None:
-        spec = d.embedder.info.spec
-        keep = np.stack([turn_masks(mask[1][None], r - mask[0], spec)[0] for r in distinct])
-        p = masked(p, keep)
-    elif d.embedder.has_mask:
-        p, keep = foreground(d, p)
-    x = batch_inputs(d.modality, p.rgb, p.depth, p.distance, d.embedder.info.window_mm, fill=True)
-    feats = d.embedder.local(x)
+    feats = np.stack([cuts[r][0] for r in distinct])
     where = {r: i for i, r in enumerate(distinct)}
     row = np.array([where[r] for r in rolls])
     t = np.stack([np.asarray(r) for r in refs])
@@ -257,7 +276,8 @@ def local_scores(
     if t.shape[1] == feats.shape[1]:  # no silhouettes stored
         return l2(feats[row], t)
     t, silhouettes = split_silhouettes(t, grid)
-    query_mask = None if keep is None else cell_weights(keep, grid)[row]
+    masks = [m for r in distinct if (m := cuts[r][1]) is not None]  # all or none: one model, one query
+    query_mask = cell_weights(np.stack(masks), grid)[row] if masks else None
     return masked_distance(cell_cosines(feats, t, grid, row), silhouettes, query_mask)
 
 
