@@ -10,7 +10,7 @@ import torch
 from torch import nn
 
 from index.embed import INPUT_NAME, LOCAL_NAME, MASK_NAME, OUTPUT_NAME, ModelInfo
-from training.mask import MaskHead
+from training.mask import MaskNet
 from training.model import DescriptorNet
 from training.trunk import Trunk
 
@@ -19,10 +19,10 @@ class WithLocal(nn.Module):
     """The network and, as a second output, its frozen trunk's map L2-normalised and flattened: what
     the service re-ranks its nearest answers by (local similarity of early pretrained features, measured
     to double the answers within 20 deg on validation frames); with a mask head (`training/mask.py`) on
-    the same trunk, a third output: the logits of the centred object's pixels. Shape: (B, C, S, S) ->
-    (B, D), (B, F)[, (B, 1, S, S)]."""
+    the same trunk (or on its own fine-tuned copy: `MaskNet.own_stem`), a third output: the logits of the
+    centred object's pixels. Shape: (B, C, S, S) -> (B, D), (B, F)[, (B, 1, S, S)]."""
 
-    def __init__(self, net: DescriptorNet, mask: MaskHead | None = None):
+    def __init__(self, net: DescriptorNet, mask: MaskNet | None = None):
         super().__init__()
         self.net, self.mask = net, mask
 
@@ -34,7 +34,11 @@ class WithLocal(nn.Module):
             early, m = self.net.stem.stages(x)
         flat = m.flatten(1)
         out = (self.net.body(m), flat / torch.sqrt((flat * flat).sum(dim=1, keepdim=True) + 1e-12))
-        return out if self.mask is None else (*out, self.mask(early, m))
+        if self.mask is None:
+            return out
+        if self.mask.own_stem:
+            return (*out, self.mask(x))
+        return (*out, self.mask.head(early, m))
 
 
 class ColourAndDepthMask(nn.Module):
@@ -66,7 +70,7 @@ def export_onnx(
     out: str | Path,
     window_mm: float,
     extra: dict[str, str] | None = None,
-    mask: MaskHead | None = None,
+    mask: MaskNet | None = None,
     depth_mask: tuple[float, float] | None = None,
 ) -> Path:
     """Writes `net` (and a mask head on its trunk) to `out` (.onnx) with metadata; returns the path.

@@ -45,6 +45,9 @@ class MaskConfig:
     real_fraction: float = 0.6  # of a BOP object's samples, real patches of training frames
     real_paste: float = 0.3  # of those, pasted on a random background (the rest keep their real clutter)
     steps_per_epoch: int = 200  # a validation and a checkpoint each
+    #: > 0: the head gets its own copy of the trunk, and it and the later stages are trained too, at the
+    #: learning rate times this (0: the descriptor's frozen trunk and stages, shared with it at export)
+    finetune: float = 0.0
     threads: int = 2
     seed: int = 0
 
@@ -91,12 +94,27 @@ class MaskHead(nn.Module):
 
 
 class MaskNet(nn.Module):
-    """Patch -> mask logits: the frozen trunk and the head. Shape: (B, 3, S, S) -> (B, 1, S, S)."""
+    """Patch -> mask logits: the trunk and the head. Shape: (B, 3, S, S) -> (B, 1, S, S). `own_stem`:
+    the trunk and the head's later stages are trainable (fine-tuned for the mask: `MaskConfig.finetune`),
+    so the exported model runs this trunk for the mask besides the descriptor's frozen one."""
 
-    def __init__(self, pretrained: bool = True):
+    def __init__(self, pretrained: bool = True, own_stem: bool = False):
         super().__init__()
+        self.own_stem = own_stem
         self.stem = Trunk(pretrained)
         self.head = MaskHead(pretrained=pretrained)
+        if own_stem:
+            self.stem.unfreeze()
+            self.head.deep.unfreeze()
+
+    def backbone(self) -> list[nn.Parameter]:
+        """The pretrained weights being fine-tuned (none when frozen)."""
+        return [p for p in [*self.stem.parameters(), *self.head.deep.parameters()] if p.requires_grad]
+
+    def own(self) -> list[nn.Parameter]:
+        """The head's own weights (trained from scratch)."""
+        deep = {id(p) for p in self.head.deep.parameters()}
+        return [p for p in self.head.parameters() if id(p) not in deep]
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         return self.head(*self.stem.stages(x))
@@ -157,8 +175,11 @@ def train_mask(
     torch.set_num_threads(cfg.threads)
     rng = np.random.default_rng(cfg.seed + 7)
     data.cfg.real_paste = cfg.real_paste  # a batch-time choice: real clutter is what the head must learn
-    net = MaskNet()
-    opt = torch.optim.Adam([p for p in net.head.parameters() if p.requires_grad], lr=cfg.lr)
+    net = MaskNet(own_stem=cfg.finetune > 0)
+    groups = [{"params": net.own(), "scale": 1.0}]
+    if cfg.finetune > 0:
+        groups.append({"params": net.backbone(), "scale": cfg.finetune})
+    opt = torch.optim.Adam(groups, lr=cfg.lr)
     val_x, val_m = validation_set(data)
     out.mkdir(parents=True, exist_ok=True)
     budget, step, elapsed, best = cfg.minutes * 60, 0, 0.0, -1.0
@@ -166,6 +187,8 @@ def train_mask(
         ckpt = torch.load(out / "mask.pt", map_location="cpu", weights_only=False)
         state = resume_state(ckpt, asdict(cfg), name=str(out / "mask.pt"))
         net.head.load_state_dict(ckpt["head"])
+        if "stem" in ckpt:
+            net.stem.load_state_dict(ckpt["stem"])
         opt.load_state_dict(state["optimizer"])
         step, elapsed, best = ckpt["step"], state["elapsed"], state["best"]
         rng.bit_generator.state = state["rng"]["batches"]
@@ -181,6 +204,7 @@ def train_mask(
         print(json.dumps(rec), flush=True)
         state = {
             "head": net.head.state_dict(),
+            **({"stem": net.stem.state_dict()} if net.own_stem else {}),
             "config": asdict(cfg),
             "step": step,
             "val_iou": score,
@@ -211,7 +235,7 @@ def train_mask(
         # cosine decay over the budget, or over max_steps when they end first (so --seed runs repeat)
         progress = max(elapsed / budget, step / cfg.max_steps if cfg.max_steps else 0.0)
         for g in opt.param_groups:
-            g["lr"] = cfg.lr * (0.05 + 0.95 * 0.5 * (1 + math.cos(math.pi * min(1.0, progress))))
+            g["lr"] = g["scale"] * cfg.lr * (0.05 + 0.95 * 0.5 * (1 + math.cos(math.pi * min(1.0, progress))))
         net.head.train()
         x, m = _batch(data, cfg, rng)
         logits = net(x)
@@ -235,6 +259,8 @@ def _dice(logits: torch.Tensor, m: torch.Tensor) -> torch.Tensor:
 def load_mask(run: Path, which: str = "best") -> tuple[MaskNet, dict]:
     path = run / ("mask-best.pt" if which == "best" and (run / "mask-best.pt").is_file() else "mask.pt")
     state = torch.load(path, map_location="cpu", weights_only=False)
-    net = MaskNet()
+    net = MaskNet(own_stem="stem" in state)
     net.head.load_state_dict(state["head"])
+    if "stem" in state:
+        net.stem.load_state_dict(state["stem"])
     return net.eval(), state

@@ -71,6 +71,13 @@ class Trunk(nn.Module):
     def train(self, mode: bool = True) -> Trunk:
         return super().train(False)  # frozen: BatchNorm keeps ImageNet's statistics
 
+    def unfreeze(self) -> Trunk:
+        """Its convolutions trainable (a copy fine-tuned for another task); BatchNorm keeps ImageNet's
+        statistics, as batches of 64 patches would estimate them poorly."""
+        for p in self.parameters():
+            p.requires_grad_(True)
+        return self
+
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         return self.features(x)
 
@@ -108,6 +115,12 @@ class DeepStages(nn.Module):
 
     def train(self, mode: bool = True) -> DeepStages:
         return super().train(False)
+
+    def unfreeze(self) -> DeepStages:
+        """As `Trunk.unfreeze`."""
+        for p in self.parameters():
+            p.requires_grad_(True)
+        return self
 
     def forward(self, m: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         d8 = self.eighth(m)

@@ -94,7 +94,7 @@ def run(args: argparse.Namespace) -> int:
         from training.mask import load_mask
 
         mask_net, mask_state = load_mask(args.mask)
-        head = mask_net.head
+        head = mask_net
         extra["mask"] = json.dumps(
             {
                 "step": mask_state["step"],

@@ -63,6 +63,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--threads", type=int, default=2, help="torch threads")
     p.add_argument(
+        "--mask-finetune",
+        type=float,
+        default=0.0,
+        help="--arch mask: also train a copy of the trunk and the later stages, at the learning rate times "
+        "this (0: frozen, shared with the descriptor)",
+    )
+    p.add_argument(
         "--val",
         type=_blocks,
         default=((0.20, 0.40),),
@@ -107,6 +114,7 @@ OPTIONS = {
     "data.seed": "--seed",
     "data.split.val": "--val",
     "data.split.test": "--test",
+    "finetune": "--mask-finetune",
 }
 CHECKPOINTS = ("checkpoint.pt", "best.pt", "mask.pt", "mask-best.pt")
 
@@ -227,7 +235,15 @@ def configs(args: argparse.Namespace) -> tuple[TrainConfig, MaskConfig]:
         seed=args.seed,
         data=data_cfg,
     )
-    mcfg = MaskConfig(minutes=args.minutes, max_steps=args.max_steps, threads=args.threads, seed=args.seed)
+    if args.mask_finetune < 0:
+        raise UserError(f"--mask-finetune must be >= 0, got {args.mask_finetune:g}")
+    mcfg = MaskConfig(
+        minutes=args.minutes,
+        max_steps=args.max_steps,
+        threads=args.threads,
+        seed=args.seed,
+        finetune=args.mask_finetune,
+    )
     return cfg, mcfg
 
 

@@ -52,26 +52,52 @@ def test_trunk_is_imagenet_mobilenet_and_frozen():
 def test_mask_head_exports_as_a_third_output(tmp_path):
     """A model with a mask head answers its logits as a third output, as torch computes them; the
     embedder reads them as where the centred object is."""
-    from training.mask import MaskHead
+    from training.mask import MaskNet
 
     torch.manual_seed(0)
     net = DescriptorNet(NetConfig("rgb", 32, arch="trunk"))
-    head = MaskHead().eval()  # as initialised: some pixels in, some out
-    path = export_onnx(net, tmp_path / "m.onnx", 200.0, {"arch": "trunk"}, mask=head)
+    mask = MaskNet().eval()  # as initialised: some pixels in, some out
+    path = export_onnx(net, tmp_path / "m.onnx", 200.0, {"arch": "trunk"}, mask=mask)
     emb = Embedder(path)
     assert emb.has_mask and emb.has_local and emb.local_grid == 16
     x = np.random.default_rng(3).normal(size=(2, 3, 64, 64)).astype(np.float32)
     with torch.no_grad():
-        logits = head(*net.stem.stages(torch.from_numpy(x))).numpy()[:, 0]
+        logits = mask.head(*net.stem.stages(torch.from_numpy(x))).numpy()[:, 0]
     keep = emb.mask(x)
     decided = np.abs(logits) > 1e-4  # float32 on two runtimes: leave out the ties
     np.testing.assert_array_equal(keep[decided], (logits > 0)[decided])
     with torch.no_grad():  # nothing is the object
-        head.out.bias.fill_(-1e3)
-    path = export_onnx(net, tmp_path / "none.onnx", 200.0, {"arch": "trunk"}, mask=head)
+        mask.head.out.bias.fill_(-1e3)
+    path = export_onnx(net, tmp_path / "none.onnx", 200.0, {"arch": "trunk"}, mask=mask)
     assert not Embedder(path).mask(x).any()
     with pytest.raises(ValueError, match="trunk"):
-        export_onnx(DescriptorNet(NetConfig("rgb", 16)), tmp_path / "p.onnx", 200.0, mask=head)
+        export_onnx(DescriptorNet(NetConfig("rgb", 16)), tmp_path / "p.onnx", 200.0, mask=mask)
+
+
+def test_a_fine_tuned_mask_runs_its_own_trunk(tmp_path):
+    """A mask head fine-tuned with its own copy of the trunk (`--mask-finetune`) exports that copy: the
+    mask follows the copy's weights, the descriptor and local features the frozen trunk's."""
+    from training.mask import MaskNet
+
+    torch.manual_seed(0)
+    net = DescriptorNet(NetConfig("rgb", 32, arch="trunk"))
+    mask = MaskNet(own_stem=True)
+    assert mask.backbone() and all(p.requires_grad for p in mask.stem.parameters())
+    with torch.no_grad():  # the copy drifts from the descriptor's trunk
+        for p in mask.stem.parameters():
+            p.mul_(1.5)
+    mask.eval()
+    path = export_onnx(net, tmp_path / "own.onnx", 200.0, {"arch": "trunk"}, mask=mask)
+    emb = Embedder(path)
+    x = np.random.default_rng(4).normal(size=(2, 3, 64, 64)).astype(np.float32)
+    with torch.no_grad():
+        own = mask(torch.from_numpy(x)).numpy()[:, 0]
+        shared = mask.head(*net.stem.stages(torch.from_numpy(x))).numpy()[:, 0]
+    keep = emb.mask(x)
+    decided = np.abs(own) > 1e-3
+    np.testing.assert_array_equal(keep[decided], (own > 0)[decided])
+    assert ((own > 0) != (shared > 0)).any()  # the copy, not the shared trunk, made the mask
+    np.testing.assert_allclose(emb(x), torch_descriptors(net, x), atol=1e-4)
 
 
 def test_a_colour_model_exports_as_rgbd_with_its_mask_cut_from_depth(tmp_path):

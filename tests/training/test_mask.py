@@ -103,3 +103,22 @@ def test_a_mask_run_interrupted_and_resumed_ends_as_an_uninterrupted_one(shapes,
         train_mask(cfg, data, stopped, resume=True)
     with pytest.raises(ValueError, match="batch: was 4, now 8"):
         train_mask(MaskConfig(**{**cfg.__dict__, "batch": 8, "max_steps": 9}), data, stopped, resume=True)
+
+
+def test_a_fine_tuned_mask_head_trains_and_keeps_its_own_trunk(shapes, tmp_path):
+    """`finetune` > 0: the head's trunk copy and later stages move (at the scaled rate), the checkpoint
+    keeps the copy and `load_mask` gives it back; frozen (0), the trunk stays ImageNet's."""
+    data = shapes
+    cfg = MaskConfig(minutes=600.0, max_steps=2, batch=4, steps_per_epoch=2, threads=1, finetune=0.1)
+    net = train_mask(cfg, data, tmp_path / "ft")
+    imagenet = MaskNet()
+    moved = [k for k, v in net.stem.state_dict().items() if not torch.equal(v, imagenet.stem.state_dict()[k])]
+    assert moved and net.own_stem
+    back, state = load_mask(tmp_path / "ft", "last")
+    assert back.own_stem and "stem" in state
+    for k, v in net.stem.state_dict().items():
+        assert torch.equal(v, back.stem.state_dict()[k]), k
+    frozen = train_mask(MaskConfig(**{**cfg.__dict__, "finetune": 0.0}), data, tmp_path / "frozen")
+    for k, v in frozen.stem.state_dict().items():
+        assert torch.equal(v, imagenet.stem.state_dict()[k]), k
+    assert "stem" not in load_mask(tmp_path / "frozen", "last")[1]
