@@ -22,14 +22,22 @@ def cell_cosines(
     query: np.ndarray, templates: np.ndarray, grid: int, rows: np.ndarray | None = None
 ) -> np.ndarray:
     """Cosine between a query's and each template's values in each cell (a zero cell: 0): template j
-    against query `rows[j]` (default j). Shape: (Q, C * G * G), (N, C * G * G) channels first, rows (N,)
+    against query `rows[j]` (default j; templates sorted by their row are compared without copies). Shape: (Q, C * G * G), (N, C * G * G) channels first, rows (N,)
     -> (N, G * G)."""
     n, g2 = len(templates), grid * grid
     q = _float32(query).reshape(len(query), -1, g2)
     q = q / (np.sqrt(np.einsum("qcg,qcg->qg", q, q))[:, None] + 1e-12)  # each query cell a unit vector
-    q = q if rows is None else q[rows]
+    rows = np.zeros(n, int) if rows is None and len(q) == 1 else rows
     t = _float32(templates).reshape(n, -1, g2)
-    return np.einsum("ncg,ncg->ng", q, t) / (np.sqrt(np.einsum("ncg,ncg->ng", t, t)) + 1e-12)
+    norms = np.sqrt(np.einsum("ncg,ncg->ng", t, t)) + 1e-12
+    if rows is None:
+        return np.einsum("ncg,ncg->ng", q, t) / norms
+    dots = np.empty((n, g2), np.float32)
+    for r in np.unique(rows):  # each query row against its templates: no (N, C, G) copy of the query
+        at = np.flatnonzero(rows == r)
+        block = slice(at[0], at[-1] + 1) if at[-1] - at[0] + 1 == len(at) else at  # sorted rows: a view
+        dots[block] = np.einsum("ncg,cg->ng", t[block], q[r])
+    return dots / norms
 
 
 def _float32(x: np.ndarray) -> np.ndarray:

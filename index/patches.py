@@ -16,6 +16,7 @@ work on the whole batch at once: a single patch goes through the same code with 
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import overload
 
@@ -46,11 +47,34 @@ def _homography(
     K: np.ndarray, centre_uv: tuple[float, float], distance_mm: float, spec: PatchSpec, inplane: float
 ):
     """Patch pixel -> frame pixel, and each patch pixel's ray z in the frame's camera (for depth)."""
+    Hs, rots, Kv_inv = _homographies(K, centre_uv, distance_mm, spec, [inplane])
+    return Hs[0], rots[0], Kv_inv
+
+
+def _homographies(
+    K: np.ndarray,
+    centre_uv: tuple[float, float],
+    distance_mm: float,
+    spec: PatchSpec,
+    inplanes: Sequence[float] | np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """`_homography` for several in-planes at once: the ray, its alignment and the virtual camera are
+    the same for all (only the roll about the patch's axis differs). Shape: (N, 3, 3) x 2, (3, 3)."""
     ray = np.linalg.inv(K) @ np.array([centre_uv[0], centre_uv[1], 1.0])
-    rot = align_rotation(ray) @ roll_rotation(inplane)  # virtual camera directions -> frame camera
+    a = np.radians(np.asarray(inplanes, float))
+    c, sn = np.cos(a), np.sin(a)
+    roll = np.zeros((len(a), 3, 3))
+    roll[:, 0, 0], roll[:, 0, 1], roll[:, 1, 0], roll[:, 1, 1], roll[:, 2, 2] = (
+        c,
+        sn,
+        -sn,
+        c,
+        1.0,
+    )  # roll_rotation
+    rots = align_rotation(ray) @ roll  # virtual camera directions -> frame camera
     Kv_inv = np.linalg.inv(patch_camera(spec, distance_mm))
-    H = K @ rot @ Kv_inv
-    return H / H[2, 2], rot, Kv_inv
+    Hs = K @ rots @ Kv_inv
+    return Hs / Hs[:, 2:3, 2:3], rots, Kv_inv
 
 
 # What is given comes back cut, what is None stays None.
@@ -107,23 +131,41 @@ def crop(
 
     `inplane` (degrees) is undone: an object rolled by it in the frame comes out upright.
     Returns (rgb (S, S, 3) uint8 or None, depth (S, S) float32 mm along the virtual axis or None)."""
-    H, rot, Kv_inv = _homography(np.asarray(K, float), centre_uv, distance_mm, spec, inplane)
+    rgbs, depths = crops(rgb, depth, K, centre_uv, distance_mm, spec, [inplane])
+    return (None if rgbs is None else rgbs[0]), (None if depths is None else depths[0])
+
+
+def crops(
+    rgb: np.ndarray | None,
+    depth: np.ndarray | None,
+    K: np.ndarray,
+    centre_uv: tuple[float, float],
+    distance_mm: float,
+    spec: PatchSpec,
+    inplanes: Sequence[float] | np.ndarray,
+) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """`crop` at each of `inplanes`, the geometry computed once (a query cut at a dozen rolls: the
+    per-crop matrix algebra cost more than the warps). Shape: (N, S, S, 3) uint8, (N, S, S) float32."""
+    Hs, rots, Kv_inv = _homographies(np.asarray(K, float), centre_uv, distance_mm, spec, inplanes)
     s = spec.size
     flags = cv2.WARP_INVERSE_MAP
     rgb_out = depth_out = None
     if rgb is not None:
-        rgb_out = cv2.warpPerspective(
-            rgb, H, (s, s), flags=cv2.INTER_LINEAR | flags, borderMode=cv2.BORDER_REPLICATE
-        )
+        rgb_out = np.empty((len(Hs), s, s, 3), np.uint8)
+        for i, H in enumerate(Hs):
+            rgb_out[i] = cv2.warpPerspective(
+                rgb, H, (s, s), flags=cv2.INTER_LINEAR | flags, borderMode=cv2.BORDER_REPLICATE
+            )
     if depth is not None:
-        d = cv2.warpPerspective(
-            depth.astype(np.float32), H, (s, s), flags=cv2.INTER_NEAREST | flags, borderValue=0.0
-        )
-        # A point at frame depth D along a virtual ray with frame-camera direction r (r_z of the ray
-        # through the virtual pixel, scaled so the virtual z is 1) has virtual depth D / r_z.
+        frame = depth.astype(np.float32)
         u, v = np.meshgrid(np.arange(s, dtype=float), np.arange(s, dtype=float))
-        dirs = rot @ Kv_inv @ np.stack([u.ravel(), v.ravel(), np.ones(s * s)])
-        depth_out = (d / dirs[2].reshape(s, s)).astype(np.float32)
+        pixels = Kv_inv @ np.stack([u.ravel(), v.ravel(), np.ones(s * s)])
+        depth_out = np.empty((len(Hs), s, s), np.float32)
+        for i, H in enumerate(Hs):
+            d = cv2.warpPerspective(frame, H, (s, s), flags=cv2.INTER_NEAREST | flags, borderValue=0.0)
+            # A point at frame depth D along a virtual ray with frame-camera direction r (r_z of the ray
+            # through the virtual pixel, scaled so the virtual z is 1) has virtual depth D / r_z.
+            depth_out[i] = d / (rots[i][2] @ pixels).reshape(s, s)
     return rgb_out, depth_out
 
 

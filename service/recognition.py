@@ -22,7 +22,7 @@ import numpy as np
 
 from index.embed import Embedder
 from index.local import cell_cosines, cell_weights, l2, masked_distance, split_silhouettes
-from index.patches import PatchSpec, batch_inputs, crop, patch_camera, turn_masks
+from index.patches import PatchSpec, batch_inputs, crops, patch_camera, turn_masks
 from index.pose import wrap_degrees
 from index.store import Match, Snapshot, local_key
 from service.depth_units import check_frame_distance, check_given_distance, check_patch_distance
@@ -270,15 +270,20 @@ def local_scores(
     distinct = sorted(set(rolls))
     feats = np.stack([cuts[r][0] for r in distinct])
     where = {r: i for i, r in enumerate(distinct)}
-    row = np.array([where[r] for r in rolls])
-    t = np.stack([np.asarray(r) for r in refs])
+    order = np.argsort([where[r] for r in rolls], kind="stable")  # one roll's templates side by side
+    row = np.array([where[rolls[i]] for i in order], int)
+    t = np.stack([np.asarray(refs[i]) for i in order])
     grid = d.embedder.local_grid
     if t.shape[1] == feats.shape[1]:  # no silhouettes stored
-        return l2(feats[row], t)
-    t, silhouettes = split_silhouettes(t, grid)
-    masks = [m for r in distinct if (m := cuts[r][1]) is not None]  # all or none: one model, one query
-    query_mask = cell_weights(np.stack(masks), grid)[row] if masks else None
-    return masked_distance(cell_cosines(feats, t, grid, row), silhouettes, query_mask)
+        score = l2(feats[row], t)
+    else:
+        t, silhouettes = split_silhouettes(t, grid)
+        masks = [m for r in distinct if (m := cuts[r][1]) is not None]  # all or none: one model, one query
+        query_mask = cell_weights(np.stack(masks), grid)[row] if masks else None
+        score = masked_distance(cell_cosines(feats, t, grid, row), silhouettes, query_mask)
+    out = np.empty_like(score)
+    out[order] = score
+    return out
 
 
 def foreground(d: Decoded, p: Patches) -> tuple[Patches, np.ndarray]:
@@ -346,25 +351,24 @@ def cut(
     else:
         rgb, depth, distance = _from_patch(q, rgb, depth, spec)
         K, centre = patch_camera(spec, distance), ((spec.size - 1) / 2, (spec.size - 1) / 2)
-    rgbs, depths = [], []
-    for o in offsets:
-        if o == 0 and not given:
-            rgb_p, depth_p = rgb, depth  # the patch itself: no resampling
-        else:
-            rgb_p, depth_p = crop(rgb, depth, K, centre, distance, spec, inplane=float(o))
-        rgbs.append(rgb_p)
-        depths.append(depth_p)
-    if depths[0] is not None and not (depths[0] > 0).any():
+    offsets = np.asarray(offsets, float)
+    rgbs, depths = crops(rgb, depth, K, centre, distance, spec, offsets)
+    if not given:  # the patch itself where it is not turned: no resampling
+        unturned = offsets == 0
+        if rgbs is not None and rgb is not None:
+            rgbs[unturned] = rgb
+        if depths is not None and depth is not None:
+            depths[unturned] = depth
+    if depths is not None and not (depths[0] > 0).any():
         raise ApiError(422, "the depth patch is all zero: no depth was measured around the object")
-    if depths[0] is not None and q.distance_mm is not None:  # a measured distance agrees by construction
+    if depths is not None and q.distance_mm is not None:  # a measured distance agrees by construction
         s = spec.size
         centre_quarter = depths[0][3 * s // 8 : 5 * s // 8, 3 * s // 8 : 5 * s // 8]
         check_given_distance(centre_quarter[centre_quarter > 0], distance, spec.window_mm, q.depth_scale)
-    # every turn is cut from the same inputs: all None or none None
     return Patches(
-        None if rgbs[0] is None else np.stack([r for r in rgbs if r is not None]),
-        None if depths[0] is None else np.stack([d for d in depths if d is not None]),
-        np.asarray(offsets, float),
+        rgbs,
+        depths,
+        offsets,
         distance,
         _unit(np.linalg.inv(K) @ np.array([centre[0], centre[1], 1.0])),
     )

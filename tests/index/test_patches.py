@@ -7,10 +7,12 @@ from index.patches import (
     PatchSpec,
     batch_inputs,
     crop,
+    crops,
     fill_depth,
     network_input,
     normalise_depth,
     normalise_rgb,
+    patch_camera,
     surface_depth,
     turn_masks,
 )
@@ -193,3 +195,34 @@ def test_turned_masks_are_those_of_the_patch_cut_at_the_other_in_plane(a, b):
     assert iou(turn_masks(ma, b - a, spec)[0], mb) > 0.9
     assert iou(turn_masks(ma, a - b, spec)[0], mb) < 0.6  # the other way round is another mask
     assert turn_masks(np.zeros((0, 64, 64), bool), 10.0, spec).shape == (0, 64, 64)
+
+
+def test_crops_at_many_rolls_are_each_rolls_own_cut():
+    """`crops` (the geometry once, the rolls as a batch) cuts at each roll what the homography of that
+    roll alone gives: frame pixel = K align(ray) roll(θ) Kv⁻¹ patch pixel; depth along the virtual axis."""
+    from index.pose import align_rotation, roll_rotation
+
+    rng = np.random.default_rng(5)
+    frame = rng.integers(0, 256, (480, 640, 3), dtype=np.uint8)
+    depth = rng.uniform(600.0, 800.0, (480, 640)).astype(np.float32)
+    K = np.array([[572.0, 0.0, 325.0], [0.0, 573.0, 242.0], [0.0, 0.0, 1.0]])
+    spec, centre, dist = PatchSpec(), (402.5, 150.0), 700.0
+    rolls = [0.0, 30.0, -95.0, 170.0]
+    rgbs, depths = crops(frame, depth, K, centre, dist, spec, rolls)
+    assert rgbs is not None and depths is not None and rgbs.shape == (4, 64, 64, 3)
+    ray = np.linalg.inv(K) @ np.array([*centre, 1.0])
+    for i, r in enumerate(rolls):
+        rot = align_rotation(ray) @ roll_rotation(r)
+        H = K @ rot @ np.linalg.inv(patch_camera(spec, dist))
+        flags = cv2.WARP_INVERSE_MAP
+        want = cv2.warpPerspective(
+            frame, H / H[2, 2], (64, 64), flags=cv2.INTER_LINEAR | flags, borderMode=cv2.BORDER_REPLICATE
+        )
+        assert np.abs(rgbs[i].astype(int) - want).max() <= 1
+        np.testing.assert_array_equal(crop(frame, depth, K, centre, dist, spec, r)[0], rgbs[i])
+        d = cv2.warpPerspective(depth, H / H[2, 2], (64, 64), flags=cv2.INTER_NEAREST | flags)
+        u, v = np.meshgrid(np.arange(64.0), np.arange(64.0))
+        rz = (
+            rot @ np.linalg.inv(patch_camera(spec, dist)) @ np.stack([u.ravel(), v.ravel(), np.ones(64 * 64)])
+        )[2]
+        np.testing.assert_allclose(depths[i], d / rz.reshape(64, 64), rtol=1e-5)

@@ -68,7 +68,7 @@ def cut_distances(monkeypatch):
     """The distance (mm) the service cuts each patch at: the answer does not carry it."""
     import service.recognition as recognition
 
-    real_crop = recognition.crop
+    real_crop = recognition.crops
     signature = inspect.signature(real_crop)
     seen: list[float] = []
 
@@ -76,7 +76,7 @@ def cut_distances(monkeypatch):
         seen.append(float(signature.bind(*args, **kwargs).arguments["distance_mm"]))
         return real_crop(*args, **kwargs)
 
-    monkeypatch.setattr(recognition, "crop", spy)
+    monkeypatch.setattr(recognition, "crops", spy)
     return seen
 
 
