@@ -115,6 +115,44 @@ class Embedder:
         self.local_grid = int(self.info.extra.get("local_grid") or self.info.size // 4)
         if self.info.modality not in MODALITY_CHANNELS:
             raise ValueError(f"model {self.path} has unknown modality {self.info.modality!r}")
+        self._probe: tuple[np.ndarray, np.ndarray | None] | None = None
+
+    def probe(self) -> tuple[np.ndarray, np.ndarray | None]:
+        """Its descriptors and local features of a fixed random colour input (the first three channels
+        of seeded noise; depth channels of the same noise where the model takes them): equal for two
+        models when they describe colour alike whatever else they read (`same_templates`)."""
+        if self._probe is None:
+            s, channels = self.info.size, MODALITY_CHANNELS[self.modality]
+            x = np.random.default_rng(0).uniform(-2.0, 2.0, (4, 4, s, s)).astype(np.float32)
+            x = x[:, 4 - channels :] if channels < 3 else x[:, :channels]  # depth alone: the last channel
+            self._probe = (self(x), self._run(LOCAL_NAME, x) if self.has_local else None)
+        return self._probe
+
+    def same_templates(self, other: Embedder) -> bool:
+        """Whether `other` makes the same templates as this model: same window, size, in-plane step and
+        descriptor size, both reading colour, and the same descriptors and local features of the probe
+        (`probe`). The RGB-D model written from the rgb run (`posedesc export --as-rgbd`) is the rgb
+        network on the colour channels, its mask from depth: registration embeds its templates once."""
+        a, b = self.info, other.info
+        colour = {"rgb", "rgbd"}
+        if not (a.modality in colour and b.modality in colour and a.modality != b.modality):
+            return False
+        if (
+            (a.window_mm, a.size, a.descriptor_dim, a.inplane_step)
+            != (
+                b.window_mm,
+                b.size,
+                b.descriptor_dim,
+                b.inplane_step,
+            )
+            or self.has_local != other.has_local
+            or self.local_grid != other.local_grid
+        ):
+            return False
+        (d1, l1), (d2, l2) = self.probe(), other.probe()
+        if d1.shape != d2.shape or not np.allclose(d1, d2, atol=1e-5):
+            return False
+        return l1 is None or (l2 is not None and l1.shape == l2.shape and np.allclose(l1, l2, atol=1e-5))
 
     def _run(self, output: str, inputs: np.ndarray) -> np.ndarray:
         return self.sessions[output].run([output], {INPUT_NAME: np.ascontiguousarray(inputs, np.float32)})[0]

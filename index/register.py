@@ -195,6 +195,7 @@ def make_templates(
         for i in range(0, len(groups), per)
     ]
     wanted = {m: {(v.azimuth, v.elevation, v.inplane, v.distance) for v in vs} for m, vs in views.items()}
+    twins = template_twins(embedders)
     parts: dict[str, list[TemplateSet]] = {m: [] for m in embedders}
     seconds = {"render": 0.0, "embed": 0.0}
     visible = False
@@ -213,18 +214,46 @@ def make_templates(
             for m in embedders
         }
         t0 = time.perf_counter()
+        own = [m for m in embedders if not (m in twins and keep[m] == keep[twins[m]])]
+        # each model's views in halves: with a pool of two, one model's templates use both cores
+        work = [(m, half) for m in own for half in _halves(keep[m], 2 if pool is not None else 1)]
         if pool is None:
-            sets = {m: embed_templates(e, rendered, keep[m]) for m, e in embedders.items()}
+            done = [embed_templates(embedders[m], rendered, k) for m, k in work]
         else:
-            futures = {m: pool.submit(embed_templates, e, rendered, keep[m]) for m, e in embedders.items()}
-            sets = {m: f.result() for m, f in futures.items()}
+            done = [
+                f.result() for f in [pool.submit(embed_templates, embedders[m], rendered, k) for m, k in work]
+            ]
         seconds["embed"] += time.perf_counter() - t0
-        for m, ts in sets.items():
-            parts[m].append(ts)
+        sets = {m: _concatenate([ts for (w, _), ts in zip(work, done, strict=True) if w == m]) for m in own}
+        for m in embedders:
+            parts[m].append(sets[m] if m in sets else sets[twins[m]])
     if not visible:
         raise MeshError(INVISIBLE)
     out = {m: _concatenate(ps) for m, ps in parts.items()}
     return out, seconds, np.concatenate(offsets)
+
+
+def template_twins(embedders: Mapping[str, Embedder]) -> dict[str, str]:
+    """Models whose templates another model of the set makes already (`Embedder.same_templates`: the
+    RGB-D model that is the rgb network with its mask from depth): model -> the model it takes them from.
+    Measured (`posedesc bench`, registration): embedding was most of a registration's time."""
+    out: dict[str, str] = {}
+    names = sorted(embedders)
+    for i, m in enumerate(names):
+        for src in names[:i]:
+            if src not in out and embedders[src].same_templates(embedders[m]):
+                out[m] = src
+                break
+    return out
+
+
+def _halves(keep: Sequence[int], n: int) -> list[list[int]]:
+    """`keep` in n consecutive parts (whole, when n is 1 or it is short)."""
+    keep = list(keep)
+    if n <= 1 or len(keep) < 2 * n:
+        return [keep]
+    cut = int(np.ceil(len(keep) / n))
+    return [keep[i : i + cut] for i in range(0, len(keep), cut)]
 
 
 def _visible(rendered: Mapping[float, Templates]) -> bool:

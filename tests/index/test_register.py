@@ -153,3 +153,42 @@ def test_model_metadata_in_plane_step():
     for bad in ("-5", "360", "often"):
         with pytest.raises(ValueError, match="not a posedesc model"):
             ModelInfo.from_metadata({**base, "inplane_step": bad})
+
+
+def test_an_rgbd_model_made_from_the_rgb_one_shares_its_templates(
+    tmp_path, l_shape, render_worker, embedders
+):
+    """The RGB-D model written from the rgb run (`export --as-rgbd`: the colour network, its mask from
+    depth) makes the rgb model's very templates: registration embeds them once and stores them for both.
+    Another colour network (other weights), or depth alone, is not a twin."""
+    torch = pytest.importorskip("torch")
+    from index.register import template_twins
+    from training.export import export_onnx
+    from training.model import DescriptorNet, NetConfig
+
+    torch.manual_seed(1)
+    net = DescriptorNet(NetConfig("rgb", 32, arch="trunk"))
+    folder = tmp_path / "models"
+    rgb = Embedder(export_onnx(net, folder / "rgb.onnx", 200.0, {"arch": "trunk"}))
+    rgbd = Embedder(export_onnx(net, folder / "rgbd.onnx", 200.0, {"arch": "trunk"}, depth_mask=(90.0, 99.0)))
+    other = Embedder(export_onnx(DescriptorNet(NetConfig("rgb", 32, arch="trunk")), folder / "o.onnx", 200.0))
+    assert template_twins({"rgb": rgb, "rgbd": rgbd, "depth": embedders["depth"]}) == {"rgbd": "rgb"}
+    assert template_twins({"rgb": other, "rgbd": rgbd}) == {}
+    assert template_twins({"rgb": embedders["rgb"], "rgbd": embedders["rgbd"]}) == {}  # paper nets read depth
+
+    models = {"rgb": rgb, "rgbd": rgbd}
+    store = Store(tmp_path / "store", keys(models))
+    with ThreadPoolExecutor(2) as pool:
+        register(
+            l_shape, "L", "none", worker=render_worker, embedders=models, store=store, cfg=CFG, pool=pool
+        )
+    a, b = store.snapshot.models["rgb"], store.snapshot.models["rgbd"]
+    np.testing.assert_array_equal(a.poses, b.poses)
+    assert a.local.keys() == b.local.keys() and len(a.local) == len(template_views("none", CFG))
+    for k, f in a.local.items():
+        np.testing.assert_array_equal(f, b.local[k])
+    # and they are what the rgbd model itself makes of those renders: one view, embedded by it directly
+    view = View(float(a.poses[7, 0]), float(a.poses[7, 1]), float(a.poses[7, 2]))
+    rendered = render_worker.submit(lambda r: {200.0: r.render(l_shape, [view])}).result()
+    (match,) = store.search("rgbd", embed_templates(rgbd, rendered).descriptors, 1)[0]
+    assert (match.azimuth, match.elevation) == (view.azimuth, view.elevation) and match.distance < 1e-4
