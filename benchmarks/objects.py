@@ -27,7 +27,7 @@ from index.embed import Embedder
 from index.local import with_silhouettes
 from index.patches import batch_inputs
 from index.pose import View
-from index.register import TemplateConfig, embed_templates, template_views
+from index.register import TemplateConfig, embed_templates, template_twins, template_views
 from index.render import Renderer, Templates
 from index.sensor import SensorModel, random_background
 from index.shapes import random_shape
@@ -218,10 +218,19 @@ def inplane_template_sets(
     out: dict[str, list[TemplateSet]] = {name: [] for name in models}
     per_shape: dict[str, list[TemplateSet]] = {}
     renderer = Renderer(size=size, window_mm=window_mm)
+    # a model making another's very templates (the RGB-D model exported from the rgb run) takes them, as
+    # registration does (`index.register.template_twins`)
+    twins = {
+        m: src
+        for m, src in template_twins({name: e for name, (e, _) in models.items()}).items()
+        if np.array_equal(angles[m], angles[src])
+    }
     try:
         for a, mesh in enumerate(shapes(m, seed)):
             t = renderer.render(mesh, views)
             for name, (e, _) in models.items():
+                if name in twins:
+                    continue
                 keep = np.flatnonzero(np.isin(inplane, angles[name]))
                 colour = e.modality in ("rgb", "rgbd")
                 base = batch_inputs(
@@ -257,7 +266,9 @@ def inplane_template_sets(
                 if progress:
                     progress(len(per_shape[name]))
             for name in models:
-                out[name].extend(per_shape[name])
+                out[name].extend(per_shape[twins.get(name, name)])
+                if progress and name in twins:
+                    progress(len(per_shape[twins[name]]))
     finally:
         renderer.close()
     order = [a + m * v for a in range(m) for v in range(len(range(a, n, m)))]  # object id of each set

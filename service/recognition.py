@@ -128,7 +128,7 @@ def recognise_decoded(state: AppState, q: Query, d: Decoded, decode_s: float | N
     if rerank:
         mask = None if keep is None else (float(p.offsets[0]), keep[0])
         spacing = state.templates.inplane_spacing(step)
-        matches = rerank_local(snap, q, d, matches, mask, state.settings.roll_refine, spacing)
+        matches = rerank_local(snap, q, d, matches, mask, state.settings.roll_refine, spacing, q.k)
     matches = matches[: q.k]
     t5 = time.perf_counter()
     before = {} if decode_s is None else {"decode": decode_s}
@@ -168,6 +168,7 @@ def rerank_local(
     mask: tuple[float, np.ndarray] | None = None,
     refine: int = 0,
     spacing: float = 0.0,
+    k: int | None = None,
 ) -> list[Match]:
     """The answers re-ranked by local similarity: the query is cut once per roll the answers give
     (turned upright for each), and its local features (`index.embed.LOCAL_NAME`, the pretrained trunk's
@@ -180,7 +181,7 @@ def rerank_local(
     keeps its place after those that have. `refine` > 0: the best `refine` answers are also compared at
     the viewpoints around theirs and at their roll +- `spacing` / 3 (`spacing`: the templates' in-plane
     step), and keep the pose that scores best (`service.refine`). Measured on validation frames (README,
-    Evaluation)."""
+    Evaluation). `k`: only the best k answers are wanted (the rest are not made)."""
     local = snap.models[d.modality].local
     every = [local_key(m.object_id, m.azimuth, m.elevation) for m in matches]
     have = [i for i, k in enumerate(every) if k in local]
@@ -193,8 +194,11 @@ def rerank_local(
     first = list(zip(keys, rolls, strict=True))
     if refine > 0:
         score, keys, rolls = _refined(q, d, local, score, keys, rolls, mask, refine, spacing, cuts)
-    order, seen, out = np.argsort(score, kind="stable"), set(), []
+    order, seen = np.argsort(score, kind="stable"), set()
+    out: list[Match] = []
     for j in order:  # two answers refined to one viewpoint: the better one stays
+        if k is not None and len(out) >= k:
+            break
         if keys[j] in seen:
             continue
         seen.add(keys[j])
@@ -202,7 +206,7 @@ def rerank_local(
         if (keys[j], rolls[j]) != first[j]:  # refined
             m = replace(m, azimuth=keys[j][1], elevation=keys[j][2], inplane=rolls[j])
         out.append(m)
-    return out + [m for i, m in enumerate(matches) if every[i] not in local]
+    return (out + [m for i, m in enumerate(matches) if every[i] not in local])[:k]
 
 
 #: viewpoint refinement: the nearest other viewpoints tried (within 1.5 neighbour steps: `service.refine`)
