@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -102,7 +103,12 @@ def export_onnx(
         dynamo=True,
     )
     model = onnx.load(str(out))
-    info = ModelInfo(modality, float(window_mm), cfg.size, cfg.descriptor_dim, dict(extra or {}))
+    extra = dict(extra or {})
+    if depth_mask is not None:  # the band, for what reads the file (`training.graft`)
+        extra.setdefault(
+            "mask", json.dumps({"from": "depth", "near_mm": depth_mask[0], "far_mm": depth_mask[1]})
+        )
+    info = ModelInfo(modality, float(window_mm), cfg.size, cfg.descriptor_dim, extra)
     del model.metadata_props[:]
     for k, v in info.to_metadata().items():
         model.metadata_props.add(key=k, value=str(v))

@@ -14,7 +14,7 @@ from posedesc.cli import UserError
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("run", type=Path, help="run folder of `posedesc train`")
+    p.add_argument("run", type=Path, nargs="?", help="run folder of `posedesc train` (omitted with --onto)")
     p.add_argument("--out", type=Path, required=True, help="MODEL.onnx")
     p.add_argument(
         "--checkpoint",
@@ -31,6 +31,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "service blacks out what is not the centred object before describing a patch",
     )
 
+    p.add_argument(
+        "--onto",
+        type=Path,
+        default=None,
+        metavar="MODEL.onnx",
+        help="put the --mask head (one trained with --mask-finetune) into this exported rgb model, or join "
+        "this RGB-D model's depth mask, without the descriptor's run (training/graft.py)",
+    )
     p.add_argument(
         "--as-rgbd",
         default=None,
@@ -51,6 +59,10 @@ def _near_far(text: str) -> tuple[float, float]:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.onto is not None:
+        return _graft(args)
+    if args.run is None:
+        raise UserError("give the training run folder to export (or --onto MODEL.onnx with --mask)")
     if not (args.run / "checkpoint.pt").is_file():
         raise UserError(f"{args.run} has no checkpoint.pt: not a training run folder")
     if args.mask is not None and not (args.mask / "mask.pt").is_file():
@@ -111,4 +123,30 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as e:
         raise UserError(str(e)) from None
     print(f"{args.run} -> {out} ({out.stat().st_size / 1e6:.2f} MB)")
+    return 0
+
+
+def _graft(args: argparse.Namespace) -> int:
+    if args.run is not None or args.as_rgbd is not None:
+        raise UserError("--onto takes the model and --mask only: no run folder, no --as-rgbd")
+    if args.mask is None or not (args.mask / "mask.pt").is_file():
+        raise UserError("--onto needs --mask MASK_RUN, a `posedesc train --arch mask` run folder")
+    if not args.onto.is_file():
+        raise UserError(f"--onto: no such model file: {args.onto}")
+    from training.graft import graft_mask
+    from training.mask import load_mask
+
+    mask_net, state = load_mask(args.mask)
+    about = {
+        "step": state["step"],
+        "val_iou": round(state["val_iou"], 4),
+        "command": state.get("command", ""),
+        "code": state.get("code", ""),
+        "onto": args.onto.name,
+    }
+    try:
+        out = graft_mask(args.onto, mask_net, args.out, about)
+    except (ValueError, OSError) as e:
+        raise UserError(str(e)) from None
+    print(f"{args.onto} + {args.mask} -> {out} ({out.stat().st_size / 1e6:.2f} MB)")
     return 0
