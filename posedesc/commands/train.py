@@ -66,8 +66,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--mask-finetune",
         type=float,
         default=0.0,
-        help="--arch mask: also train a copy of the trunk and the later stages, at the learning rate times "
-        "this (0: frozen, shared with the descriptor)",
+        help="mask heads (arch mask): also train a copy of the trunk and the later stages, at the learning "
+        "rate times this (0: frozen, shared with the descriptor)",
     )
     p.add_argument(
         "--val",
