@@ -64,15 +64,26 @@ def masked_cosine(cosines: np.ndarray, weights: np.ndarray) -> np.ndarray:
 
 
 def masked_distance(
-    cosines: np.ndarray, silhouettes: np.ndarray, query_mask: np.ndarray | None = None
+    cosines: np.ndarray, silhouettes: np.ndarray, query_mask: np.ndarray | None = None, coverage: float = 0.0
 ) -> np.ndarray:
     """The re-ranking's score: `masked_cosine` over the template's silhouette, averaged with the same
     over the query's mask when there is one (where the template's object is, the query must look like
-    it; where the query's object is, the template must). Shape: (N, G * G) x 2 or 3 -> (N,)."""
+    it; where the query's object is, the template must); plus `coverage` times the share of the query's
+    mask the template's silhouette leaves uncovered (`uncovered`: the object seen must lie inside the
+    template's outline, whatever hides part of it). Shape: (N, G * G) x 2 or 3 -> (N,)."""
     score = masked_cosine(cosines, silhouettes)
     if query_mask is None:
         return score
-    return 0.5 * (score + masked_cosine(cosines, query_mask))
+    score = 0.5 * (score + masked_cosine(cosines, query_mask))
+    return score + coverage * uncovered(query_mask, silhouettes) if coverage else score
+
+
+def uncovered(query_mask: np.ndarray, silhouettes: np.ndarray) -> np.ndarray:
+    """The share of the query's mask outside the template's silhouette, in [0, 1] (cells' shares of
+    both, `cell_weights`; an empty query mask: 0). Shape: (N, G * G) x 2 -> (N,)."""
+    area = query_mask.sum(axis=1)
+    inside = (query_mask * silhouettes).sum(axis=1)
+    return np.where(area > 0, 1.0 - inside / np.maximum(area, 1e-12), 0.0)
 
 
 def with_silhouettes(local: np.ndarray, depth: np.ndarray, grid: int) -> np.ndarray:

@@ -129,7 +129,8 @@ def recognise_decoded(state: AppState, q: Query, d: Decoded, decode_s: float | N
     if rerank:
         mask = None if keep is None else (float(p.offsets[0]), keep[0])
         spacing = state.templates.inplane_spacing(step)
-        matches = rerank_local(snap, q, d, matches, mask, state.settings.roll_refine, spacing, q.k)
+        coverage = state.settings.mask_coverage
+        matches = rerank_local(snap, q, d, matches, mask, state.settings.roll_refine, spacing, q.k, coverage)
     matches = matches[: q.k]
     t5 = time.perf_counter()
     before = {} if decode_s is None else {"decode": decode_s}
@@ -170,6 +171,7 @@ def rerank_local(
     refine: int = 0,
     spacing: float = 0.0,
     k: int | None = None,
+    coverage: float = 0.0,
 ) -> list[Match]:
     """The answers re-ranked by local similarity: the query is cut once per roll the answers give
     (turned upright for each), and its local features (`index.embed.LOCAL_NAME`, the pretrained trunk's
@@ -182,7 +184,8 @@ def rerank_local(
     keeps its place after those that have. `refine` > 0: the best `refine` answers are also compared at
     the viewpoints around theirs and at their roll +- `spacing` / 3 (`spacing`: the templates' in-plane
     step), and keep the pose that scores best (`service.refine`). Measured on validation frames (README,
-    Evaluation). `k`: only the best k answers are wanted (the rest are not made)."""
+    Evaluation). `k`: only the best k answers are wanted (the rest are not made). `coverage`:
+    `index.local.masked_distance`'s weight of the query's mask left outside a template's silhouette."""
     local = snap.models[d.modality].local
     every = [local_key(m.object_id, m.azimuth, m.elevation) for m in matches]
     have = [i for i, k in enumerate(every) if k in local]
@@ -191,10 +194,10 @@ def rerank_local(
     keys = [every[i] for i in have]
     rolls = [round(matches[i].inplane, 3) for i in have]
     cuts: dict[float, tuple[np.ndarray, np.ndarray | None]] = {}  # the query's cuts, shared with refinement
-    score = local_scores(q, d, [local[k] for k in keys], rolls, mask, cuts)
+    score = local_scores(q, d, [local[k] for k in keys], rolls, mask, cuts, coverage)
     first = list(zip(keys, rolls, strict=True))
     if refine > 0:
-        score, keys, rolls = _refined(q, d, local, score, keys, rolls, mask, refine, spacing, cuts)
+        score, keys, rolls = _refined(q, d, local, score, keys, rolls, mask, refine, spacing, cuts, coverage)
     order, seen = np.argsort(score, kind="stable"), set()
     out: list[Match] = []
     for j in order:  # two answers refined to one viewpoint: the better one stays
@@ -225,6 +228,7 @@ def _refined(
     refine: int,
     spacing: float,
     cuts: dict[float, tuple[np.ndarray, np.ndarray | None]],
+    coverage: float = 0.0,
 ) -> tuple[np.ndarray, list[Key], list[float]]:
     """The best `refine` answers compared also at the viewpoints around theirs and at their roll +- a
     third of the in-plane `spacing` (`service.refine`); each keeps the (viewpoint, roll) scoring best."""
@@ -239,7 +243,7 @@ def _refined(
             tried += [(int(j), v, r) for v in views if (v, r) != (keys[j], rolls[j])]
     if not tried:
         return score, keys, rolls
-    more = local_scores(q, d, [local[v] for _, v, _ in tried], [r for _, _, r in tried], mask, cuts)
+    more = local_scores(q, d, [local[v] for _, v, _ in tried], [r for _, _, r in tried], mask, cuts, coverage)
     for (j, v, r), s in zip(tried, more, strict=True):
         if s < score[j]:
             score[j], keys[j], rolls[j] = s, v, r
@@ -253,6 +257,7 @@ def local_scores(
     rolls: Sequence[float],
     mask: tuple[float, np.ndarray] | None = None,
     cuts: dict[float, tuple[np.ndarray, np.ndarray | None]] | None = None,
+    coverage: float = 0.0,
 ) -> np.ndarray:
     """The re-ranking's score of each stored template (`refs`, local features and silhouettes) against the
     query cut upright at its roll (`rolls`, degrees). `cuts`: the query's local features and mask by roll,
@@ -286,7 +291,7 @@ def local_scores(
         t, silhouettes = split_silhouettes(t, grid)
         masks = [m for r in distinct if (m := cuts[r][1]) is not None]  # all or none: one model, one query
         query_mask = cell_weights(np.stack(masks), grid)[row] if masks else None
-        score = masked_distance(cell_cosines(feats, t, grid, row), silhouettes, query_mask)
+        score = masked_distance(cell_cosines(feats, t, grid, row), silhouettes, query_mask, coverage)
     out = np.empty_like(score)
     out[order] = score
     return out

@@ -6,6 +6,8 @@ model's depth mask (`posedesc export --as-rgbd`): there a pixel is the centred o
 band and the learnt mask both say so (the minimum of the two logits is positive). The descriptor and the
 local features are the exported model's, node for node, so a store's templates stay valid (the
 fingerprint of the file changes, and the service embeds the templates again once, as for any new file).
+The open-set calibration (`reject_above`) is dropped: it was measured with the old mask's scores
+(`scripts/calibrate_reject.py` makes it again).
 `posedesc export --onto MODEL.onnx --mask MASK_RUN --out NEW.onnx`.
 """
 
@@ -114,6 +116,8 @@ def graft_mask(model: Path, mask: MaskNet, out: Path, about: dict | None = None)
         ir_version=base.ir_version,
     )
     onnx.checker.check_model(merged)
+    # a calibration of the open-set threshold measured the old mask's scores: calibrate the new model again
+    meta.pop("reject_above", None)
     for k, v in {**meta, "mask": json.dumps(entry)}.items():
         merged.metadata_props.add(key=k, value=v)
     out.parent.mkdir(parents=True, exist_ok=True)

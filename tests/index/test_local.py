@@ -53,3 +53,17 @@ def test_clutter_outside_the_mask_does_not_count_but_inside_it_does():
     assert distance(query, np.zeros_like(w)) > 0.0
     query[0, :, 1, 1] = -template[0, :, 1, 1]  # one object cell opposite: 1 - cos = 2, a quarter of it
     assert abs(distance(query, w) - 0.5) < 1e-5
+
+
+def test_coverage_charges_the_query_mask_a_silhouette_leaves_out():
+    """`uncovered`: the share of the query's mask outside the template's silhouette (an occluder cutting
+    the query's mask costs nothing); `masked_distance` adds it times `coverage`, and only with a mask."""
+    from index.local import masked_distance, uncovered
+
+    q = np.array([[1.0, 1.0, 0.0, 0.0], [1.0, 1.0, 0.0, 0.0], [0.0, 0.0, 0.0, 0.0]])
+    sil = np.array([[1.0, 1.0, 1.0, 1.0], [1.0, 0.0, 0.0, 1.0], [1.0, 0.0, 0.0, 0.0]])
+    np.testing.assert_allclose(uncovered(q, sil), [0.0, 0.5, 0.0])
+    cos = np.full((3, 4), 0.5)
+    base = masked_distance(cos, sil, q)
+    np.testing.assert_allclose(masked_distance(cos, sil, q, 0.3), base + 0.3 * np.array([0.0, 0.5, 0.0]))
+    np.testing.assert_allclose(masked_distance(cos, sil, None, 0.3), masked_distance(cos, sil))

@@ -19,7 +19,9 @@ def exported(tmp_path_factory):
     torch.manual_seed(2)
     folder = tmp_path_factory.mktemp("graft")
     net = DescriptorNet(NetConfig("rgb", 32, arch="trunk"))
-    rgb = export_onnx(net, folder / "rgb.onnx", 200.0, {"arch": "trunk"}, mask=MaskNet().eval())
+    rgb = export_onnx(
+        net, folder / "rgb.onnx", 200.0, {"arch": "trunk", "reject_above": "{}"}, mask=MaskNet().eval()
+    )
     rgbd = export_onnx(net, folder / "rgbd.onnx", 200.0, {"arch": "trunk"}, depth_mask=(40.0, 90.0))
     mask = MaskNet(own_stem=True)
     with torch.no_grad():  # a copy that is not ImageNet's any more
@@ -42,6 +44,7 @@ def test_an_rgb_model_takes_the_head_and_keeps_its_descriptors(exported, tmp_pat
     assert (after.mask(x) != before.mask(x)).any()  # the old head is gone
     assert json.loads(after.info.extra["mask"]) == {"step": 7, "from": "learnt"}
     assert after.info.extra["arch"] == "trunk"  # the rest of the metadata carried over
+    assert "reject_above" in before.info.extra and "reject_above" not in after.info.extra  # stale
 
 
 def test_an_rgbd_model_keeps_what_depth_and_head_both_keep(exported, tmp_path):
