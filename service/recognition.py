@@ -302,12 +302,13 @@ def foreground(d: Decoded, p: Patches) -> tuple[Patches, np.ndarray]:
     object black (colour) and empty (depth), as a template's background is, and that mask (N, S, S)
     bool. The descriptor and the local features then see the object, not what stands around it:
     measured on validation frames (README, Evaluation), the rgb network within 20 deg 44 -> 50 % with its
-    mask head against the same network re-ranked over template silhouettes only. The depth's holes are
-    filled first (`filled`): what the mask empties stays empty."""
-    p = filled(p)
+    mask head against the same network re-ranked over template silhouettes only. The mask reads the depth
+    as measured: a pixel without depth is not known to lie in an RGB-D model's band, so it is not the
+    object's (filling first flooded a patch cut out on an empty background with the object's depth, and
+    its mask with it). The depth's holes are then filled (`filled`) and what the mask empties stays empty."""
     x = batch_inputs(d.modality, p.rgb, p.depth, p.distance, d.embedder.info.window_mm, fill=False)
     keep = d.embedder.mask(x)
-    return masked(p, keep), keep
+    return masked(filled(p), keep), keep
 
 
 def filled(p: Patches) -> Patches:

@@ -96,20 +96,33 @@ def test_query_turns_refine_the_roll(tmp_path_factory, shipped_rgb, renderer, l_
 
 def test_refinement_finds_a_roll_between_templates(tmp_path_factory, shipped_rgb, renderer, l_shape, t_shape):
     """Templates every 30°, no query turns: an object rolled 10° (or -50°...) is 10° from the nearest
-    template's roll; the refinement compares the best answers at their roll +- 10° too and finds it."""
-    c = serve(
-        tmp_path_factory, shipped_rgb, l_shape, t_shape, inplane_step=30, inplane_max=180, roll_refine=5
-    )
-    try:
-        errors = []
-        for phi in (10.0, -50.0, 100.0, 160.0, -110.0):  # each 10° from the nearest template's roll
-            best = ask(c, renderer, l_shape, View(AZ, EL, phi, 600.0))["best"]
-            assert best["name"] == "L", (phi, best)
-            errors.append(roll_error(best, phi))
-        # measured: three found exactly, two on the neighbouring template's side (10° off, as unrefined)
-        assert max(errors) <= 10.0 + 1e-6 and sum(e < 1e-3 for e in errors) >= 3, errors
-    finally:
-        c.__exit__(None, None, None)
+    template's roll, so without refinement no answer's roll is exact; the refinement compares the best
+    answers at their roll +- 10° too, finds it for many and is never worse than the nearest template."""
+    phis = (10.0, -50.0, 100.0, 160.0, -110.0, 40.0, -80.0, 130.0, -170.0, 70.0)  # 10° off a template
+    errors: dict[int, list[float]] = {}
+    for refine in (0, 5):
+        c = serve(
+            tmp_path_factory,
+            shipped_rgb,
+            l_shape,
+            t_shape,
+            inplane_step=30,
+            inplane_max=180,
+            roll_refine=refine,
+        )
+        try:
+            errors[refine] = []
+            for phi in phis:
+                answer = ask(c, renderer, l_shape, View(AZ, EL, phi, 600.0))
+                best = answer["best"] or answer["matches"][0]  # judged unknown or not: the nearest answer
+                assert best["name"] == "L" or not refine, (phi, best)  # unrefined, one was the T
+                errors[refine].append(roll_error(best, phi) if best["name"] == "L" else 180.0)
+        finally:
+            c.__exit__(None, None, None)
+    assert min(errors[0]) >= 10.0 - 1e-6, errors  # the templates' rolls only
+    # measured: refined, the model shipped at 9495db2 found 7 of the 10 exactly, the fine-tuned mask's 6;
+    # the others stay on the nearest template's side (10° off); unrefined, one or two were the T
+    assert max(errors[5]) <= 10.0 + 1e-6 and sum(e < 1e-3 for e in errors[5]) >= 4, errors
 
 
 def test_turns_of_an_upright_store_span_the_whole_turn(
