@@ -133,21 +133,9 @@ class Embedder:
         descriptor size, both reading colour, and the same descriptors and local features of the probe
         (`probe`). The RGB-D model written from the rgb run (`posedesc export --as-rgbd`) is the rgb
         network on the colour channels, its mask from depth: registration embeds its templates once."""
-        a, b = self.info, other.info
-        colour = {"rgb", "rgbd"}
-        if not (a.modality in colour and b.modality in colour and a.modality != b.modality):
+        if {self.modality, other.modality} != {"rgb", "rgbd"}:
             return False
-        if (
-            (a.window_mm, a.size, a.descriptor_dim, a.inplane_step)
-            != (
-                b.window_mm,
-                b.size,
-                b.descriptor_dim,
-                b.inplane_step,
-            )
-            or self.has_local != other.has_local
-            or self.local_grid != other.local_grid
-        ):
+        if _template_shape(self) != _template_shape(other):
             return False
         (d1, l1), (d2, l2) = self.probe(), other.probe()
         if d1.shape != d2.shape or not np.allclose(d1, d2, atol=1e-5):
@@ -196,6 +184,12 @@ class Embedder:
         `local` the local features (N, F) instead."""
         x = batch_inputs(self.modality, rgb, depth, nominal_mm, self.info.window_mm, fill)
         return self.local(x) if local else self(x)
+
+
+def _template_shape(e: Embedder) -> tuple:
+    """What two models must share for their templates to be interchangeable, before their outputs."""
+    i = e.info
+    return i.window_mm, i.size, i.descriptor_dim, i.inplane_step, e.has_local, e.local_grid
 
 
 def _per_output(model: onnx.ModelProto, outputs: list[str]) -> dict[str, onnx.ModelProto]:

@@ -22,8 +22,8 @@ def cell_cosines(
     query: np.ndarray, templates: np.ndarray, grid: int, rows: np.ndarray | None = None
 ) -> np.ndarray:
     """Cosine between a query's and each template's values in each cell (a zero cell: 0): template j
-    against query `rows[j]` (default j; templates sorted by their row are compared without copies). Shape: (Q, C * G * G), (N, C * G * G) channels first, rows (N,)
-    -> (N, G * G)."""
+    against query `rows[j]` (default j; templates sorted by their row are compared without copies).
+    Shape: (Q, C * G * G), (N, C * G * G) channels first, rows (N,) -> (N, G * G)."""
     n, g2 = len(templates), grid * grid
     q = _float32(query).reshape(len(query), -1, g2)
     q = q / (np.sqrt(np.einsum("qcg,qcg->qg", q, q))[:, None] + 1e-12)  # each query cell a unit vector
