@@ -43,14 +43,6 @@ def patch_camera(spec: PatchSpec, distance_mm: float) -> np.ndarray:
     return np.array([[f, 0.0, c], [0.0, f, c], [0.0, 0.0, 1.0]])
 
 
-def _homography(
-    K: np.ndarray, centre_uv: tuple[float, float], distance_mm: float, spec: PatchSpec, inplane: float
-):
-    """Patch pixel -> frame pixel, and each patch pixel's ray z in the frame's camera (for depth)."""
-    Hs, rots, Kv_inv = _homographies(K, centre_uv, distance_mm, spec, [inplane])
-    return Hs[0], rots[0], Kv_inv
-
-
 def _homographies(
     K: np.ndarray,
     centre_uv: tuple[float, float],
@@ -58,19 +50,11 @@ def _homographies(
     spec: PatchSpec,
     inplanes: Sequence[float] | np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """`_homography` for several in-planes at once: the ray, its alignment and the virtual camera are
-    the same for all (only the roll about the patch's axis differs). Shape: (N, 3, 3) x 2, (3, 3)."""
+    """Patch pixel -> frame pixel for each in-plane (N, 3, 3), the virtual camera's directions in the
+    frame's camera (N, 3, 3; their z scales depth) and the virtual camera's inverse (3, 3). The ray, its
+    alignment and the virtual camera are computed once: only the roll about the patch's axis differs."""
     ray = np.linalg.inv(K) @ np.array([centre_uv[0], centre_uv[1], 1.0])
-    a = np.radians(np.asarray(inplanes, float))
-    c, sn = np.cos(a), np.sin(a)
-    roll = np.zeros((len(a), 3, 3))
-    roll[:, 0, 0], roll[:, 0, 1], roll[:, 1, 0], roll[:, 1, 1], roll[:, 2, 2] = (
-        c,
-        sn,
-        -sn,
-        c,
-        1.0,
-    )  # roll_rotation
+    roll = np.stack([roll_rotation(float(a)) for a in inplanes]).reshape(-1, 3, 3)
     rots = align_rotation(ray) @ roll  # virtual camera directions -> frame camera
     Kv_inv = np.linalg.inv(patch_camera(spec, distance_mm))
     Hs = K @ rots @ Kv_inv

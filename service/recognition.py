@@ -373,8 +373,12 @@ def cut(
         rgb, depth, distance = _from_patch(q, rgb, depth, spec)
         K, centre = patch_camera(spec, distance), ((spec.size - 1) / 2, (spec.size - 1) / 2)
     offsets = np.asarray(offsets, float)
-    rgbs, depths = crops(rgb, depth, K, centre, distance, spec, offsets)
-    if not given:  # the patch itself where it is not turned: no resampling
+    if given or offsets.any():
+        rgbs, depths = crops(rgb, depth, K, centre, distance, spec, offsets)
+    else:  # a patch, unturned (the usual query): no warp at all
+        rgbs = None if rgb is None else np.empty((len(offsets), *rgb.shape), np.uint8)
+        depths = None if depth is None else np.empty((len(offsets), *depth.shape), np.float32)
+    if not given:  # a patch where it is not turned: the patch itself, no resampling
         unturned = offsets == 0
         if rgbs is not None and rgb is not None:
             rgbs[unturned] = rgb

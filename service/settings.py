@@ -70,7 +70,7 @@ class Settings(BaseSettings):
         "around theirs and at their roll +- a third of the templates' in-plane step, and keep the pose that "
         "fits best (0: off)",
     )  # fmt: skip
-    # 0.3: chosen on validation frames among 0, 0.15, 0.3, 0.5, 0.6, 1 with the learnt masks (README, Evaluation)
+    # 0.3: chosen on validation frames among 0, 0.15, 0.3, 0.5, 0.6, 1 (README, Evaluation)
     mask_coverage: float = Field(
         0.3, ge=0, le=10, description="re-ranking with a query mask: add this times the share of the mask "
         "that a template's silhouette leaves uncovered (0: off)",
