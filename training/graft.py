@@ -24,7 +24,7 @@ from torch import nn
 from index.embed import INPUT_NAME, LOCAL_NAME, MASK_NAME, ModelInfo
 from training.mask import MaskNet
 
-PREFIX = "mask_graft/"
+MASK_PREFIX, LOCAL_PREFIX = "mask_graft/", "local_graft/"
 
 
 class LearntMask(nn.Module):
@@ -63,9 +63,7 @@ def graft_mask(model: Path, mask: MaskNet, out: Path, about: dict | None = None)
     base = onnx.load(str(model))
     meta = {p.key: p.value for p in base.metadata_props}
     info = ModelInfo.from_metadata(meta)
-    outputs = [o.name for o in base.graph.output]
-    keep = [o for o in outputs if o != MASK_NAME]
-    if LOCAL_NAME not in keep or info.modality not in ("rgb", "rgbd"):
+    if LOCAL_NAME not in [o.name for o in base.graph.output] or info.modality not in ("rgb", "rgbd"):
         raise ValueError(f"{model} is not a colour trunk model (rgb, or rgbd from one): no mask head fits it")
     entry = {**(about or {})}
     module: nn.Module
@@ -81,44 +79,93 @@ def graft_mask(model: Path, mask: MaskNet, out: Path, about: dict | None = None)
     else:
         module = LearntMask(mask.eval())
         entry |= {"from": "learnt"}
+    # a calibration of the open-set threshold measured the old mask's scores: calibrate the new model again
+    meta.pop("reject_above", None)
+    return _splice(base, module, MASK_NAME, MASK_PREFIX, {**meta, "mask": json.dumps(entry)}, out)
+
+
+class LocalMap(nn.Module):
+    """A fine-tuned copy of the trunk's map, L2-normalised and flattened as `training.export.WithLocal`
+    writes it, read from the colour channels. Shape: (B, C, S, S) -> (B, F)."""
+
+    def __init__(self, trunk: nn.Module):
+        super().__init__()
+        self.trunk = trunk
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        flat = self.trunk(x[:, :3]).flatten(1)
+        return flat / torch.sqrt((flat * flat).sum(dim=1, keepdim=True) + 1e-12)
+
+
+def graft_local(model: Path, trunk: nn.Module, out: Path, about: dict | None = None) -> Path:
+    """Writes `model` with its local features (`LOCAL_NAME`, what the re-ranking compares) made by
+    `trunk` (a copy of the pretrained trunk fine-tuned for the re-ranking: `training.local`) to `out`;
+    `about` goes into the metadata's `local` entry. The descriptor and the mask are the model's, node for
+    node; the map's shape must be the model's (the store's templates are re-embedded for the new file).
+    Raises ValueError for a model without local features."""
+    base = onnx.load(str(model))
+    meta = {p.key: p.value for p in base.metadata_props}
+    info = ModelInfo.from_metadata(meta)
+    if LOCAL_NAME not in [o.name for o in base.graph.output] or info.modality not in ("rgb", "rgbd"):
+        raise ValueError(
+            f"{model} is not a colour trunk model (rgb, or rgbd from one): it has no local features"
+        )
+    meta.pop("reject_above", None)  # measured with the old features' scores
+    return _splice(
+        base,
+        LocalMap(trunk.eval()),
+        LOCAL_NAME,
+        LOCAL_PREFIX,
+        {**meta, "local": json.dumps(about or {})},
+        out,
+    )
+
+
+def _splice(
+    base: onnx.ModelProto, module: nn.Module, name: str, prefix: str, meta: dict[str, str], out: Path
+) -> Path:
+    """`base` with its output `name` made by `module` instead (its nodes under `prefix`), `meta` as its
+    metadata, written to `out`."""
+    info = ModelInfo.from_metadata(meta)
     channels = 4 if info.modality == "rgbd" else 3
     with tempfile.TemporaryDirectory() as tmp:
-        path = Path(tmp) / "mask.onnx"
+        path = Path(tmp) / "part.onnx"
         torch.onnx.export(
             module.eval(),
             (torch.zeros(2, channels, info.size, info.size),),
             str(path),
             input_names=[INPUT_NAME],
-            output_names=[MASK_NAME],
+            output_names=[name],
             dynamic_shapes={"x": {0: torch.export.Dim("batch", min=1, max=65536)}},
             external_data=False,
             dynamo=True,
         )
-        head = onnx.load(str(path))
+        part = onnx.load(str(path))
     opsets = {o.domain: o.version for o in base.opset_import}
-    if any(opsets.get(o.domain, o.version) != o.version for o in head.opset_import):
+    if any(opsets.get(o.domain, o.version) != o.version for o in part.opset_import):
         raise ValueError(
-            f"{model} was exported with other operator sets than this torch writes: export it again"
+            "the model was exported with other operator sets than this torch writes: export it again"
         )
+    keep = [o.name for o in base.graph.output if o.name != name]
+    outputs = [o.name for o in base.graph.output]
     trimmed = onnx.utils.Extractor(base).extract_model([INPUT_NAME], keep)
-    head = onnx.compose.add_prefix(head, PREFIX, rename_inputs=False, rename_outputs=False)
+    part = onnx.compose.add_prefix(part, prefix, rename_inputs=False, rename_outputs=False)
+    by_name = {o.name: o for o in [*trimmed.graph.output, *part.graph.output]}
     graph = onnx.helper.make_graph(
-        [*trimmed.graph.node, *head.graph.node],
+        [*trimmed.graph.node, *part.graph.node],
         base.graph.name,
         list(base.graph.input),
-        [*trimmed.graph.output, *head.graph.output],
-        initializer=[*trimmed.graph.initializer, *head.graph.initializer],
-        value_info=[*trimmed.graph.value_info, *head.graph.value_info],
+        [by_name[o] for o in outputs],  # the outputs in the model's order
+        initializer=[*trimmed.graph.initializer, *part.graph.initializer],
+        value_info=[*trimmed.graph.value_info, *part.graph.value_info],
     )
     merged = onnx.helper.make_model(
         graph,
-        opset_imports=[*base.opset_import, *(o for o in head.opset_import if o.domain not in opsets)],
+        opset_imports=[*base.opset_import, *(o for o in part.opset_import if o.domain not in opsets)],
         ir_version=base.ir_version,
     )
     onnx.checker.check_model(merged)
-    # a calibration of the open-set threshold measured the old mask's scores: calibrate the new model again
-    meta.pop("reject_above", None)
-    for k, v in {**meta, "mask": json.dumps(entry)}.items():
+    for k, v in meta.items():
         merged.metadata_props.add(key=k, value=v)
     out.parent.mkdir(parents=True, exist_ok=True)
     onnx.save(merged, str(out))

@@ -32,12 +32,20 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
 
     p.add_argument(
+        "--local",
+        type=Path,
+        default=None,
+        help="with --onto: run folder of `posedesc train --arch local`: its best trunk copy makes the "
+        "model's local features (what the service re-ranks by)",
+    )
+    p.add_argument(
         "--onto",
         type=Path,
         default=None,
         metavar="MODEL.onnx",
         help="put the --mask head (one trained with --mask-finetune) into this exported rgb model, or join "
-        "this RGB-D model's depth mask, without the descriptor's run (training/graft.py)",
+        "this RGB-D model's depth mask, and/or the --local features, without the descriptor's run "
+        "(training/graft.py)",
     )
     p.add_argument(
         "--as-rgbd",
@@ -128,25 +136,51 @@ def run(args: argparse.Namespace) -> int:
 
 def _graft(args: argparse.Namespace) -> int:
     if args.run is not None or args.as_rgbd is not None:
-        raise UserError("--onto takes the model and --mask only: no run folder, no --as-rgbd")
-    if args.mask is None or not (args.mask / "mask.pt").is_file():
-        raise UserError("--onto needs --mask MASK_RUN, a `posedesc train --arch mask` run folder")
+        raise UserError("--onto takes the model, --mask and --local only: no run folder, no --as-rgbd")
+    if args.mask is None and args.local is None:
+        raise UserError(
+            "--onto needs --mask MASK_RUN (`posedesc train --arch mask`) or --local LOCAL_RUN (--arch local)"
+        )
+    if args.mask is not None and not (args.mask / "mask.pt").is_file():
+        raise UserError(f"--mask: {args.mask} has no mask.pt: not a `posedesc train --arch mask` run folder")
+    if args.local is not None and not (args.local / "local.pt").is_file():
+        raise UserError(
+            f"--local: {args.local} has no local.pt: not a `posedesc train --arch local` run folder"
+        )
     if not args.onto.is_file():
         raise UserError(f"--onto: no such model file: {args.onto}")
-    from training.graft import graft_mask
+    import tempfile
+
+    from training.graft import graft_local, graft_mask
+    from training.local import load_local
     from training.mask import load_mask
 
-    mask_net, state = load_mask(args.mask)
-    about = {
-        "step": state["step"],
-        "val_iou": round(state["val_iou"], 4),
-        "command": state.get("command", ""),
-        "code": state.get("code", ""),
-        "onto": args.onto.name,
-    }
     try:
-        out = graft_mask(args.onto, mask_net, args.out, about)
+        with tempfile.TemporaryDirectory() as tmp:
+            model = args.onto
+            if args.mask is not None:
+                mask_net, state = load_mask(args.mask)
+                about = _about(state, "val_iou") | {"onto": args.onto.name}
+                model = graft_mask(
+                    model, mask_net, args.out if args.local is None else Path(tmp) / "m.onnx", about
+                )
+            if args.local is not None:
+                trunk, state = load_local(args.local)
+                model = graft_local(
+                    model, trunk, args.out, _about(state, "val_top1") | {"onto": args.onto.name}
+                )
     except (ValueError, OSError) as e:
         raise UserError(str(e)) from None
-    print(f"{args.onto} + {args.mask} -> {out} ({out.stat().st_size / 1e6:.2f} MB)")
+    parts = " + ".join(str(p) for p in (args.mask, args.local) if p is not None)
+    print(f"{args.onto} + {parts} -> {model} ({model.stat().st_size / 1e6:.2f} MB)")
     return 0
+
+
+def _about(state: dict, score: str) -> dict:
+    """What a grafted part's metadata entry says of its run."""
+    return {
+        "step": state["step"],
+        score: round(state[score], 4),
+        "command": state.get("command", ""),
+        "code": state.get("code", ""),
+    }

@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING
 from posedesc.cli import UserError
 
 if TYPE_CHECKING:
+    from training.local import LocalConfig
     from training.mask import MaskConfig
     from training.train import TrainConfig
 
@@ -44,10 +45,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--minutes", type=float, default=25.0, help="wall-clock budget of the optimisation")
     p.add_argument("--max-steps", type=int, default=0, help="also stop after this many batches (0: no limit)")
     p.add_argument("--seed", type=int, default=0, help="random seed")
-    p.add_argument("--arch", choices=("paper", "trunk", "pca", "mask"), default="trunk",
+    p.add_argument("--arch", choices=("paper", "trunk", "pca", "mask", "local"), default="trunk",
                    help="trunk: frozen ImageNet MobileNetV2 stages + trained head (colour only); "
                    "mask: the foreground-mask head on the same stages (training/mask.py; "
                    "the export command adds it to a model); "
+                   "local: a copy of the stages fine-tuned for the re-ranking's local similarity "
+                   "(training/local.py; `export --onto MODEL --local RUN` puts it in a model); "
                    "pca: the same stages' map, pooled and projected on principal components of "
                    "procedural shapes' templates, no metric training (colour only); "
                    "paper: the paper's network (the baseline; depth and rgbd)")  # fmt: skip
@@ -68,6 +71,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default=0.0,
         help="mask heads (arch mask): also train a copy of the trunk and the later stages, at the learning "
         "rate times this (0: frozen, shared with the descriptor)",
+    )
+    p.add_argument(
+        "--query-mask",
+        type=Path,
+        default=None,
+        metavar="MASK_RUN",
+        help="--arch local: black the queries outside this `--arch mask` run's masks, as the service does "
+        "(default: outside their true masks)",
     )
     p.add_argument(
         "--val",
@@ -91,7 +102,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--resume",
         action="store_true",
-        help="continue the run in --out from its last checkpoint (checkpoint.pt, or mask.pt for --arch mask): "
+        help="continue the run in --out from its last checkpoint (checkpoint.pt; mask.pt, local.pt for --arch "
+        "mask, local): "
         "weights, optimiser, steps, time spent, best score, random states; the log is appended",
     )
 
@@ -115,8 +127,11 @@ OPTIONS = {
     "data.split.val": "--val",
     "data.split.test": "--test",
     "finetune": "--mask-finetune",
+    "query_mask": "--query-mask",
 }
-CHECKPOINTS = ("checkpoint.pt", "best.pt", "mask.pt", "mask-best.pt")
+CHECKPOINTS = ("checkpoint.pt", "best.pt", "mask.pt", "mask-best.pt", "local.pt", "local-best.pt")
+#: the checkpoint a run of each architecture resumes from (the descriptor's otherwise)
+RESUMES = {"mask": "mask.pt", "local": "local.pt"}
 
 
 def check_run_folder(
@@ -124,7 +139,8 @@ def check_run_folder(
 ) -> None:
     """Refuses (UserError) to train over a run without --resume, or to resume what cannot be: no
     checkpoint, other settings (`config`: the command's TrainConfig as a dict; `mask_config`: its
-    MaskConfig's, for --arch mask; `data`: the dataset folders), or no budget left."""
+    MaskConfig's for --arch mask, its LocalConfig's for --arch local; `data`: the dataset folders), or no
+    budget left."""
     from training.resume import config_differences, describe, resume_state
 
     held = [c for c in CHECKPOINTS if (out / c).is_file()]
@@ -136,7 +152,7 @@ def check_run_folder(
         return
     if arch == "pca":
         raise UserError("--resume: --arch pca is fitted in one pass, there is nothing to resume")
-    name = "mask.pt" if arch == "mask" else "checkpoint.pt"
+    name = RESUMES.get(arch, "checkpoint.pt")
     if not (out / name).is_file():
         raise UserError(f"--resume: no {name} in {out}, nothing to resume (train without --resume)")
     recorded = out / "config.json"
@@ -154,7 +170,7 @@ def check_run_folder(
             )
     ckpt = _load(out / name)
     try:
-        resume_state(ckpt, mask_config if arch == "mask" else config, OPTIONS, str(out / name))
+        resume_state(ckpt, mask_config if arch in RESUMES else config, OPTIONS, str(out / name))
     except ValueError as e:
         raise UserError(f"--resume: {e}") from None
 
@@ -197,15 +213,22 @@ def _code_version() -> str:
     return head.stdout.strip() + ("+changes" if dirty.stdout.strip() else "")
 
 
-def configs(args: argparse.Namespace) -> tuple[TrainConfig, MaskConfig]:
-    """The trainers' configs for the command's options."""
+def configs(args: argparse.Namespace) -> tuple[TrainConfig, MaskConfig | LocalConfig]:
+    """The trainers' configs for the command's options: the descriptor's, and the mask head's or (--arch
+    local) the local features' trainer's."""
     from training.data import DataConfig
     from training.mask import MaskConfig
     from training.splits import SplitConfig
     from training.train import TrainConfig
 
-    if args.arch == "mask" and args.modality != "rgb":
-        raise UserError("--arch mask: the mask head reads colour; train it with --modality rgb")
+    if args.arch in ("mask", "local") and args.modality != "rgb":
+        raise UserError(f"--arch {args.arch}: it reads colour; train it with --modality rgb")
+    if args.query_mask is not None and args.arch != "local":
+        raise UserError("--query-mask is for --arch local")
+    if args.query_mask is not None and not (args.query_mask / "mask.pt").is_file():
+        raise UserError(
+            f"--query-mask: {args.query_mask} has no mask.pt: not a `posedesc train --arch mask` run"
+        )
     arch = args.arch if args.modality == "rgb" else "paper"  # the pretrained trunk takes colour only
     dim = args.dim or {"trunk": 32, "pca": 64}.get(arch, 16)
     try:
@@ -244,6 +267,18 @@ def configs(args: argparse.Namespace) -> tuple[TrainConfig, MaskConfig]:
         seed=args.seed,
         finetune=args.mask_finetune,
     )
+    if args.arch == "local":
+        from training.local import LocalConfig
+
+        query_mask = "" if args.query_mask is None else str(args.query_mask.resolve())
+        lcfg = LocalConfig(
+            minutes=args.minutes,
+            max_steps=args.max_steps,
+            threads=args.threads,
+            seed=args.seed,
+            query_mask=query_mask,
+        )
+        return cfg, lcfg
     return cfg, mcfg
 
 
@@ -290,11 +325,22 @@ def run(args: argparse.Namespace) -> int:
 
     t1 = time.perf_counter()
     if arch == "mask":
-        from training.mask import train_mask
+        from training.mask import MaskConfig, train_mask
 
         with _resume_hint(args.out / "mask.pt"):
+            assert isinstance(mcfg, MaskConfig)
             train_mask(mcfg, data, args.out, command, _code_version(), resume=args.resume)
         print(f"trained the mask head for {(time.perf_counter() - t1) / 60:.1f} min -> {args.out}")
+        return 0
+    if arch == "local":
+        from training.local import LocalConfig, train_local
+        from training.mask import load_mask
+
+        assert isinstance(mcfg, LocalConfig)
+        head = load_mask(Path(mcfg.query_mask))[0] if mcfg.query_mask else None
+        with _resume_hint(args.out / "local.pt"):
+            train_local(mcfg, data, args.out, head, command, _code_version(), resume=args.resume)
+        print(f"trained the local features for {(time.perf_counter() - t1) / 60:.1f} min -> {args.out}")
         return 0
     if arch == "pca":
         from training.pca import run as fit_pca

@@ -1,0 +1,287 @@
+"""Local features for the re-ranking: a copy of the pretrained trunk fine-tuned for what the service asks of it.
+
+The service re-ranks its nearest answers by comparing the query's trunk map with each answer's template,
+cell by cell where the object is (`index.local.masked_distance`). The ImageNet trunk was never taught which
+differences matter there: a cluttered real patch against the right template and against the same object
+a half-turn away. This trains a copy of it on exactly that comparison. A query is a training sample
+(a synthetic render or a real patch of a training frame, clutter and occluders around it), black outside
+the mask head's mask (`query_mask`: as the service blacks it) or outside its true mask; its candidates are
+the template nearest its pose (symmetry-aware) and negatives: templates of the same object more than
+`far` degrees away (half of them within 70 degrees, the near misses) and templates of other objects. The
+score is the service's masked distance (without the coverage term, which no feature changes), and the loss
+the cross-entropy of the right template among them at temperature `tau`. The first stages stay
+ImageNet's (`frozen_stages`), BatchNorm keeps its statistics, the map's shape is the trunk's, so a store
+holds what it held. `posedesc export --onto MODEL.onnx --local RUN` puts it into an exported model
+(`training.graft.graft_local`); the descriptor and the mask stay the model's.
+
+Validation: the real instances of the validation frames, cut as the service cuts them (true centre, the
+camera's roll), each against its nearest template and fixed negatives drawn the same way: the share whose
+right template scores best (`val_top1`)."""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from index.local import cell_weights
+from index.patches import crop, network_input
+from training.data import TrainingData
+from training.mask import MaskNet
+from training.resume import resume_state, save_atomic
+from training.similarity import pose_distances, rotations
+from training.trunk import Trunk
+
+log = logging.getLogger(__name__)
+
+GRID_DIVISOR = 4  # the trunk's map is a quarter of the patch's side
+
+
+@dataclass
+class LocalConfig:
+    minutes: float = 40.0  # wall-clock budget
+    max_steps: int = 0  # also stop after this many steps (0: only the budget)
+    batch: int = 16  # queries a step
+    same: int = 9  # negatives of the query's own object a query
+    others: int = 3  # negatives of other objects a query
+    far: float = 25.0  # deg: a template of the same object this far from the query's pose is a negative
+    tau: float = 0.05  # softmax temperature over the candidates' distances (in [0, 2])
+    lr: float = 1e-4  # Adam, cosine decay to 0 over the budget (or max_steps)
+    frozen_stages: int = 2  # the trunk's first stages kept as ImageNet's
+    real_fraction: float = 0.6  # of a BOP object's queries, real patches of training frames
+    real_paste: float = 0.3  # of those, pasted on a random background
+    val_negatives: int = 28  # fixed negatives a validation instance (same and other objects, as in training)
+    steps_per_epoch: int = 150  # a validation and a checkpoint each
+    query_mask: str = ""  # a `posedesc train --arch mask` run whose mask blacks the queries ("": true masks)
+    threads: int = 2
+    seed: int = 0
+
+
+class LocalTrunk(Trunk):
+    """The trunk with its stages from `frozen` on trainable (BatchNorm keeps ImageNet's statistics)."""
+
+    def __init__(self, frozen: int = 2, pretrained: bool = True):
+        super().__init__(pretrained)
+        for i, stage in enumerate(self.features):
+            for p in stage.parameters():
+                p.requires_grad_(i >= frozen)
+
+
+def distances(fq: torch.Tensor, ft: torch.Tensor, qm: torch.Tensor, sil: torch.Tensor) -> torch.Tensor:
+    """`index.local.masked_distance` (coverage 0) of each query's map against its K candidates', in torch.
+    Shape: fq (B, C, G, G), ft (B, K, C, G, G), qm (B, G * G), sil (B, K, G * G) -> (B, K)."""
+    q = F.normalize(fq.flatten(2), dim=1, eps=1e-12)  # each cell a unit vector
+    t = F.normalize(ft.flatten(3), dim=2, eps=1e-12)
+    cos = (q[:, None] * t).sum(2)
+
+    def weighed(w: torch.Tensor) -> torch.Tensor:
+        w = torch.where(w.sum(-1, keepdim=True) > 0, w, torch.ones_like(w))
+        return ((1 - cos) * w).sum(-1) / w.sum(-1)
+
+    return 0.5 * (weighed(sil) + weighed(qm[:, None].expand_as(sil)))
+
+
+class Candidates:
+    """Templates to compare a query with: its nearest (first) and the negatives (`LocalConfig`)."""
+
+    def __init__(self, data: TrainingData, cfg: LocalConfig):
+        self.data, self.cfg = data, cfg
+        self.objects = [
+            o for o in range(data.n_objects) if len(data.s_by_obj.get(o, ())) or data.train_real.get(o)
+        ]
+
+    def __call__(
+        self, obj: int, R: np.ndarray, rng: np.random.Generator, same: int, others: int
+    ) -> list[tuple[int, int]]:
+        d = pose_distances(R[None], self.data.template_R, self.data.symmetries[obj])[0]
+        far = np.flatnonzero(d > self.cfg.far)
+        near = np.flatnonzero((d > self.cfg.far) & (d < 70.0))
+        picked = list(rng.choice(near, min(len(near), same // 2), replace=False)) if len(near) else []
+        picked += list(rng.choice(far, same - len(picked), replace=len(far) < same - len(picked)))
+        other = [o for o in range(self.data.n_objects) if o != obj] or [obj]
+        rest = [(int(rng.choice(other)), int(rng.integers(self.data.n_templates))) for _ in range(others)]
+        return [(obj, int(np.argmin(d))), *((obj, int(t)) for t in picked), *rest]
+
+
+def template_inputs(data: TrainingData, cands: list[list[tuple[int, int]]]) -> tuple[np.ndarray, np.ndarray]:
+    """The candidates' network inputs (B * K, 3, S, S) and silhouettes (B * K, S, S) bool."""
+    xs, sil = [], []
+    for row in cands:
+        for o, t in row:
+            rgb, depth = data.template_patch(o, t)
+            xs.append(network_input("rgb", rgb, None, data.cfg.distance, data.cfg.window_mm, fill=False))
+            sil.append(depth > 0)
+    return np.stack(xs), np.stack(sil)
+
+
+class Scorer:
+    """Queries and their candidates -> distances (B, K) through the trunk; the queries black outside the
+    mask head's mask (or their true masks)."""
+
+    def __init__(self, data: TrainingData, net: LocalTrunk, mask: MaskNet | None):
+        self.data, self.net, self.mask = data, net, mask
+        s = data.spec.size
+        black = network_input(
+            "rgb", np.zeros((s, s, 3), np.uint8), None, data.cfg.distance, data.cfg.window_mm
+        )
+        self.black = torch.from_numpy(black)[None]
+        self.grid = s // GRID_DIVISOR
+
+    def __call__(
+        self, x: np.ndarray, true_masks: np.ndarray, cands: list[list[tuple[int, int]]]
+    ) -> torch.Tensor:
+        xq = torch.from_numpy(x).float()
+        if self.mask is not None:
+            with torch.no_grad():
+                keep = (self.mask(xq) > 0)[:, 0]
+        else:
+            keep = torch.from_numpy(true_masks)
+        xq = torch.where(keep[:, None], xq, self.black)
+        tx, ts = template_inputs(self.data, cands)
+        k = len(cands[0])
+        fq = self.net(xq)
+        ft = self.net(torch.from_numpy(tx).float()).view(len(cands), k, *fq.shape[1:])
+        qm = torch.from_numpy(cell_weights(keep.numpy(), self.grid))
+        sil = torch.from_numpy(cell_weights(ts, self.grid)).view(len(cands), k, -1)
+        return distances(fq, ft, qm, sil)
+
+
+def _batch(data: TrainingData, cfg: LocalConfig, pick: Candidates, rng: np.random.Generator) -> tuple:
+    xs, ms, cands = [], [], []
+    for _ in range(cfg.batch):
+        obj = int(pick.objects[rng.integers(len(pick.objects))])
+        sample, R = data.draw(obj, rng, "rgb", cfg.real_fraction)
+        x, m = data.sample_with_mask(sample, "rgb", rng)
+        xs.append(x)
+        ms.append(m)
+        cands.append(pick(obj, R, rng, cfg.same, cfg.others))
+    return np.stack(xs), np.stack(ms), cands
+
+
+def validation_set(data: TrainingData, cfg: LocalConfig, pick: Candidates, split: str = "val") -> tuple:
+    """The real instances of `split` cut as the service cuts them, their true masks and fixed candidates."""
+    rng = np.random.default_rng(cfg.seed + 123)
+    xs, ms, cands = [], [], []
+    for i in data.test_instances(split):
+        r = data.real[i]
+        mask3 = np.repeat(((data.labels[r.frame] == r.obj + 1) * 255).astype(np.uint8)[..., None], 3, 2)
+        rgb, _ = crop(data.frames[r.frame], None, r.K, r.centre_uv, r.view.distance, data.spec)
+        m, _ = crop(mask3, None, r.K, r.centre_uv, r.view.distance, data.spec)
+        xs.append(network_input("rgb", rgb, None, data.cfg.distance, data.cfg.window_mm))
+        ms.append(m[..., 0] > 127)
+        share = cfg.same / max(1, cfg.same + cfg.others)
+        same = round(cfg.val_negatives * share)
+        cands.append(pick(r.obj, rotations([r.view])[0], rng, same, cfg.val_negatives - same))
+    return xs, ms, cands
+
+
+def validate(scorer: Scorer, val: tuple, chunk: int = 16) -> float:
+    """The share of validation instances whose right template scores best."""
+    xs, ms, cands = val
+    if not xs:
+        return 0.0
+    with torch.no_grad():
+        s = torch.cat(
+            [
+                scorer(np.stack(xs[i : i + chunk]), np.stack(ms[i : i + chunk]), cands[i : i + chunk])
+                for i in range(0, len(xs), chunk)
+            ]
+        )
+    return float((s.argmin(1) == 0).float().mean())
+
+
+def train_local(
+    cfg: LocalConfig,
+    data: TrainingData,
+    out: Path,
+    mask: MaskNet | None = None,
+    command: str = "",
+    code: str = "",
+    resume: bool = False,
+) -> LocalTrunk:
+    """Trains for `cfg.minutes` (or `cfg.max_steps`); keeps `local.pt` (every `steps_per_epoch` and the
+    last step) and `local-best.pt` (best validation top-1, the ImageNet trunk's score at step 0 first).
+    `mask`: the head whose masks black the queries (None: their true masks). `resume`: continue the run
+    of `out/local.pt` (made with the same `cfg`)."""
+    torch.manual_seed(cfg.seed)
+    torch.set_num_threads(cfg.threads)
+    rng = np.random.default_rng(cfg.seed + 11)
+    data.cfg.real_paste = cfg.real_paste
+    net = LocalTrunk(cfg.frozen_stages)
+    trained = [p for p in net.parameters() if p.requires_grad]
+    opt = torch.optim.Adam(trained, lr=cfg.lr)
+    pick = Candidates(data, cfg)
+    scorer = Scorer(data, net, mask.eval() if mask is not None else None)
+    val = validation_set(data, cfg, pick)
+    out.mkdir(parents=True, exist_ok=True)
+    budget, step, elapsed, best = cfg.minutes * 60, 0, 0.0, -1.0
+    if resume:
+        ckpt = torch.load(out / "local.pt", map_location="cpu", weights_only=False)
+        state = resume_state(ckpt, asdict(cfg), name=str(out / "local.pt"))
+        net.load_state_dict(ckpt["stem"])
+        opt.load_state_dict(state["optimizer"])
+        step, elapsed, best = ckpt["step"], state["elapsed"], state["best"]
+        rng.bit_generator.state = state["rng"]["batches"]
+        torch.set_rng_state(state["rng"]["torch"])
+    t0 = time.perf_counter() - elapsed
+    log_path = out / "local-log.jsonl"
+
+    def checkpoint(loss: float | None) -> None:
+        nonlocal best
+        score = validate(scorer, val)
+        rec = {"step": step, "minutes": round(elapsed / 60, 2), "loss": loss, "val_top1": score}
+        log.info("local %s", rec)
+        print(json.dumps(rec), flush=True)
+        state = {"stem": net.state_dict(), "config": asdict(cfg), "step": step, "val_top1": score}
+        state |= {"command": command, "code": code}
+        if score > best:
+            best = score
+            save_atomic(state, out / "local-best.pt")
+        state["resume"] = {
+            "optimizer": opt.state_dict(),
+            "elapsed": time.perf_counter() - t0,
+            "best": best,
+            "rng": {"batches": rng.bit_generator.state, "torch": torch.get_rng_state()},
+        }
+        save_atomic(state, out / "local.pt")
+        with log_path.open("a") as f:
+            f.write(json.dumps(rec) + "\n")
+
+    if step == 0:
+        checkpoint(None)  # the ImageNet trunk's score: the run keeps it unless training beats it
+    saved, loss = step, torch.zeros(())
+    while True:
+        elapsed = time.perf_counter() - t0
+        if elapsed >= budget or (cfg.max_steps and step >= cfg.max_steps):
+            if step > saved:
+                checkpoint(float(loss.detach()))
+            break
+        progress = max(elapsed / budget, step / cfg.max_steps if cfg.max_steps else 0.0)
+        for g in opt.param_groups:
+            g["lr"] = cfg.lr * 0.5 * (1 + math.cos(math.pi * min(1.0, progress)))
+        x, m, cands = _batch(data, cfg, pick, rng)
+        s = scorer(x, m, cands)
+        loss = F.cross_entropy(-s / cfg.tau, torch.zeros(len(s), dtype=torch.long))
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        step += 1
+        if step % cfg.steps_per_epoch == 0:
+            checkpoint(float(loss.detach()))
+            saved = step
+    return net
+
+
+def load_local(run: Path, which: str = "best") -> tuple[LocalTrunk, dict]:
+    path = run / ("local-best.pt" if which == "best" and (run / "local-best.pt").is_file() else "local.pt")
+    state = torch.load(path, map_location="cpu", weights_only=False)
+    net = LocalTrunk(state["config"]["frozen_stages"], pretrained=False)
+    net.load_state_dict(state["stem"])
+    return net.eval(), state
