@@ -8,8 +8,10 @@ import pytest
 import torch
 
 from index.embed import Embedder
+from posedesc.cli import main
 from training.export import export_onnx
-from training.graft import graft_mask
+from training.graft import LocalMap, graft_local, graft_mask
+from training.local import LocalTrunk
 from training.mask import MaskNet
 from training.model import DescriptorNet, NetConfig
 
@@ -69,3 +71,40 @@ def test_what_cannot_take_a_head(exported, posedesc_models, tmp_path):
         graft_mask(rgb, MaskNet().eval(), tmp_path / "a.onnx")  # shares the descriptor's trunk
     with pytest.raises(ValueError, match="not a colour trunk model"):
         graft_mask(posedesc_models / "posedesc-depth.onnx", mask, tmp_path / "b.onnx")
+
+
+def test_local_features_of_a_fine_tuned_trunk_replace_the_models(exported, tmp_path, posedesc_models):
+    """`graft_local`: the model's local output is the trunk copy's map (unit length, flattened, from the
+    colour channels, RGB-D too); descriptor and mask stay node for node the model's."""
+    rgb, rgbd, _ = exported
+    trunk = LocalTrunk()
+    with torch.no_grad():
+        for p in trunk.features[2:].parameters():
+            p.mul_(1.2)
+    x = np.random.default_rng(3).normal(size=(3, 4, 64, 64)).astype(np.float32)
+    for model, channels in ((rgb, 3), (rgbd, 4)):
+        out = graft_local(model, trunk, tmp_path / f"l{channels}.onnx", {"step": 5})
+        before, after = Embedder(model), Embedder(out)
+        np.testing.assert_array_equal(before(x[:, :channels]), after(x[:, :channels]))
+        np.testing.assert_array_equal(before.mask(x[:, :channels]), after.mask(x[:, :channels]))
+        with torch.no_grad():
+            want = LocalMap(trunk)(torch.from_numpy(x[:, :channels])).numpy()
+        np.testing.assert_allclose(after.local(x[:, :channels]), want, atol=2e-3)  # stored as float16
+        assert np.abs(after.local(x[:, :channels]) - before.local(x[:, :channels])).max() > 1e-3
+        assert json.loads(after.info.extra["local"]) == {"step": 5}
+    with pytest.raises(ValueError, match="no local features"):
+        graft_local(posedesc_models / "posedesc-depth.onnx", trunk, tmp_path / "d.onnx")
+
+
+def test_the_export_command_says_what_onto_needs(tmp_path, capsys):
+    model = tmp_path / "m.onnx"
+    model.write_bytes(b"")
+    for options, says in [
+        ((), "--onto needs --mask MASK_RUN"),
+        (("--local", str(tmp_path)), "has no local.pt"),
+        (("--mask", str(tmp_path)), "has no mask.pt"),
+        (("--local", str(tmp_path), "--as-rgbd", "1:2"), "no run folder, no --as-rgbd"),
+    ]:
+        assert main(["export", "--onto", str(model), "--out", str(tmp_path / "o.onnx"), *options]) == 2
+        err = capsys.readouterr().err
+        assert says in err and err.count("\n") == 1, err

@@ -40,6 +40,12 @@ def test_resume_refuses_an_empty_folder_and_pca(bop, tmp_path, capsys):
     for options, says in [
         ((), "no checkpoint.pt in"),
         (("--arch", "mask"), "no mask.pt in"),
+        (("--arch", "local"), "no local.pt in"),
+        (
+            ("--arch", "local", "--query-mask", str(tmp_path)),
+            "has no mask.pt: not a `posedesc train --arch mask`",
+        ),
+        (("--arch", "trunk", "--query-mask", str(tmp_path)), "--query-mask is for --arch local"),
         (("--arch", "pca"), "fitted in one pass"),
     ]:
         assert posedesc_train("--data", str(bop), "--out", str(tmp_path / "run"), "--resume", *options) == 2
