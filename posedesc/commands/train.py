@@ -50,7 +50,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "mask: the foreground-mask head on the same stages (training/mask.py; "
                    "the export command adds it to a model); "
                    "local: a copy of the stages fine-tuned for the re-ranking's local similarity "
-                   "(training/local.py; `export --onto MODEL --local RUN` puts it in a model); "
+                   "(training/local.py; the export command puts it into a model); "
                    "pca: the same stages' map, pooled and projected on principal components of "
                    "procedural shapes' templates, no metric training (colour only); "
                    "paper: the paper's network (the baseline; depth and rgbd)")  # fmt: skip
