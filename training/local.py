@@ -32,10 +32,11 @@ import torch
 import torch.nn.functional as F
 
 from index.local import cell_weights
-from index.patches import crop, network_input
+from index.patches import network_input
 from training.data import TrainingData
 from training.mask import MaskNet
-from training.resume import resume_state, save_atomic
+from training.mask import validation_set as mask_validation_set
+from training.resume import progress_state, restore, resume_state, save_atomic
 from training.similarity import pose_distances, rotations
 from training.trunk import Trunk
 
@@ -166,31 +167,27 @@ def _batch(data: TrainingData, cfg: LocalConfig, pick: Candidates, rng: np.rando
 
 
 def validation_set(data: TrainingData, cfg: LocalConfig, pick: Candidates, split: str = "val") -> tuple:
-    """The real instances of `split` cut as the service cuts them, their true masks and fixed candidates."""
+    """The real instances of `split` cut as the service cuts them with their true masks
+    (`training.mask.validation_set`), and fixed candidates for each."""
     rng = np.random.default_rng(cfg.seed + 123)
-    xs, ms, cands = [], [], []
-    for i in data.test_instances(split):
-        r = data.real[i]
-        mask3 = np.repeat(((data.labels[r.frame] == r.obj + 1) * 255).astype(np.uint8)[..., None], 3, 2)
-        rgb, _ = crop(data.frames[r.frame], None, r.K, r.centre_uv, r.view.distance, data.spec)
-        m, _ = crop(mask3, None, r.K, r.centre_uv, r.view.distance, data.spec)
-        xs.append(network_input("rgb", rgb, None, data.cfg.distance, data.cfg.window_mm))
-        ms.append(m[..., 0] > 127)
-        share = cfg.same / max(1, cfg.same + cfg.others)
-        same = round(cfg.val_negatives * share)
-        cands.append(pick(r.obj, rotations([r.view])[0], rng, same, cfg.val_negatives - same))
+    xs, ms = mask_validation_set(data, split)
+    same = round(cfg.val_negatives * cfg.same / max(1, cfg.same + cfg.others))
+    cands = [
+        pick(data.real[i].obj, rotations([data.real[i].view])[0], rng, same, cfg.val_negatives - same)
+        for i in data.test_instances(split)
+    ]
     return xs, ms, cands
 
 
 def validate(scorer: Scorer, val: tuple, chunk: int = 16) -> float:
     """The share of validation instances whose right template scores best."""
     xs, ms, cands = val
-    if not xs:
+    if len(xs) == 0:
         return 0.0
     with torch.no_grad():
         s = torch.cat(
             [
-                scorer(np.stack(xs[i : i + chunk]), np.stack(ms[i : i + chunk]), cands[i : i + chunk])
+                scorer(xs[i : i + chunk], ms[i : i + chunk], cands[i : i + chunk])
                 for i in range(0, len(xs), chunk)
             ]
         )
@@ -226,10 +223,7 @@ def train_local(
         ckpt = torch.load(out / "local.pt", map_location="cpu", weights_only=False)
         state = resume_state(ckpt, asdict(cfg), name=str(out / "local.pt"))
         net.load_state_dict(ckpt["stem"])
-        opt.load_state_dict(state["optimizer"])
-        step, elapsed, best = ckpt["step"], state["elapsed"], state["best"]
-        rng.bit_generator.state = state["rng"]["batches"]
-        torch.set_rng_state(state["rng"]["torch"])
+        step, (elapsed, best) = ckpt["step"], restore(state, opt, rng)
     t0 = time.perf_counter() - elapsed
     log_path = out / "local-log.jsonl"
 
@@ -244,12 +238,7 @@ def train_local(
         if score > best:
             best = score
             save_atomic(state, out / "local-best.pt")
-        state["resume"] = {
-            "optimizer": opt.state_dict(),
-            "elapsed": time.perf_counter() - t0,
-            "best": best,
-            "rng": {"batches": rng.bit_generator.state, "torch": torch.get_rng_state()},
-        }
+        state["resume"] = progress_state(opt, t0, best, rng)
         save_atomic(state, out / "local.pt")
         with log_path.open("a") as f:
             f.write(json.dumps(rec) + "\n")

@@ -30,7 +30,7 @@ from torch import nn
 
 from index.patches import crop, network_input
 from training.data import TrainingData
-from training.resume import resume_state, save_atomic
+from training.resume import progress_state, restore, resume_state, save_atomic
 from training.trunk import EARLY_CHANNELS, TRUNK_CHANNELS, DeepStages, Trunk
 
 log = logging.getLogger(__name__)
@@ -189,10 +189,7 @@ def train_mask(
         net.head.load_state_dict(ckpt["head"])
         if "stem" in ckpt:
             net.stem.load_state_dict(ckpt["stem"])
-        opt.load_state_dict(state["optimizer"])
-        step, elapsed, best = ckpt["step"], state["elapsed"], state["best"]
-        rng.bit_generator.state = state["rng"]["batches"]
-        torch.set_rng_state(state["rng"]["torch"])
+        step, (elapsed, best) = ckpt["step"], restore(state, opt, rng)
     t0 = time.perf_counter() - elapsed  # the budget and the schedule go on from the time already spent
     log_path = out / "mask-log.jsonl"
 
@@ -215,12 +212,7 @@ def train_mask(
             best = score
             save_atomic(state, out / "mask-best.pt")
         # mask-best.pt before mask.pt: a run killed between the two redoes these steps and both
-        state["resume"] = {
-            "optimizer": opt.state_dict(),
-            "elapsed": time.perf_counter() - t0,
-            "best": best,
-            "rng": {"batches": rng.bit_generator.state, "torch": torch.get_rng_state()},
-        }
+        state["resume"] = progress_state(opt, t0, best, rng)
         save_atomic(state, out / "mask.pt")
         with log_path.open("a") as f:
             f.write(json.dumps(rec) + "\n")

@@ -14,8 +14,10 @@ from __future__ import annotations
 
 import json
 import os
+import time
 from pathlib import Path
 
+import numpy as np
 import torch
 
 # settings that change how fast a run goes, not what it computes
@@ -74,3 +76,22 @@ def resume_state(
             f"({spent / 60:.1f} of {minutes:g} min, step {step}{of}): nothing to resume"
         )
     return ckpt["resume"]
+
+
+def progress_state(opt: torch.optim.Optimizer, t0: float, best: float, rng: np.random.Generator) -> dict:
+    """A checkpoint's "resume" state for a trainer of one optimiser and one batch generator: the moments,
+    the wall-clock spent since `t0` (a `time.perf_counter`), the best score, the random states."""
+    return {
+        "optimizer": opt.state_dict(),
+        "elapsed": time.perf_counter() - t0,
+        "best": best,
+        "rng": {"batches": rng.bit_generator.state, "torch": torch.get_rng_state()},
+    }
+
+
+def restore(state: dict, opt: torch.optim.Optimizer, rng: np.random.Generator) -> tuple[float, float]:
+    """`progress_state` put back: the optimiser's moments and the random states; returns (elapsed, best)."""
+    opt.load_state_dict(state["optimizer"])
+    rng.bit_generator.state = state["rng"]["batches"]
+    torch.set_rng_state(state["rng"]["torch"])
+    return state["elapsed"], state["best"]
