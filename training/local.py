@@ -61,6 +61,11 @@ class LocalConfig:
     val_negatives: int = 28  # fixed negatives a validation instance (same and other objects, as in training)
     steps_per_epoch: int = 150  # a validation and a checkpoint each
     query_mask: str = ""  # a `posedesc train --arch mask` run whose mask blacks the queries ("": true masks)
+    hard_model: str = ""  # an exported model whose descriptor picks `hard` more negatives a query ("": none)
+    hard: int = (
+        8  # negatives a query among the `hard_pool` templates nearest its descriptor (`HardNegatives`)
+    )
+    hard_pool: int = 100
     threads: int = 2
     seed: int = 0
 
@@ -111,6 +116,55 @@ class Candidates:
         return [(obj, int(np.argmin(d))), *((obj, int(t)) for t in picked), *rest]
 
 
+class HardNegatives:
+    """The negatives the service's re-ranking meets: templates near a query in an exported model's descriptor
+    space (its first stage's candidates), not a pose within `far` of the query's own. Every training
+    template (objects and shapes, in-plane variants included) is described once with that model; a query,
+    black outside its mask as the service describes it, draws `cfg.hard` of its `cfg.hard_pool` nearest."""
+
+    def __init__(self, data: TrainingData, cfg: LocalConfig, model: Path, chunk: int = 512):
+        from index.embed import Embedder  # onnxruntime: only this option needs it
+
+        self.data, self.cfg = data, cfg
+        self.embed = Embedder(model, cfg.threads)
+        keys = [(o, t) for o in range(data.n_objects) for t in range(data.n_templates)]
+        described = []
+        for i in range(0, len(keys), chunk):
+            x = np.stack([data._template_input(o, t, "rgb") for o, t in keys[i : i + chunk]])
+            described.append(self.embed(x.astype(np.float32)))
+        self.keys = np.asarray(keys)
+        self.descriptors = np.concatenate(described)
+        self.norms = (self.descriptors**2).sum(1)
+        log.info("hard negatives: %d templates described with %s", len(keys), model.name)
+
+    def _allowed(self, dist: np.ndarray, obj: int, R: np.ndarray, n: int) -> np.ndarray:
+        """The `n` templates nearest (ascending) but those of `obj` within `far` of the pose R."""
+        near = np.argpartition(dist, n - 1)[:n] if n < len(dist) else np.arange(len(dist))
+        near = near[np.argsort(dist[near], kind="stable")]
+        same = np.flatnonzero(self.keys[near, 0] == obj)
+        if len(same):
+            poses = self.data.template_R[self.keys[near[same], 1]]
+            close = pose_distances(R[None], poses, self.data.symmetries[obj])[0] <= self.cfg.far
+            near = np.delete(near, same[close])
+        return near
+
+    def __call__(
+        self, xq: np.ndarray, objs: list[int], Rs: list[np.ndarray], rng: np.random.Generator
+    ) -> list:
+        """Black-masked query inputs (B, 3, S, S), their objects and poses -> `cfg.hard` (obj, t) each."""
+        d = self.embed(np.ascontiguousarray(xq, np.float32))
+        dist = self.norms[None] - 2.0 * d @ self.descriptors.T  # squared L2 but the query's own norm
+        out = []
+        for b in range(len(xq)):
+            near = self._allowed(dist[b], objs[b], Rs[b], 4 * self.cfg.hard_pool)
+            if len(near) < self.cfg.hard_pool:  # the query's own views crowd its neighbourhood: look further
+                near = self._allowed(dist[b], objs[b], Rs[b], len(dist[b]))
+            near = near[: self.cfg.hard_pool]
+            picked = rng.choice(near, min(len(near), self.cfg.hard), replace=False)
+            out.append([(int(self.keys[i, 0]), int(self.keys[i, 1])) for i in picked])
+        return out
+
+
 def template_inputs(data: TrainingData, cands: list[list[tuple[int, int]]]) -> tuple[np.ndarray, np.ndarray]:
     """The candidates' network inputs (B * K, 3, S, S) and silhouettes (B * K, S, S) bool."""
     xs, sil = [], []
@@ -135,16 +189,23 @@ class Scorer:
         self.black = torch.from_numpy(black)[None]
         self.grid = s // GRID_DIVISOR
 
-    def __call__(
-        self, x: np.ndarray, true_masks: np.ndarray, cands: list[list[tuple[int, int]]]
-    ) -> torch.Tensor:
+    def _blacked(self, x: np.ndarray, true_masks: np.ndarray) -> tuple[torch.Tensor, torch.Tensor]:
         xq = torch.from_numpy(x).float()
         if self.mask is not None:
             with torch.no_grad():
                 keep = (self.mask(xq) > 0)[:, 0]
         else:
             keep = torch.from_numpy(true_masks)
-        xq = torch.where(keep[:, None], xq, self.black)
+        return torch.where(keep[:, None], xq, self.black), keep
+
+    def blacked(self, x: np.ndarray, true_masks: np.ndarray) -> torch.Tensor:
+        """The queries as the service describes them: black outside the mask head's (or true) masks."""
+        return self._blacked(x, true_masks)[0]
+
+    def __call__(
+        self, x: np.ndarray, true_masks: np.ndarray, cands: list[list[tuple[int, int]]]
+    ) -> torch.Tensor:
+        xq, keep = self._blacked(x, true_masks)
         tx, ts = template_inputs(self.data, cands)
         k = len(cands[0])
         fq = self.net(xq)
@@ -154,16 +215,29 @@ class Scorer:
         return distances(fq, ft, qm, sil)
 
 
-def _batch(data: TrainingData, cfg: LocalConfig, pick: Candidates, rng: np.random.Generator) -> tuple:
-    xs, ms, cands = [], [], []
+def _batch(
+    data: TrainingData,
+    cfg: LocalConfig,
+    pick: Candidates,
+    rng: np.random.Generator,
+    hard: HardNegatives | None = None,
+    scorer: Scorer | None = None,
+) -> tuple:
+    xs, ms, cands, objs, Rs = [], [], [], [], []
     for _ in range(cfg.batch):
         obj = int(pick.objects[rng.integers(len(pick.objects))])
         sample, R = data.draw(obj, rng, "rgb", cfg.real_fraction)
         x, m = data.sample_with_mask(sample, "rgb", rng)
         xs.append(x)
         ms.append(m)
+        objs.append(obj)
+        Rs.append(R)
         cands.append(pick(obj, R, rng, cfg.same, cfg.others))
-    return np.stack(xs), np.stack(ms), cands
+    x, m = np.stack(xs), np.stack(ms)
+    if hard is not None and scorer is not None:
+        for row, more in zip(cands, hard(scorer.blacked(x, m).numpy(), objs, Rs, rng), strict=True):
+            row += more
+    return x, m, cands
 
 
 def validation_set(data: TrainingData, cfg: LocalConfig, pick: Candidates, split: str = "val") -> tuple:
@@ -217,6 +291,7 @@ def train_local(
     pick = Candidates(data, cfg)
     scorer = Scorer(data, net, mask.eval() if mask is not None else None)
     val = validation_set(data, cfg, pick)
+    hard = HardNegatives(data, cfg, Path(cfg.hard_model)) if cfg.hard_model and cfg.hard > 0 else None
     out.mkdir(parents=True, exist_ok=True)
     budget, step, elapsed, best = cfg.minutes * 60, 0, 0.0, -1.0
     if resume:
@@ -255,7 +330,7 @@ def train_local(
         progress = max(elapsed / budget, step / cfg.max_steps if cfg.max_steps else 0.0)
         for g in opt.param_groups:
             g["lr"] = cfg.lr * 0.5 * (1 + math.cos(math.pi * min(1.0, progress)))
-        x, m, cands = _batch(data, cfg, pick, rng)
+        x, m, cands = _batch(data, cfg, pick, rng, hard, scorer)
         s = scorer(x, m, cands)
         loss = F.cross_entropy(-s / cfg.tau, torch.zeros(len(s), dtype=torch.long))
         opt.zero_grad()

@@ -81,6 +81,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "(default: outside their true masks)",
     )
     p.add_argument(
+        "--hard-negatives",
+        type=Path,
+        default=None,
+        metavar="MODEL.onnx",
+        help="--arch local: also compare each query with templates near it in this exported model's "
+        "descriptor space (the candidates the service re-ranks)",
+    )
+    p.add_argument(
         "--val",
         type=_blocks,
         default=((0.20, 0.40),),
@@ -128,6 +136,7 @@ OPTIONS = {
     "data.split.test": "--test",
     "finetune": "--mask-finetune",
     "query_mask": "--query-mask",
+    "hard_model": "--hard-negatives",
 }
 CHECKPOINTS = ("checkpoint.pt", "best.pt", "mask.pt", "mask-best.pt", "local.pt", "local-best.pt")
 #: the checkpoint a run of each architecture resumes from (the descriptor's otherwise)
@@ -229,6 +238,10 @@ def configs(args: argparse.Namespace) -> tuple[TrainConfig, MaskConfig | LocalCo
         raise UserError(
             f"--query-mask: {args.query_mask} has no mask.pt: not a `posedesc train --arch mask` run"
         )
+    if args.hard_negatives is not None and args.arch != "local":
+        raise UserError("--hard-negatives is for --arch local")
+    if args.hard_negatives is not None and not args.hard_negatives.is_file():
+        raise UserError(f"--hard-negatives: no such model file: {args.hard_negatives}")
     arch = args.arch if args.modality == "rgb" else "paper"  # the pretrained trunk takes colour only
     dim = args.dim or {"trunk": 32, "pca": 64}.get(arch, 16)
     try:
@@ -277,6 +290,7 @@ def configs(args: argparse.Namespace) -> tuple[TrainConfig, MaskConfig | LocalCo
             threads=args.threads,
             seed=args.seed,
             query_mask=query_mask,
+            hard_model="" if args.hard_negatives is None else str(args.hard_negatives.resolve()),
         )
         return cfg, lcfg
     return cfg, mcfg

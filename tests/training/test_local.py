@@ -10,7 +10,15 @@ import torch
 from index.local import cell_cosines, masked_distance
 from training import local as local_module
 from training.data import DataConfig, TrainingData
-from training.local import Candidates, LocalConfig, LocalTrunk, distances, load_local, train_local
+from training.local import (
+    Candidates,
+    HardNegatives,
+    LocalConfig,
+    LocalTrunk,
+    distances,
+    load_local,
+    train_local,
+)
 from training.render_cache import build
 from training.similarity import pose_distances
 from training.trunk import Trunk
@@ -46,6 +54,30 @@ def test_candidates_are_the_nearest_template_then_negatives(shapes):
     d = pose_distances(R[None], shapes.template_R, shapes.symmetries[1])[0]
     assert d[row[0][1]] == d.min()
     assert all(d[t] > 25.0 for _, t in row[1:7])
+
+
+def test_hard_negatives_are_the_descriptors_nearest_templates_but_the_pose_itself(shapes, posedesc_models):
+    """`--hard-negatives`: a query's extra negatives are among the templates nearest it in the model's
+    descriptor space, leaving out its own object's templates within `far` of its pose (the template it is
+    equal to among them), as the service's first stage would put them before the re-ranking."""
+    from index.embed import Embedder
+
+    cfg = LocalConfig(far=25.0, hard=5, hard_pool=12, threads=1)
+    hard = HardNegatives(shapes, cfg, posedesc_models / "posedesc-rgb.onnx")
+    assert len(hard.descriptors) == shapes.n_objects * shapes.n_templates
+    obj, t = 1, 7
+    x = shapes._template_input(obj, t, "rgb")[None].astype(np.float32)
+    R = shapes.template_R[t]
+    (row,) = hard(x, [obj], [R], np.random.default_rng(0))
+    assert len(row) == cfg.hard and len(set(row)) == cfg.hard
+    d = Embedder(posedesc_models / "posedesc-rgb.onnx", 1)(x)[0]
+    dist = ((hard.descriptors - d) ** 2).sum(1)
+    poses = pose_distances(R[None], shapes.template_R, shapes.symmetries[obj])[0]
+    allowed = [i for i in np.argsort(dist) if hard.keys[i, 0] != obj or poses[hard.keys[i, 1]] > cfg.far]
+    bound = dist[allowed[cfg.hard_pool - 1]]  # the farthest of the pool (to rounding: two ways of summing)
+    where = {(int(o), int(k)): i for i, (o, k) in enumerate(hard.keys)}
+    assert all(dist[where[c]] <= bound + 1e-4 * max(1.0, bound) for c in row)
+    assert (obj, t) not in row and all(o != obj or poses[k] > cfg.far for o, k in row)
 
 
 def test_a_short_run_moves_only_the_stages_it_trains_and_reloads(shapes, tmp_path):

@@ -46,6 +46,8 @@ def test_resume_refuses_an_empty_folder_and_pca(bop, tmp_path, capsys):
             "has no mask.pt: not a `posedesc train --arch mask`",
         ),
         (("--arch", "trunk", "--query-mask", str(tmp_path)), "--query-mask is for --arch local"),
+        (("--arch", "mask", "--hard-negatives", str(bop)), "--hard-negatives is for --arch local"),
+        (("--arch", "local", "--hard-negatives", str(tmp_path / "no.onnx")), "no such model file"),
         (("--arch", "pca"), "fitted in one pass"),
     ]:
         assert posedesc_train("--data", str(bop), "--out", str(tmp_path / "run"), "--resume", *options) == 2
