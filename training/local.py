@@ -9,7 +9,9 @@ the mask head's mask (`query_mask`: as the service blacks it) or outside its tru
 the template nearest its pose (symmetry-aware) and negatives: templates of the same object more than
 `far` degrees away (half of them within 70 degrees, the near misses) and templates of other objects. The
 score is the service's masked distance (without the coverage term, which no feature changes), and the loss
-the cross-entropy of the right template among them at temperature `tau`. The first stages stay
+the cross-entropy of the right template among them at temperature `tau`. `hard_model` adds negatives the
+service's first stage would hand the re-ranking: templates near the query in an exported model's
+descriptor space (`HardNegatives`; tried, not better on validation frames). The first stages stay
 ImageNet's (`frozen_stages`), BatchNorm keeps its statistics, the map's shape is the trunk's, so a store
 holds what it held. `posedesc export --onto MODEL.onnx --local RUN` puts it into an exported model
 (`training.graft.graft_local`); the descriptor and the mask stay the model's.
@@ -62,9 +64,7 @@ class LocalConfig:
     steps_per_epoch: int = 150  # a validation and a checkpoint each
     query_mask: str = ""  # a `posedesc train --arch mask` run whose mask blacks the queries ("": true masks)
     hard_model: str = ""  # an exported model whose descriptor picks `hard` more negatives a query ("": none)
-    hard: int = (
-        8  # negatives a query among the `hard_pool` templates nearest its descriptor (`HardNegatives`)
-    )
+    hard: int = 8  # with `hard_model`: negatives a query among its `hard_pool` nearest templates
     hard_pool: int = 100
     threads: int = 2
     seed: int = 0
@@ -130,6 +130,7 @@ class HardNegatives:
         keys = [(o, t) for o in range(data.n_objects) for t in range(data.n_templates)]
         described = []
         for i in range(0, len(keys), chunk):
+            # one chunk at a time: `template_inputs` would hold every template normalised (~2 GB)
             x = np.stack([data._template_input(o, t, "rgb") for o, t in keys[i : i + chunk]])
             described.append(self.embed(x.astype(np.float32)))
         self.keys = np.asarray(keys)
@@ -189,7 +190,9 @@ class Scorer:
         self.black = torch.from_numpy(black)[None]
         self.grid = s // GRID_DIVISOR
 
-    def _blacked(self, x: np.ndarray, true_masks: np.ndarray) -> tuple[torch.Tensor, torch.Tensor]:
+    def blacked(self, x: np.ndarray, true_masks: np.ndarray) -> tuple[torch.Tensor, torch.Tensor]:
+        """The queries as the service describes them, black outside the mask head's masks (or their true
+        masks), and those masks."""
         xq = torch.from_numpy(x).float()
         if self.mask is not None:
             with torch.no_grad():
@@ -198,14 +201,10 @@ class Scorer:
             keep = torch.from_numpy(true_masks)
         return torch.where(keep[:, None], xq, self.black), keep
 
-    def blacked(self, x: np.ndarray, true_masks: np.ndarray) -> torch.Tensor:
-        """The queries as the service describes them: black outside the mask head's (or true) masks."""
-        return self._blacked(x, true_masks)[0]
-
     def __call__(
         self, x: np.ndarray, true_masks: np.ndarray, cands: list[list[tuple[int, int]]]
     ) -> torch.Tensor:
-        xq, keep = self._blacked(x, true_masks)
+        xq, keep = self.blacked(x, true_masks)
         tx, ts = template_inputs(self.data, cands)
         k = len(cands[0])
         fq = self.net(xq)
@@ -235,7 +234,7 @@ def _batch(
         cands.append(pick(obj, R, rng, cfg.same, cfg.others))
     x, m = np.stack(xs), np.stack(ms)
     if hard is not None and scorer is not None:
-        for row, more in zip(cands, hard(scorer.blacked(x, m).numpy(), objs, Rs, rng), strict=True):
+        for row, more in zip(cands, hard(scorer.blacked(x, m)[0].numpy(), objs, Rs, rng), strict=True):
             row += more
     return x, m, cands
 

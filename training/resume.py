@@ -22,6 +22,9 @@ import torch
 
 # settings that change how fast a run goes, not what it computes
 FREE = frozenset({"threads"})
+#: settings added after runs were made, with the value that computes what those runs computed: a
+#: checkpoint without one counts as having it (the local trainer's hard negatives: none)
+ADDED = {"hard_model": "", "hard": 8, "hard_pool": 100}
 
 
 def save_atomic(obj: dict, path: Path) -> None:
@@ -33,12 +36,13 @@ def save_atomic(obj: dict, path: Path) -> None:
 
 def config_differences(theirs: dict, ours: dict, prefix: str = "") -> list[tuple[str, object, object]]:
     """The fields (dotted names) where two configs, nested dicts as `asdict` gives them, differ:
-    (name, theirs, ours). Tuples equal lists; fields in `FREE` are skipped."""
+    (name, theirs, ours). Tuples equal lists; fields in `FREE` are skipped; a field in `ADDED` that
+    `theirs` lacks has its `ADDED` value."""
     out: list[tuple[str, object, object]] = []
     for k in sorted(set(theirs) | set(ours)):
         if k in FREE:
             continue
-        a, b = theirs.get(k), ours.get(k)
+        a, b = theirs.get(k, ADDED.get(k)), ours.get(k)
         if isinstance(a, dict) and isinstance(b, dict):
             out += config_differences(a, b, f"{prefix}{k}.")
         elif json.dumps(a) != json.dumps(b):

@@ -24,6 +24,19 @@ def test_config_differences_name_nested_fields_and_skip_threads():
     assert describe(differ, {"dim": "--dim"}) == "data.roll: was 5.0, now 6.0; dim (--dim): was 8, now 16"
 
 
+def test_a_checkpoint_from_before_a_setting_existed_counts_as_its_old_behaviour():
+    """A local run saved before `--hard-negatives` existed resumes without it, and only without it."""
+    from dataclasses import asdict
+
+    from training.local import LocalConfig
+
+    before = {k: v for k, v in asdict(LocalConfig()).items() if not k.startswith("hard")}
+    assert config_differences(before, asdict(LocalConfig())) == []
+    assert [d[0] for d in config_differences(before, asdict(LocalConfig(hard_model="m.onnx")))] == [
+        "hard_model"
+    ]
+
+
 def posedesc_train(*options: str) -> int:
     return main(["train", "--modality", "rgb", *options])
 
