@@ -6,9 +6,11 @@ same run (`posedesc bench`, section "roll"):
    and its query turns, their descriptors in one batch, the k-NN over every in-plane variant, the
    collapse to k distinct answers), on a service state loaded as `posedesc serve` loads it
    (`service.state.load_state`) from a data dir filled through `Store.add_object`. For every model:
-   templates over the whole turn (query turns 1, 2, 3) and, the baseline, upright templates
-   (inplane_step 0, the existing set-up). LineMOD's figure is the "recognition" section's (upright
-   templates, same run): `suite.py` puts the ratio beside.
+   templates over the whole turn (query turns 1, 2, 3) and, the baselines, upright templates
+   (inplane_step 0, the existing set-up) and the same templates searched exactly ("exact": a flat
+   index, 1 query turn; the timed set-ups use the service's default index, `index_kind`). LineMOD's
+   figure is the "recognition" section's (upright templates, same run): `suite.py` puts the ratio
+   beside.
 2. Over HTTP, one client: a 640x480 PNG frame (and the 64 px patch) to the real service (`posedesc
    serve` on loopback) serving that data dir with the first model that has its own `inplane_step`,
    query turns `http_query_turns`. Baseline: the "http" section's frame (the shipped models, upright).
@@ -67,6 +69,9 @@ class RollConfig:
     http_requests: int = 100  # frame requests over HTTP, one client
     http_warmup: int = 5
     http_query_turns: int = 1  # POSEDESC_QUERY_TURNS of the served set-up
+    #: POSEDESC_INDEX_KIND of the timed set-ups (the service's default); the in-process baseline "exact"
+    #: times the primary model's in-plane templates with an exact ("flat") index beside it
+    index_kind: str = "auto"
 
 
 @dataclass
@@ -161,6 +166,9 @@ def run(
                 ),
                 "roll": _in_process(data, m, m.settings, query, cfg, level),
             }
+            if m is served or (served is None and i == 0):  # the same templates, searched exactly
+                exact = replace(cfg, index_kind="flat", query_turns=cfg.query_turns[:1])
+                out["in_process"][m.label]["exact"] = _in_process(data, m, m.settings, query, exact, level)
             shutil.rmtree(upright)
             if m is served:  # the real service on the same data dir
                 out["server"] = _served(cfg, m, others, data, tmp, objects, modality, level, register_repeats)
@@ -282,7 +290,7 @@ def _in_process(
         demo_objects=False,
         threads=1,
         level=level,
-        index_kind="flat",
+        index_kind=cfg.index_kind,
         query_turns=1,
         inplane_step=inplane["inplane_step"],
         inplane_max=inplane["inplane_max"],
@@ -293,6 +301,7 @@ def _in_process(
         mi = state.store.snapshot.models[m.timed.modality]
         out: dict = {
             "templates": mi.size,
+            "index": type(getattr(mi, "index", None)).__name__,
             "templates_per_viewpoint": len(state.templates.inplane(m.own_step)),
             "settings": {k: v for k, v in inplane.items() if v is not None},
             "by_turns": {},
@@ -345,7 +354,7 @@ def _served(
         "POSEDESC_SYNC_SECONDS": "600",  # registrations answer 201 with their timings
         "POSEDESC_THREADS": "1",
         "POSEDESC_LEVEL": str(level),
-        "POSEDESC_INDEX_KIND": "flat",
+        "POSEDESC_INDEX_KIND": cfg.index_kind,
         "POSEDESC_API_KEY": "",
         "POSEDESC_QUERY_TURNS": str(cfg.http_query_turns),
         "POSEDESC_INPLANE_STEP": None,  # each model's own

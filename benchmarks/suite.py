@@ -299,8 +299,12 @@ def _roll_summary(ro: dict, s: dict) -> dict:
         out["roll_model"] = primary
         out["roll_model_fingerprint"] = ro["models"][primary]["fingerprint"]
         lm = s.get(f"linemod_median_ms_{n_obj}")
-        for setup, prefix in (("roll", "decoded_to_answer"), ("upright", "decoded_to_answer_upright")):
-            for n, row in ro["in_process"][primary][setup]["by_turns"].items():
+        for setup, prefix in (
+            ("roll", "decoded_to_answer"),
+            ("upright", "decoded_to_answer_upright"),
+            ("exact", "decoded_to_answer_exact"),
+        ):
+            for n, row in ro["in_process"][primary].get(setup, {"by_turns": {}})["by_turns"].items():
                 for q in ("p50", "p90", "p99"):
                     out[f"{prefix}_{q}_ms_{n_obj}_q{n}"] = row[f"{q}_ms"]
                 if lm is not None and setup == "roll":

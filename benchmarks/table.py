@@ -27,13 +27,17 @@ def _roll(ro: dict, summary: dict) -> list[str]:
     rows = []
     for label, setups in ro["in_process"].items():
         fp = ro["models"][label]["fingerprint"][:8]
-        for setup in ("upright", "roll"):
+        names = {"upright": "upright", "roll": f"in-plane, {setups['roll'].get('index', 'index')}"}
+        names["exact"] = "in-plane, exact (flat)"
+        for setup in ("upright", "roll", "exact"):
+            if setup not in setups:
+                continue
             r = setups[setup]
             for n, row in r["by_turns"].items():
                 st = row["stages_median_ms"]
                 rows.append(
                     [
-                        f"{label} ({fp}), {'upright' if setup == 'upright' else 'in-plane'}",
+                        f"{label} ({fp}), {names[setup]}",
                         f"{r['templates']:,}",
                         n,
                         *(_num(row[f"{q}_ms"], 2) for q in ("p50", "p90", "p99")),

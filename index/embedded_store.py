@@ -28,6 +28,7 @@ import sqlite3
 import threading
 import time
 from collections.abc import Iterator, Mapping
+from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 from dataclasses import replace
 from pathlib import Path
@@ -40,6 +41,7 @@ from index.search import FaissSnapshot, ModelIndex
 from index.snapshot_files import (
     INDEX_KINDS,
     build_index,
+    grown,
     paths,
     read_snapshot,
     save_snapshot,
@@ -121,7 +123,7 @@ class EmbeddedStore:
         self,
         data_dir: str | Path,
         models: Mapping[str, tuple[int, str]],
-        kind: str = "flat",
+        kind: str = "auto",
         nlist: int = 256,
         nprobe: int = 16,
     ):
@@ -336,6 +338,7 @@ class EmbeddedStore:
             mi = old.models[m]
             index = faiss.clone_index(mi.index)
             index.add_with_ids(np.ascontiguousarray(ts.descriptors, np.float32), ids)
+            index = grown(index, self.kind, self.nlist, self.nprobe)
             local = dict(mi.local)
             if ts.local_rows is not None and ts.local is not None:
                 for r, f in zip(ts.local_rows, np.asarray(ts.local, np.float16), strict=True):
@@ -355,20 +358,31 @@ class EmbeddedStore:
     def _swap(self, snap: FaissSnapshot) -> None:
         old = self._snap
         self._snap = snap  # one reference assignment: readers get the old or the new state, never a mix
-        for m, mi in snap.models.items():
-            try:
-                if old.models.get(m) is not mi:
-                    self._save_index(m, mi, snap.generation)
-                elif m in self._tags:  # unchanged index: only its tag moves to the new generation
-                    tag = {**self._tags[m], "generation": snap.generation}
-                    write_atomic(self._paths(m)[1], json.dumps(tag).encode())
-                    self._tags[m] = tag
-            except OSError as e:  # the write is committed; a stale snapshot is rebuilt at the next start
-                log.warning("could not write the %s index snapshot to %s: %s", m, self.dir, e)
-                # Forget the tag and remove its file: a later write must not re-tag a file that lacks
-                # this write as current (ntotal would catch most such files, not all).
-                self._tags.pop(m, None)
-                self._paths(m)[1].unlink(missing_ok=True)
+        changed = [m for m, mi in snap.models.items() if old.models.get(m) is not mi]
+        # each changed model's file on its own thread: hashing, writing and fsync release the GIL
+        if len(changed) > 1:
+            with ThreadPoolExecutor(len(changed), thread_name_prefix="snapshot") as pool:
+                list(pool.map(lambda m: self._sync_file(m, snap, True), changed))
+        for m in snap.models:
+            if len(changed) <= 1 or m not in changed:
+                self._sync_file(m, snap, m in changed)
+
+    def _sync_file(self, m: str, snap: FaissSnapshot, changed: bool) -> None:
+        """Model `m`'s snapshot file brought to `snap`: written again if its index `changed`, else only
+        its tag moved to the new generation."""
+        try:
+            if changed:
+                self._save_index(m, snap.models[m], snap.generation)
+            elif m in self._tags:  # unchanged index: only its tag moves to the new generation
+                tag = {**self._tags[m], "generation": snap.generation}
+                write_atomic(self._paths(m)[1], json.dumps(tag).encode())
+                self._tags[m] = tag
+        except OSError as e:  # the write is committed; a stale snapshot is rebuilt at the next start
+            log.warning("could not write the %s index snapshot to %s: %s", m, self.dir, e)
+            # Forget the tag and remove its file: a later write must not re-tag a file that lacks
+            # this write as current (ntotal would catch most such files, not all).
+            self._tags.pop(m, None)
+            self._paths(m)[1].unlink(missing_ok=True)
 
     def _forget_changed_models(self, models: Mapping[str, tuple[int, str]]) -> None:
         known = {n: (f, d) for n, f, d in self._db.execute("SELECT name, fingerprint, dim FROM models")}

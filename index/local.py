@@ -59,8 +59,12 @@ def cell_weights(mask: np.ndarray, grid: int) -> np.ndarray:
 def masked_cosine(cosines: np.ndarray, weights: np.ndarray) -> np.ndarray:
     """Distance in [0, 2]: 1 - cosine per cell (`cell_cosines`) averaged with the cells' weights; a query
     whose weights are all zero (an empty mask) weighs every cell alike. Shape: (N, G * G) x 2 -> (N,)."""
-    w = np.where(weights.sum(axis=1, keepdims=True) > 0, weights, 1.0)
-    return ((1.0 - cosines) * w).sum(axis=1) / w.sum(axis=1)
+    total = weights.sum(axis=1)
+    # sum((1 - c) w) / sum(w) = 1 - (c . w) / sum(w): one product per row, no (N, G * G) temporaries
+    dots = np.einsum("ng,ng->n", cosines, weights)
+    if (empty := total <= 0).any():
+        dots, total = np.where(empty, cosines.sum(axis=1), dots), np.where(empty, cosines.shape[1], total)
+    return 1.0 - dots / total
 
 
 def masked_distance(

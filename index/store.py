@@ -111,7 +111,7 @@ def open_store(
     location: str,
     data_dir: str | Path,
     models: Mapping[str, tuple[int, str]],
-    kind: str = "flat",
+    kind: str = "auto",
     sweep_seconds: float = 600.0,
     prefix: str = "posedesc",
 ) -> TemplateStore:

@@ -81,7 +81,9 @@ class Settings(BaseSettings):
         "'off': never; unset: each model's calibration (its metadata `reject_above`), none without one",
     )  # fmt: skip
     level: int = Field(3, ge=0, le=4, description="template viewpoints: icosphere level (3 = 301)")
-    index_kind: Literal["flat", "ivf"] = Field("flat", description="flat = exact; ivf for large collections")
+    index_kind: Literal["auto", "flat", "ivf"] = Field(
+        "auto", description="auto = exact below 50,000 templates, IVF from there; flat = always exact; ivf"
+    )
 
     sync_seconds: float = Field(2.0, ge=0, description="POST /objects answers 201 within this, else 202")
     demo_objects: bool = Field(True, description="register the built-in demo shapes into an empty data dir")

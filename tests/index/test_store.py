@@ -14,6 +14,7 @@ import faiss
 import numpy as np
 import pytest
 
+import index.snapshot_files
 from index.store import Store, StoreError, TemplateSet
 
 MODELS = {"rgb": (4, "fp-rgb"), "depth": (4, "fp-depth")}
@@ -154,9 +155,10 @@ def test_ivf_kind(tmp_path):
     for i in range(20):
         desc = rng.normal(i, 0.1, (10, 4)).astype(np.float32)
         store.add_object(f"o{i}", "none", {"rgb": TemplateSet(np.zeros((10, 3)), desc)})
-    assert faiss.try_extract_index_ivf(store.snapshot.models["rgb"].index) is None  # too few to train
+        is_ivf = faiss.try_extract_index_ivf(store.snapshot.models["rgb"].index) is not None
+        assert is_ivf == (10 * (i + 1) >= 39 * 2), i  # exact until there are enough to train it
     store.close()
-    (tmp_path / "rgb.faiss").unlink()  # rebuild: now there are enough templates to train
+    (tmp_path / "rgb.faiss").unlink()  # rebuilt from SQLite: trained on every template
     again = Store(tmp_path, {"rgb": (4, "fp")}, kind="ivf", nlist=2, nprobe=2)
     assert faiss.try_extract_index_ivf(again.snapshot.models["rgb"].index) is not None
     (matches,) = again.search("rgb", np.full((1, 4), 7.0, np.float32), 3)
@@ -164,6 +166,33 @@ def test_ivf_kind(tmp_path):
     assert again.remove_object(matches[0].object_id)
     (matches,) = again.search("rgb", np.full((1, 4), 7.0, np.float32), 3)
     assert "o7" not in {m.name for m in matches}
+
+
+def test_auto_kind_is_exact_while_small_and_turns_ivf_at_the_write_that_makes_it_large(
+    tmp_path, monkeypatch, caplog
+):
+    monkeypatch.setattr(index.snapshot_files, "AUTO_IVF_MIN", 150)
+    store = Store(tmp_path, {"rgb": (4, "fp")}, nlist=2, nprobe=2)  # "auto", the default
+    rng = np.random.default_rng(0)
+    ids = []
+    for i in range(20):
+        desc = rng.normal(i, 0.1, (10, 4)).astype(np.float32)
+        ids.append(store.add_object(f"o{i}", "none", {"rgb": TemplateSet(np.zeros((10, 3)), desc)}).object_id)
+        is_ivf = faiss.try_extract_index_ivf(store.snapshot.models["rgb"].index) is not None
+        assert is_ivf == (10 * (i + 1) >= 150), i  # exact below the threshold, IVF from the write reaching it
+    (matches,) = store.search("rgb", np.full((1, 4), 3.0, np.float32), 3)
+    assert {m.name for m in matches} == {"o3"}  # objects added before the switch are found
+    (matches,) = store.search("rgb", np.full((1, 4), 19.0, np.float32), 3)
+    assert {m.name for m in matches} == {"o19"}  # and after it
+    assert store.remove_object(ids[19])
+    store.close()
+    with caplog.at_level("INFO", logger="index.store"):
+        again = Store(tmp_path, {"rgb": (4, "fp")}, nlist=2, nprobe=2)
+    assert "building" not in caplog.text  # the IVF snapshot was saved and is used
+    mi = again.snapshot.models["rgb"]
+    assert faiss.try_extract_index_ivf(mi.index) is not None and mi.index.ntotal == mi.size == 190
+    (matches,) = again.search("rgb", np.full((1, 4), 19.0, np.float32), 3)
+    assert "o19" not in {m.name for m in matches}
 
 
 def test_readers_never_see_half_an_object(tmp_path):

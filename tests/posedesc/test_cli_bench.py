@@ -57,6 +57,9 @@ def test_bench_quick(tmp_path, posedesc_models, capsys):
     for label in ("shipped", "untrained"):
         assert ro["in_process"][label]["roll"]["templates"] == 8 * 16 * 12
         assert ro["in_process"][label]["upright"]["templates"] == 8 * 16
+    exact = ro["in_process"]["untrained"]["exact"]  # the served model's templates, searched exactly
+    assert exact["templates"] == 8 * 16 * 12 and exact["index"] == "IndexIDMap2"
+    assert positive(s["decoded_to_answer_exact_p50_ms_8_q1"])
     assert ro["server"]["templates_per_object"] == {"rgb": 16 * 12, "depth": 16, "rgbd": 16}
     assert ro["server"]["frame_640x480"]["failed"] == 0
     for n in (1, 2, 3):

@@ -1,0 +1,178 @@
+"""Where the time of a real query goes, and what it answers, among as many objects as a user registers.
+
+    PYTHONPATH=. .venv/bin/python scripts/probe_recognise.py --dataset ../shared/data/lmo \
+        --frames val --distractors 93 --data-dir runs/probe-100 --settings '{"index_kind": "flat"}' \
+        --json docs/results/probe-val-100-flat.json
+
+The dataset's objects are registered through the service's registration (`evaluation.served`), then
+`--distractors` more objects (the benchmarks' procedural shapes through exact image transforms, with the
+model's in-plane templates: `benchmarks.objects.inplane_template_sets`) are added to the same store, so
+the search runs over as many templates as a user's collection of that size. Each real instance of the
+frames (the model's `split_frames`: "val", "test"; or "all") is then sent to `service.recognition.
+recognise` as a user sends it (`evaluation.served.query`: the frame as its file, the camera, the centre and
+the distance), one at a time on one thread. Printed and written: the share within 5 / 20 / 40 deg (3-D),
+right object and viewing direction within 20 deg at k = 1 (as `posedesc evaluate --protocol service`),
+the median milliseconds of each stage the service reports, and each query's best answer (so two settings
+can be compared answer by answer: `--compare OTHER.json`).
+
+`--data-dir` keeps the store between runs (made once; the objects are not registered again), so settings
+(`--settings`, fields of `service.settings.Settings`) can be tried in turn on the same templates. It is a
+measuring tool for choices made on validation frames; the figures of record are `posedesc evaluate`'s.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from evaluation import ours  # noqa: E402
+from evaluation.metric import K_MAX  # noqa: E402
+from evaluation.run import Config, instances_of  # noqa: E402
+from evaluation.served import _frames, _register, query, score  # noqa: E402
+from index.bop import BopDataset  # noqa: E402
+from index.embed import Embedder  # noqa: E402
+from posedesc.commands.evaluate import split_frames  # noqa: E402
+from service.recognition import recognise  # noqa: E402
+from service.settings import Settings  # noqa: E402
+from service.state import close_state, load_state  # noqa: E402
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--model", type=Path, default=ROOT / "models" / "posedesc-rgb.onnx")
+    p.add_argument("--dataset", type=Path, required=True)
+    p.add_argument("--scene", type=int, default=2)
+    p.add_argument("--frames", default="val", help="val, test (the model's split) or all")
+    p.add_argument(
+        "--distractors", type=int, default=0, help="procedural objects added besides the dataset's"
+    )
+    p.add_argument("--data-dir", type=Path, default=None, help="kept between runs (default: a temporary one)")
+    p.add_argument("--settings", default="{}", help="JSON of service settings, e.g. '{\"rerank\": 400}'")
+    p.add_argument("--limit", type=int, default=0, help="only the first N instances")
+    p.add_argument(
+        "--compare", type=Path, default=None, help="another run's JSON: how many best answers agree"
+    )
+    p.add_argument("--json", type=Path, default=None)
+    args = p.parse_args(argv)
+    try:
+        overrides = json.loads(args.settings)
+    except json.JSONDecodeError as e:
+        print(f"probe_recognise: --settings is not JSON: {e}", file=sys.stderr)
+        return 2
+    with tempfile.TemporaryDirectory(prefix="posedesc-probe-") as tmp:
+        result = probe(args, overrides, args.data_dir or Path(tmp))
+    print(json.dumps({k: result[k] for k in ("settings", "objects", "templates", "k1", "stages_median_ms")}))
+    if "agree_with" in result:
+        print(json.dumps(result["agree_with"]))
+    if args.json:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps(result, indent=1) + "\n")
+    return 0
+
+
+def probe(args: argparse.Namespace, overrides: dict, data_dir: Path) -> dict:
+    dataset = BopDataset(args.dataset)
+    embedder = Embedder(args.model, 1)
+    modality = embedder.modality
+    frames = (
+        None
+        if args.frames == "all"
+        else split_frames(embedder.info.extra, args.dataset, args.scene, args.frames)
+    )
+    cfg = Config(args.dataset, args.model, modality, scene=args.scene, frames=frames, methods=("ours",))
+    instances = instances_of(cfg, dataset, dataset.obj_ids)[: args.limit or None]
+    settings = Settings(data_dir=data_dir, demo_objects=False, threads=1, **overrides)
+    ids_file = data_dir / "probe-dataset-ids.json"
+    if not ids_file.is_file():
+        state = load_state(settings, {modality: embedder})
+        try:
+            _, dataset_ids = _register(state, dataset, dataset.obj_ids)
+            if args.distractors:
+                from benchmarks.objects import inplane_template_sets
+
+                angles = state.templates.inplane(embedder.info.inplane_step)
+                sets = inplane_template_sets(
+                    args.distractors,
+                    {modality: (embedder, angles)},
+                    settings.level,
+                    embedder.info.size,
+                    embedder.info.window_mm,
+                )
+                for j, ts in enumerate(sets[modality]):
+                    state.store.add_object(
+                        f"distractor-{j}", "none", {modality: ts}, extra={"benchmark": True}
+                    )
+        finally:
+            close_state(state)
+        ids_file.write_text(json.dumps({str(k): v for k, v in dataset_ids.items()}))
+    dataset_ids = {int(k): v for k, v in json.loads(ids_file.read_text()).items()}
+    state = load_state(settings, {modality: embedder})
+    obj = np.full((len(instances), K_MAX), -1, int)
+    views = np.zeros((len(instances), K_MAX, 3))
+    timings, ordered = [], []
+    try:
+        snap = state.store.snapshot
+        n_objects, n_templates = len(snap.objects), snap.models[modality].size
+        index = type(getattr(snap.models[modality], "index", None)).__name__
+        kind = "real" if modality == "rgb" else "rendered-depth"
+        for group, rgb, depth, scale in _frames(dataset, instances, modality, kind, 0):
+            for inst in group:
+                q = query(inst, rgb, depth, scale)
+                t0 = time.perf_counter()
+                r = recognise(state, q)
+                wall = 1000 * (time.perf_counter() - t0)
+                timings.append({**r.timings_ms, "wall": wall})
+                i = len(ordered)
+                obj[i], views[i], _ = ours.answers(r.matches, dataset_ids, K_MAX)
+                ordered.append(inst)
+    finally:
+        close_state(state)
+    rot, view, same = score(obj, views, ordered, {o: dataset.symmetry(o) for o in dataset.obj_ids})
+
+    def pct(x: np.ndarray) -> float:
+        return round(100 * float(x.mean()), 1)
+
+    result = {
+        "command": "scripts/probe_recognise.py " + " ".join(sys.argv[1:]),
+        "model": args.model.name,
+        "frames": args.frames,
+        "settings": overrides,
+        "objects": n_objects,
+        "distractors": args.distractors,
+        "templates": n_templates,
+        "index": index,
+        "n": len(ordered),
+        "k1": {
+            "within_5": pct(rot[:, 0] < 5),
+            "within_20": pct(rot[:, 0] < 20),
+            "within_40": pct(rot[:, 0] < 40),
+            "right_object": pct(same[:, 0]),
+            "view_within_20": pct(view[:, 0] < 20),
+        },
+        "stages_median_ms": {
+            k: round(float(np.median([t[k] for t in timings if k in t])), 2) for k in timings[0]
+        }
+        if timings
+        else {},
+        "best": [[int(o), *map(float, v)] for o, v in zip(obj[:, 0], views[:, 0], strict=True)],
+    }
+    if args.compare is not None:
+        other = json.loads(args.compare.read_text())["best"]
+        same_best = [
+            a[0] == b[0] and np.allclose(a[1:], b[1:]) for a, b in zip(result["best"], other, strict=True)
+        ]
+        result["agree_with"] = {"file": args.compare.name, "same_best_answer": pct(np.array(same_best))}
+    return result
+
+
+if __name__ == "__main__":
+    sys.exit(main())
