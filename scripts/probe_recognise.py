@@ -27,21 +27,26 @@ import json
 import sys
 import tempfile
 import time
+from dataclasses import replace
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from evaluation import ours  # noqa: E402
+from evaluation.masks import visible_masks  # noqa: E402
 from evaluation.metric import K_MAX  # noqa: E402
 from evaluation.run import Config, instances_of  # noqa: E402
+from evaluation.samples import RENDERED, by_frame, select_instances, served_data  # noqa: E402
 from evaluation.served import _frames, _register, query, score  # noqa: E402
 from index.bop import BopDataset  # noqa: E402
 from index.embed import Embedder  # noqa: E402
+from index.render import Renderer  # noqa: E402
 from posedesc.commands.evaluate import split_frames  # noqa: E402
-from service.recognition import recognise  # noqa: E402
+from service.recognition import cut, recognise  # noqa: E402
 from service.settings import Settings  # noqa: E402
 from service.state import close_state, load_state  # noqa: E402
 
@@ -61,6 +66,13 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument(
         "--compare", type=Path, default=None, help="another run's JSON: how many best answers agree"
     )
+    p.add_argument(
+        "--true-mask",
+        choices=("full", "band", "inner"),
+        default=None,
+        help="the query's mask replaced by the true visible one (full), or the model's with the true one "
+        "inside a band of 2 px either side of the true outline (band), or outside it (inner)",
+    )
     p.add_argument("--json", type=Path, default=None)
     args = p.parse_args(argv)
     try:
@@ -77,6 +89,38 @@ def main(argv: list[str] | None = None) -> int:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(result, indent=1) + "\n")
     return 0
+
+
+class TrueMask:
+    """An embedder whose mask of the query's first cut (`service.recognition.foreground`: one patch) is
+    the true visible mask (`true`, set before each query) in whole or in part (`how`: --true-mask); the
+    re-ranking turns that mask to its rolls, as it turns the model's. Everything else is the embedder's."""
+
+    def __init__(self, embedder: Embedder, how: str):
+        self.embedder, self.how = embedder, how
+        self.true: np.ndarray | None = None
+        #: per query, the model's mask against the true one: IoU, and the share of its wrong pixels
+        #: that lie within 2 px of the true outline
+        self.scores: list[tuple[float, float]] = []
+
+    def __getattr__(self, name: str):
+        return getattr(self.embedder, name)
+
+    def mask(self, inputs: np.ndarray, batch: int = 256) -> np.ndarray:
+        predicted = self.embedder.mask(inputs, batch)
+        if len(inputs) != 1 or self.true is None:
+            return predicted
+        true, self.true = self.true, None
+        kernel = np.ones((5, 5), np.uint8)  # 2 px either side of the outline
+        inside = cv2.dilate(true.astype(np.uint8), kernel).astype(bool)
+        band = inside & ~cv2.erode(true.astype(np.uint8), kernel).astype(bool)
+        wrong = predicted[0] ^ true
+        iou = (predicted[0] & true).sum() / max((predicted[0] | true).sum(), 1)
+        self.scores.append((float(iou), float((wrong & band).sum() / max(wrong.sum(), 1))))
+        if self.how == "full":
+            return true[None]
+        keep = band if self.how == "band" else ~band
+        return np.where(keep, true, predicted[0])[None]
 
 
 def probe(args: argparse.Namespace, overrides: dict, data_dir: Path) -> dict:
@@ -119,14 +163,34 @@ def probe(args: argparse.Namespace, overrides: dict, data_dir: Path) -> dict:
     obj = np.full((len(instances), K_MAX), -1, int)
     views = np.zeros((len(instances), K_MAX, 3))
     timings, ordered = [], []
+    renderer = None
     try:
         snap = state.store.snapshot
         n_objects, n_templates = len(snap.objects), snap.models[modality].size
         index = type(getattr(snap.models[modality], "index", None)).__name__
-        kind = "real" if modality == "rgb" else "rendered-depth"
-        for group, rgb, depth, scale in _frames(dataset, instances, modality, kind, 0):
+        kind = served_data(modality, instances, None)
+        renderer = Renderer() if kind in RENDERED or args.true_mask else None
+        meshes = {o: dataset.mesh(o, max_faces=settings.max_faces) for o in dataset.obj_ids}
+        every = by_frame(select_instances(dataset, args.scene, 0.0, frames, dataset.obj_ids))
+        if args.true_mask:
+            state = replace(
+                state, embedders={m: TrueMask(e, args.true_mask) for m, e in state.embedders.items()}
+            )
+        frames_sent = _frames(dataset, instances, modality, kind, 0, renderer, meshes, settings.max_faces)
+        for group, rgb, depth, scale in frames_sent:
+            if args.true_mask and renderer is not None and rgb is not None:
+                frame = cv2.imdecode(np.frombuffer(rgb, np.uint8), cv2.IMREAD_COLOR)
+                others = every[group[0].frame_id]  # every annotated object occludes, not only those scored
+                masks = visible_masks(renderer, others, meshes, frame.shape[1], frame.shape[0])
             for inst in group:
                 q = query(inst, rgb, depth, scale)
+                if args.true_mask:
+                    k = next(j for j, o in enumerate(others) if o.obj_id == inst.obj_id)
+                    mask3 = np.repeat(masks[k][..., None].astype(np.uint8) * 255, 3, axis=2)
+                    true = cut(q, mask3, None, embedder.info.spec).rgb
+                    assert true is not None
+                    for e in state.embedders.values():
+                        e.true = true[0][..., 0] > 127  # type: ignore[attr-defined]
                 t0 = time.perf_counter()
                 r = recognise(state, q)
                 wall = 1000 * (time.perf_counter() - t0)
@@ -136,6 +200,9 @@ def probe(args: argparse.Namespace, overrides: dict, data_dir: Path) -> dict:
                 ordered.append(inst)
     finally:
         close_state(state)
+        if renderer is not None:
+            renderer.close()
+    masks_scored = [x for e in state.embedders.values() for x in getattr(e, "scores", [])]
     rot, view, same = score(obj, views, ordered, {o: dataset.symmetry(o) for o in dataset.obj_ids})
 
     def pct(x: np.ndarray) -> float:
@@ -146,6 +213,7 @@ def probe(args: argparse.Namespace, overrides: dict, data_dir: Path) -> dict:
         "model": args.model.name,
         "frames": args.frames,
         "settings": overrides,
+        "true_mask": args.true_mask,
         "objects": n_objects,
         "distractors": args.distractors,
         "templates": n_templates,
@@ -163,6 +231,16 @@ def probe(args: argparse.Namespace, overrides: dict, data_dir: Path) -> dict:
         }
         if timings
         else {},
+        **(
+            {
+                "model_mask": {
+                    "iou_mean": round(float(np.mean([a for a, _ in masks_scored])), 3),
+                    "wrong_pixels_near_outline_mean": round(float(np.mean([b for _, b in masks_scored])), 3),
+                }
+            }
+            if masks_scored
+            else {}
+        ),
         "best": [[int(o), *map(float, v)] for o, v in zip(obj[:, 0], views[:, 0], strict=True)],
     }
     if args.compare is not None:

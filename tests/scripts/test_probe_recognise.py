@@ -6,6 +6,8 @@ import importlib.util
 import json
 from pathlib import Path
 
+import numpy as np
+
 ROOT = Path(__file__).resolve().parents[2]
 
 
@@ -37,3 +39,30 @@ def test_probe_registers_once_and_compares_answers(lmo, tmp_path, capsys):
     assert b["agree_with"]["same_best_answer"] == 100.0  # a small store is exact either way
     assert probe.main([*common, "--settings", "{nope"]) == 2
     assert "--settings is not JSON" in capsys.readouterr().err
+
+
+class _AllBackground:
+    """An embedder whose mask says nothing is the object."""
+
+    size = 64
+
+    def mask(self, inputs, batch=256):
+        return np.zeros((len(inputs), 64, 64), bool)
+
+
+def test_true_mask_replaces_the_first_cut_s_mask_in_whole_or_in_part():
+    TrueMask = _script().TrueMask
+    true = np.zeros((64, 64), bool)
+    true[16:48, 16:48] = True
+    one = np.zeros((1, 3, 64, 64), np.float32)
+    full, band, inner = (TrueMask(_AllBackground(), how) for how in ("full", "band", "inner"))
+    for m in (full, band, inner):
+        m.true = true
+    assert np.array_equal(full.mask(one)[0], true)
+    ring = band.mask(one)[0]  # the true mask within 2 px of its outline, the model's (nothing) elsewhere
+    assert ring[16, 16] and ring[17, 30] and not ring[19, 30] and not ring[32, 32] and not ring[14, 30]
+    core = inner.mask(one)[0]  # the true mask away from the outline
+    assert core[32, 32] and not core[17, 30] and not core[5, 5]
+    assert not full.mask(one).any()  # once a query: the next cut gets the model's mask
+    assert full.size == 64  # the rest is the embedder's
+    assert not band.mask(np.zeros((3, 3, 64, 64), np.float32)).any()  # the re-ranking's cuts: the model's
