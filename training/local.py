@@ -29,6 +29,7 @@ import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
+import cv2
 import numpy as np
 import torch
 import torch.nn.functional as F
@@ -62,7 +63,12 @@ class LocalConfig:
     real_paste: float = 0.3  # of those, pasted on a random background
     val_negatives: int = 28  # fixed negatives a validation instance (same and other objects, as in training)
     steps_per_epoch: int = 150  # a validation and a checkpoint each
-    query_mask: str = ""  # a `posedesc train --arch mask` run whose mask blacks the queries ("": true masks)
+    #: what blacks the queries: a `posedesc train --arch mask` run, or an exported model with a mask
+    #: output (.onnx, the service's own mask); "": their true masks
+    query_mask: str = ""
+    #: px: training queries' masks get an outline this much off, at random (`jitter_outline`); the
+    #: service's masks of new frames are wrong mostly there, its masks of training samples hardly at all
+    mask_jitter: float = 0.0
     hard_model: str = ""  # an exported model whose descriptor picks `hard` more negatives a query ("": none)
     hard: int = 8  # with `hard_model`: negatives a query among its `hard_pool` nearest templates
     hard_pool: int = 100
@@ -177,11 +183,46 @@ def template_inputs(data: TrainingData, cands: list[list[tuple[int, int]]]) -> t
     return np.stack(xs), np.stack(sil)
 
 
+def jitter_outline(mask: np.ndarray, px: float, rng: np.random.Generator) -> np.ndarray:
+    """`mask` with its outline moved in and out by up to `px` pixels, smoothly along it: the signed
+    distance to the outline plus a smooth random field (bumps about 11 px apart) scaled to +-`px`,
+    cut at 0. Away from the outline (farther than `px`) nothing changes. Shape: (S, S) bool -> same."""
+    m = mask.astype(np.uint8)
+    if px <= 0 or not m.any() or m.all():
+        return mask.copy()
+    inside = cv2.distanceTransform(m, cv2.DIST_L2, 3)
+    outside = cv2.distanceTransform(1 - m, cv2.DIST_L2, 3)
+    signed = np.where(mask, inside, -outside)  # > 0 inside, the outline near 0
+    s = mask.shape[0]
+    coarse = rng.uniform(-1.0, 1.0, (6, 6)).astype(np.float32)
+    smooth = np.asarray(cv2.resize(coarse, (s, s), interpolation=cv2.INTER_CUBIC), np.float32)
+    field = smooth / max(float(np.abs(smooth).max()), 1e-6) * px
+    return signed + field > 0.5
+
+
+class OnnxMask:
+    """An exported model's mask output (`index.embed.MASK_NAME`, the service's own mask) as the local
+    trainer's query mask: patches (B, 3, S, S) -> logits (B, 1, S, S), by onnxruntime."""
+
+    def __init__(self, model: Path, threads: int = 1):
+        from index.embed import MASK_NAME, Embedder
+
+        self.embedder, self.name = Embedder(model, threads), MASK_NAME
+        if not self.embedder.has_mask:
+            raise ValueError(f"{model} has no mask output")
+
+    def eval(self) -> OnnxMask:
+        return self
+
+    def __call__(self, x: torch.Tensor) -> torch.Tensor:
+        return torch.from_numpy(self.embedder._run(self.name, x.numpy()))
+
+
 class Scorer:
     """Queries and their candidates -> distances (B, K) through the trunk; the queries black outside the
     mask head's mask (or their true masks)."""
 
-    def __init__(self, data: TrainingData, net: LocalTrunk, mask: MaskNet | None):
+    def __init__(self, data: TrainingData, net: LocalTrunk, mask: MaskNet | OnnxMask | None):
         self.data, self.net, self.mask = data, net, mask
         s = data.spec.size
         black = network_input(
@@ -190,21 +231,30 @@ class Scorer:
         self.black = torch.from_numpy(black)[None]
         self.grid = s // GRID_DIVISOR
 
-    def blacked(self, x: np.ndarray, true_masks: np.ndarray) -> tuple[torch.Tensor, torch.Tensor]:
+    def blacked(
+        self, x: np.ndarray, true_masks: np.ndarray, jitter: tuple[float, np.random.Generator] | None = None
+    ) -> tuple[torch.Tensor, torch.Tensor]:
         """The queries as the service describes them, black outside the mask head's masks (or their true
-        masks), and those masks."""
+        masks), and those masks; `jitter` (px, rng): each mask's outline moved at random first
+        (`jitter_outline`)."""
         xq = torch.from_numpy(x).float()
         if self.mask is not None:
             with torch.no_grad():
                 keep = (self.mask(xq) > 0)[:, 0]
         else:
             keep = torch.from_numpy(true_masks)
+        if jitter is not None and jitter[0] > 0:
+            keep = torch.from_numpy(np.stack([jitter_outline(m, jitter[0], jitter[1]) for m in keep.numpy()]))
         return torch.where(keep[:, None], xq, self.black), keep
 
     def __call__(
-        self, x: np.ndarray, true_masks: np.ndarray, cands: list[list[tuple[int, int]]]
+        self,
+        x: np.ndarray,
+        true_masks: np.ndarray,
+        cands: list[list[tuple[int, int]]],
+        jitter: tuple[float, np.random.Generator] | None = None,
     ) -> torch.Tensor:
-        xq, keep = self.blacked(x, true_masks)
+        xq, keep = self.blacked(x, true_masks, jitter)
         tx, ts = template_inputs(self.data, cands)
         k = len(cands[0])
         fq = self.net(xq)
@@ -271,7 +321,7 @@ def train_local(
     cfg: LocalConfig,
     data: TrainingData,
     out: Path,
-    mask: MaskNet | None = None,
+    mask: MaskNet | OnnxMask | None = None,
     command: str = "",
     code: str = "",
     resume: bool = False,
@@ -330,7 +380,7 @@ def train_local(
         for g in opt.param_groups:
             g["lr"] = cfg.lr * 0.5 * (1 + math.cos(math.pi * min(1.0, progress)))
         x, m, cands = _batch(data, cfg, pick, rng, hard, scorer)
-        s = scorer(x, m, cands)
+        s = scorer(x, m, cands, (cfg.mask_jitter, rng))
         loss = F.cross_entropy(-s / cfg.tau, torch.zeros(len(s), dtype=torch.long))
         opt.zero_grad()
         loss.backward()

@@ -76,9 +76,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--query-mask",
         type=Path,
         default=None,
-        metavar="MASK_RUN",
-        help="--arch local: black the queries outside this `--arch mask` run's masks, as the service does "
-        "(default: outside their true masks)",
+        metavar="MASK_RUN|MODEL.onnx",
+        help="--arch local: black the queries outside this `--arch mask` run's masks, or an exported model's "
+        "(its mask output), as the service does (default: outside their true masks)",
+    )
+    p.add_argument(
+        "--mask-jitter",
+        type=float,
+        default=0.0,
+        metavar="PX",
+        help="local features (arch local): move the training queries' mask outlines in and out by up to PX "
+        "pixels, at random (the service's masks of new frames are wrong mostly along the outline)",
     )
     p.add_argument(
         "--hard-negatives",
@@ -136,6 +144,7 @@ OPTIONS = {
     "data.split.test": "--test",
     "finetune": "--mask-finetune",
     "query_mask": "--query-mask",
+    "mask_jitter": "--mask-jitter",
     "hard_model": "--hard-negatives",
 }
 CHECKPOINTS = ("checkpoint.pt", "best.pt", "mask.pt", "mask-best.pt", "local.pt", "local-best.pt")
@@ -234,10 +243,18 @@ def configs(args: argparse.Namespace) -> tuple[TrainConfig, MaskConfig | LocalCo
         raise UserError(f"--arch {args.arch}: it reads colour; train it with --modality rgb")
     if args.query_mask is not None and args.arch != "local":
         raise UserError("--query-mask is for --arch local")
-    if args.query_mask is not None and not (args.query_mask / "mask.pt").is_file():
+    if args.query_mask is not None and args.query_mask.suffix == ".onnx":
+        if not args.query_mask.is_file():
+            raise UserError(f"--query-mask: no such model file: {args.query_mask}")
+    elif args.query_mask is not None and not (args.query_mask / "mask.pt").is_file():
         raise UserError(
-            f"--query-mask: {args.query_mask} has no mask.pt: not a `posedesc train --arch mask` run"
+            f"--query-mask: {args.query_mask} has no mask.pt: not a `posedesc train --arch mask` run "
+            "nor an .onnx model"
         )
+    if args.mask_jitter and args.arch != "local":
+        raise UserError("--mask-jitter is for --arch local")
+    if args.mask_jitter < 0:
+        raise UserError(f"--mask-jitter must be >= 0, got {args.mask_jitter:g}")
     if args.hard_negatives is not None and args.arch != "local":
         raise UserError("--hard-negatives is for --arch local")
     if args.hard_negatives is not None and not args.hard_negatives.is_file():
@@ -290,6 +307,7 @@ def configs(args: argparse.Namespace) -> tuple[TrainConfig, MaskConfig | LocalCo
             threads=args.threads,
             seed=args.seed,
             query_mask=query_mask,
+            mask_jitter=args.mask_jitter,
             hard_model="" if args.hard_negatives is None else str(args.hard_negatives.resolve()),
         )
         return cfg, lcfg
@@ -347,11 +365,18 @@ def run(args: argparse.Namespace) -> int:
         print(f"trained the mask head for {(time.perf_counter() - t1) / 60:.1f} min -> {args.out}")
         return 0
     if arch == "local":
-        from training.local import LocalConfig, train_local
-        from training.mask import load_mask
+        from training.local import LocalConfig, OnnxMask, train_local
+        from training.mask import MaskNet, load_mask
 
         assert isinstance(mcfg, LocalConfig)
-        head = load_mask(Path(mcfg.query_mask))[0] if mcfg.query_mask else None
+        head: MaskNet | OnnxMask | None = None
+        if mcfg.query_mask.endswith(".onnx"):
+            try:
+                head = OnnxMask(Path(mcfg.query_mask), args.threads)
+            except ValueError as e:
+                raise UserError(f"--query-mask: {e}") from None
+        elif mcfg.query_mask:
+            head = load_mask(Path(mcfg.query_mask))[0]
         with _resume_hint(args.out / "local.pt"):
             train_local(mcfg, data, args.out, head, command, _code_version(), resume=args.resume)
         print(f"trained the local features for {(time.perf_counter() - t1) / 60:.1f} min -> {args.out}")

@@ -2,7 +2,9 @@
 service scores, candidates are what they claim, the copy trains, keeps its frozen stages and resumes."""
 
 import json
+from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 import torch
@@ -15,7 +17,10 @@ from training.local import (
     HardNegatives,
     LocalConfig,
     LocalTrunk,
+    OnnxMask,
+    Scorer,
     distances,
+    jitter_outline,
     load_local,
     train_local,
 )
@@ -126,3 +131,46 @@ def test_a_local_run_interrupted_and_resumed_ends_as_an_uninterrupted_one(shapes
         assert torch.equal(v, again.state_dict()[k]), k
     with pytest.raises(ValueError, match="whole budget"):
         train_local(cfg, shapes, stopped, resume=True)
+
+
+SHIPPED_RGB = Path(__file__).resolve().parents[2] / "models" / "posedesc-rgb.onnx"
+
+
+def test_jitter_moves_the_outline_in_and_out_and_nothing_away_from_it():
+    mask = np.zeros((64, 64), bool)
+    mask[16:48, 20:44] = True
+    m = mask.astype(np.uint8)
+    away = np.where(
+        mask, cv2.distanceTransform(m, cv2.DIST_L2, 3), cv2.distanceTransform(1 - m, cv2.DIST_L2, 3)
+    )
+    rng = np.random.default_rng(0)
+    assert np.array_equal(jitter_outline(mask, 0.0, rng), mask)
+    grown = shrunk = 0
+    for _ in range(50):
+        j = jitter_outline(mask, 3.0, rng)
+        assert not ((j ^ mask) & (away > 3.5)).any()  # only within the jitter of the outline
+        grown, shrunk = grown + int((j & ~mask).sum()), shrunk + int((mask & ~j).sum())
+    assert grown > 0 and shrunk > 0
+    assert not jitter_outline(np.zeros((64, 64), bool), 3.0, rng).any()  # nothing to move
+
+
+def test_an_exported_model_s_mask_blacks_the_queries_and_the_jitter_moves_it(shapes, tmp_path):
+    head = OnnxMask(SHIPPED_RGB)
+    rng = np.random.default_rng(0)
+    x = np.stack(
+        [shapes.sample_with_mask(shapes.draw(o, rng, "rgb", 0.0)[0], "rgb", rng)[0] for o in range(3)]
+    )
+    logits = head(torch.from_numpy(x.astype(np.float32)))
+    from index.embed import Embedder
+
+    assert np.array_equal(logits.numpy()[:, 0] > 0, Embedder(SHIPPED_RGB, 1).mask(x.astype(np.float32)))
+    scorer = Scorer(shapes, LocalTrunk(), head)
+    _, plain = scorer.blacked(x.astype(np.float32), np.zeros((3, 64, 64), bool))
+    _, moved = scorer.blacked(x.astype(np.float32), np.zeros((3, 64, 64), bool), (3.0, rng))
+    assert torch.equal(plain, logits[:, 0] > 0)  # the model's mask, not the (empty) true ones
+    assert not torch.equal(plain, moved)
+    cfg = LocalConfig(
+        minutes=600.0, max_steps=2, batch=2, same=2, others=1, steps_per_epoch=2, threads=1, mask_jitter=3.0
+    )
+    train_local(cfg, shapes, tmp_path, head)  # trains with the model's masks, moved
+    assert load_local(tmp_path, "last")[1]["step"] == 2

@@ -30,8 +30,11 @@ def test_a_checkpoint_from_before_a_setting_existed_counts_as_its_old_behaviour(
 
     from training.local import LocalConfig
 
-    before = {k: v for k, v in asdict(LocalConfig()).items() if not k.startswith("hard")}
+    before = {
+        k: v for k, v in asdict(LocalConfig()).items() if not k.startswith("hard") and k != "mask_jitter"
+    }
     assert config_differences(before, asdict(LocalConfig())) == []
+    assert [d[0] for d in config_differences(before, asdict(LocalConfig(mask_jitter=2.0)))] == ["mask_jitter"]
     assert [d[0] for d in config_differences(before, asdict(LocalConfig(hard_model="m.onnx")))] == [
         "hard_model"
     ]
@@ -56,11 +59,14 @@ def test_resume_refuses_an_empty_folder_and_pca(bop, tmp_path, capsys):
         (("--arch", "local"), "no local.pt in"),
         (
             ("--arch", "local", "--query-mask", str(tmp_path)),
-            "has no mask.pt: not a `posedesc train --arch mask`",
+            "has no mask.pt: not a `posedesc train --arch mask` run nor an .onnx model",
         ),
         (("--arch", "trunk", "--query-mask", str(tmp_path)), "--query-mask is for --arch local"),
         (("--arch", "mask", "--hard-negatives", str(bop)), "--hard-negatives is for --arch local"),
         (("--arch", "local", "--hard-negatives", str(tmp_path / "no.onnx")), "no such model file"),
+        (("--arch", "local", "--query-mask", str(tmp_path / "no.onnx")), "--query-mask: no such model file"),
+        (("--arch", "mask", "--mask-jitter", "2"), "--mask-jitter is for --arch local"),
+        (("--arch", "local", "--mask-jitter", "-1"), "--mask-jitter must be >= 0"),
         (("--arch", "pca"), "fitted in one pass"),
     ]:
         assert posedesc_train("--data", str(bop), "--out", str(tmp_path / "run"), "--resume", *options) == 2
