@@ -243,10 +243,16 @@ def _refined(
             tried += [(int(j), v, r) for v in views if (v, r) != (keys[j], rolls[j])]
     if not tried:
         return score, keys, rolls
-    more = local_scores(q, d, [local[v] for _, v, _ in tried], [r for _, _, r in tried], mask, cuts, coverage)
-    for (j, v, r), s in zip(tried, more, strict=True):
-        if s < score[j]:
-            score[j], keys[j], rolls[j] = s, v, r
+    # a pose scored already (another answer, or a neighbour of another refined answer) is not scored again:
+    # the same template against the same cut of the query scores the same
+    known = {(k, r): float(s) for k, r, s in zip(keys, rolls, score, strict=True)}
+    new = list(dict.fromkeys((v, r) for _, v, r in tried if (v, r) not in known))
+    if new:
+        more = local_scores(q, d, [local[v] for v, _ in new], [r for _, r in new], mask, cuts, coverage)
+        known |= {pose: float(s) for pose, s in zip(new, more, strict=True)}
+    for j, v, r in tried:
+        if known[(v, r)] < score[j]:
+            score[j], keys[j], rolls[j] = known[(v, r)], v, r
     return score, keys, rolls
 
 

@@ -125,6 +125,27 @@ def test_refinement_finds_a_roll_between_templates(tmp_path_factory, shipped_rgb
     assert max(errors[5]) <= 10.0 + 1e-6 and sum(e < 1e-3 for e in errors[5]) >= 4, errors
 
 
+def test_refinement_scores_each_pose_once(whole_turn, renderer, l_shape, monkeypatch):
+    """The refinement compares the best answers' neighbouring viewpoints and turned rolls: a pose the
+    re-ranking scored already, or a neighbour two answers share, is not scored again (same template,
+    same cut of the query: the same score)."""
+    import service.recognition as recognition
+
+    calls: list[list[tuple[int, float]]] = []
+    scored = recognition.local_scores
+
+    def counting(q, d, refs, rolls, *args, **kwargs):
+        calls.append([(id(t), r) for t, r in zip(refs, rolls, strict=True)])
+        return scored(q, d, refs, rolls, *args, **kwargs)
+
+    monkeypatch.setattr(recognition, "local_scores", counting)
+    answer = ask(whole_turn, renderer, l_shape, View(AZ, EL, 40.0, 600.0))
+    assert answer["matches"] and len(calls) == 2  # the re-ranking, then the refinement
+    first, refined = calls
+    assert refined and len(set(refined)) == len(refined)  # each pose once
+    assert not set(refined) & set(first)  # none the re-ranking scored
+
+
 def test_turns_of_an_upright_store_span_the_whole_turn(
     tmp_path_factory, shipped_rgb, renderer, l_shape, t_shape
 ):
