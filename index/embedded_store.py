@@ -359,13 +359,13 @@ class EmbeddedStore:
         old = self._snap
         self._snap = snap  # one reference assignment: readers get the old or the new state, never a mix
         changed = [m for m, mi in snap.models.items() if old.models.get(m) is not mi]
-        # each changed model's file on its own thread: hashing, writing and fsync release the GIL
-        if len(changed) > 1:
+        if len(changed) > 1:  # a file a thread: hashing, writing and fsync release the GIL
             with ThreadPoolExecutor(len(changed), thread_name_prefix="snapshot") as pool:
                 list(pool.map(lambda m: self._sync_file(m, snap, True), changed))
-        for m in snap.models:
-            if len(changed) <= 1 or m not in changed:
-                self._sync_file(m, snap, m in changed)
+        elif changed:
+            self._sync_file(changed[0], snap, True)
+        for m in snap.models.keys() - set(changed):
+            self._sync_file(m, snap, False)
 
     def _sync_file(self, m: str, snap: FaissSnapshot, changed: bool) -> None:
         """Model `m`'s snapshot file brought to `snap`: written again if its index `changed`, else only

@@ -170,8 +170,10 @@ def probe(args: argparse.Namespace, overrides: dict, data_dir: Path) -> dict:
         index = type(getattr(snap.models[modality], "index", None)).__name__
         kind = served_data(modality, instances, None)
         renderer = Renderer() if kind in RENDERED or args.true_mask else None
-        meshes = {o: dataset.mesh(o, max_faces=settings.max_faces) for o in dataset.obj_ids}
-        every = by_frame(select_instances(dataset, args.scene, 0.0, frames, dataset.obj_ids))
+        # meshes only to render (rendered depth, true masks); every annotated instance occludes a true mask
+        need = renderer is not None
+        meshes = {o: dataset.mesh(o, max_faces=settings.max_faces) for o in dataset.obj_ids} if need else {}
+        every = by_frame(select_instances(dataset, args.scene, 0.0, frames, dataset.obj_ids)) if need else {}
         if args.true_mask:
             state = replace(
                 state, embedders={m: TrueMask(e, args.true_mask) for m, e in state.embedders.items()}
