@@ -32,7 +32,7 @@ from index.patches import MODALITY_CHANNELS, PatchSpec, crop, network_input, pat
 from index.pose import View
 from index.render import rotate_crop
 from index.sensor import SensorModel, plane_depth, random_background, support_plane, with_support
-from training.augment import colour_jitter
+from training.augment import colour_jitter, soft_edges
 from training.similarity import rotations
 from training.splits import SplitConfig
 
@@ -55,6 +55,7 @@ class DataConfig:
     real_paste: float = 0.7  # chance a real patch is cut out by its mask and pasted on a random background
     occlude: float = 0.3  # chance a synthetic sample is partly hidden behind another object
     colour_jitter: float = 0.0  # random gamma / saturation / contrast / hue; off: no gain measured (rgb)
+    soft_edges: float = 0.0  # chance a synthetic sample's outline is blended (`augment.soft_edges`)
     exclude: tuple[int, ...] = ()  # BOP object ids left out of training, to measure unseen objects
     support: float = 0.5  # chance a synthetic sample stands on a textured support plane (a table)
     clutter: float = 0.6  # chance 1-3 other objects stand around a sample (synthetic or pasted real)
@@ -67,6 +68,7 @@ class DataConfig:
         for k in (
             *batch_time,
             "colour_jitter",
+            "soft_edges",
             "support",
             "clutter",
             "real_clutter",
@@ -317,7 +319,11 @@ class TrainingData:
             n, d = support_plane(self.s_R[i], t, self.z_min[int(self.s_obj[i])])
             plane = plane_depth(patch_camera(self.spec, self.cfg.distance), n, d, depth.shape)
         bg_rgb, bg_depth = self._scene(rng, plane)
-        rgb, depth = self.sensor.apply(rgb, depth, rng, bg_rgb, bg_depth)
+        behind: np.ndarray | None = bg_rgb
+        # the edge blended here, and the sensor composites nothing more (no draw when off: runs repeat)
+        if self.cfg.soft_edges > 0 and rng.random() < self.cfg.soft_edges:
+            rgb, behind = soft_edges(rgb, bg_rgb, depth > 0, rng), None
+        rgb, depth = self.sensor.apply(rgb, depth, rng, behind, bg_depth)
         return rgb, depth, mask
 
     def _real(

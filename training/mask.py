@@ -48,8 +48,35 @@ class MaskConfig:
     #: > 0: the head gets its own copy of the trunk, and it and the later stages are trained too, at the
     #: learning rate times this (0: the descriptor's frozen trunk and stages, shared with it at export)
     finetune: float = 0.0
+    #: > 0: the loss of pixels within `OUTLINE_PX` of the true outline counts 1 + this times (the service's
+    #: masks of new frames are wrong mostly there, and the re-ranking's cells along it decide the pose)
+    outline_weight: float = 0.0
+    #: chance a synthetic sample's object is blended into its background over a soft, per-channel shifted
+    #: edge (`training.augment.soft_edges`), as a camera's edges are, instead of a render's hard one
+    soft_edges: float = 0.0
+    colour_jitter: float = 0.0  # the samples' random gamma / saturation / contrast / hue (DataConfig's)
     threads: int = 2
     seed: int = 0
+
+
+#: pixels at most this far from the true outline are the outline (`outline_band`)
+OUTLINE_PX = 2
+
+
+def outline_band(m: torch.Tensor, px: int = OUTLINE_PX) -> torch.Tensor:
+    """1 where a pixel lies within `px` (chessboard distance) of the mask's outline, on either side, else
+    0. Shape: (B, 1, H, W) float in {0, 1} -> same."""
+    k = 2 * px + 1
+    dilated = F.max_pool2d(m, k, stride=1, padding=px)
+    eroded = -F.max_pool2d(-m, k, stride=1, padding=px)
+    return dilated - eroded
+
+
+def mask_loss(logits: torch.Tensor, m: torch.Tensor, outline_weight: float = 0.0) -> torch.Tensor:
+    """Per-pixel cross-entropy (the outline's pixels weighted 1 + `outline_weight`) plus the soft Dice
+    loss. Shapes: (B, 1, H, W) logits and masks -> ()."""
+    w = None if outline_weight <= 0 else 1.0 + outline_weight * outline_band(m)
+    return F.binary_cross_entropy_with_logits(logits, m, weight=w) + _dice(logits, m)
 
 
 def _coords(like: torch.Tensor) -> torch.Tensor:
@@ -174,7 +201,9 @@ def train_mask(
     torch.manual_seed(cfg.seed)
     torch.set_num_threads(cfg.threads)
     rng = np.random.default_rng(cfg.seed + 7)
-    data.cfg.real_paste = cfg.real_paste  # a batch-time choice: real clutter is what the head must learn
+    # batch-time choices: real clutter is what the head must learn
+    data.cfg.real_paste = cfg.real_paste
+    data.cfg.soft_edges, data.cfg.colour_jitter = cfg.soft_edges, cfg.colour_jitter
     net = MaskNet(own_stem=cfg.finetune > 0)
     groups = [{"params": net.own(), "scale": 1.0}]
     if cfg.finetune > 0:
@@ -231,7 +260,7 @@ def train_mask(
         net.head.train()
         x, m = _batch(data, cfg, rng)
         logits = net(x)
-        loss = F.binary_cross_entropy_with_logits(logits, m) + _dice(logits, m)
+        loss = mask_loss(logits, m, cfg.outline_weight)
         opt.zero_grad()
         loss.backward()
         opt.step()

@@ -24,7 +24,15 @@ import torch
 FREE = frozenset({"threads"})
 #: settings added after runs were made, with the value that computes what those runs computed: a
 #: checkpoint without one counts as having it (the local trainer's hard negatives: none)
-ADDED = {"hard_model": "", "hard": 8, "hard_pool": 100, "mask_jitter": 0.0}
+ADDED = {
+    "hard_model": "",
+    "hard": 8,
+    "hard_pool": 100,
+    "mask_jitter": 0.0,
+    "outline_weight": 0.0,
+    "soft_edges": 0.0,
+    "colour_jitter": 0.0,
+}
 
 
 def save_atomic(obj: dict, path: Path) -> None:

@@ -73,6 +73,28 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "rate times this (0: frozen, shared with the descriptor)",
     )
     p.add_argument(
+        "--mask-outline",
+        type=float,
+        default=0.0,
+        metavar="W",
+        help="mask heads (arch mask): the loss of pixels within 2 px of the true outline counts 1 + W times",
+    )
+    p.add_argument(
+        "--mask-soft-edges",
+        type=float,
+        default=0.0,
+        metavar="P",
+        help="mask heads (arch mask): the chance a synthetic sample's object is blended into its background "
+        "over a soft edge shifted per colour channel, as a camera's edges are",
+    )
+    p.add_argument(
+        "--mask-colour-jitter",
+        type=float,
+        default=0.0,
+        metavar="S",
+        help="mask heads (arch mask): random gamma, saturation, contrast and hue of the samples, of this strength",
+    )
+    p.add_argument(
         "--query-mask",
         type=Path,
         default=None,
@@ -143,6 +165,9 @@ OPTIONS = {
     "data.split.val": "--val",
     "data.split.test": "--test",
     "finetune": "--mask-finetune",
+    "outline_weight": "--mask-outline",
+    "soft_edges": "--mask-soft-edges",
+    "colour_jitter": "--mask-colour-jitter",
     "query_mask": "--query-mask",
     "mask_jitter": "--mask-jitter",
     "hard_model": "--hard-negatives",
@@ -290,12 +315,26 @@ def configs(args: argparse.Namespace) -> tuple[TrainConfig, MaskConfig | LocalCo
     )
     if args.mask_finetune < 0:
         raise UserError(f"--mask-finetune must be >= 0, got {args.mask_finetune:g}")
+    for flag, value in (
+        ("--mask-outline", args.mask_outline),
+        ("--mask-soft-edges", args.mask_soft_edges),
+        ("--mask-colour-jitter", args.mask_colour_jitter),
+    ):
+        if value and args.arch != "mask":
+            raise UserError(f"{flag} is for --arch mask")
+        if value < 0:
+            raise UserError(f"{flag} must be >= 0, got {value:g}")
+    if args.mask_soft_edges > 1:
+        raise UserError(f"--mask-soft-edges is a chance, at most 1, got {args.mask_soft_edges:g}")
     mcfg = MaskConfig(
         minutes=args.minutes,
         max_steps=args.max_steps,
         threads=args.threads,
         seed=args.seed,
         finetune=args.mask_finetune,
+        outline_weight=args.mask_outline,
+        soft_edges=args.mask_soft_edges,
+        colour_jitter=args.mask_colour_jitter,
     )
     if args.arch == "local":
         from training.local import LocalConfig

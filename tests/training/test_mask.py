@@ -8,7 +8,7 @@ import torch
 
 from training import mask as mask_module
 from training.data import DataConfig, TrainingData
-from training.mask import MaskConfig, MaskNet, iou, load_mask, predict, train_mask
+from training.mask import MaskConfig, MaskNet, iou, load_mask, mask_loss, outline_band, predict, train_mask
 from training.render_cache import build
 
 
@@ -31,6 +31,46 @@ def test_a_synthetic_sample_masks_its_own_object_only(shapes):
         assert mask.any() and not (mask & ~silhouette).any()
         hidden += int((silhouette & ~mask).sum())
     assert hidden > 0  # occluders hid some of the object in some samples
+
+
+def test_soft_edges_blend_the_outline_only(shapes):
+    """With soft edges, a synthetic sample's pixels away from its outline are what a hard composite gives
+    (the same random draws), and along the outline they differ: the object's colour runs into what is
+    behind it. Its mask is the same either way."""
+    data = shapes
+    data.cfg.occlude, data.cfg.clutter = 0.0, 1.0
+    blended = 0
+    for seed in range(6):
+        sample, _ = data.draw(seed % 3, np.random.default_rng(seed), "rgb", 0.0)
+        data.cfg.soft_edges = 0.0
+        hard, m_hard = data.sample_with_mask(sample, "rgb", np.random.default_rng(100 + seed))
+        data.cfg.soft_edges = 1.0
+        soft, m_soft = data.sample_with_mask(sample, "rgb", np.random.default_rng(100 + seed))
+        assert np.array_equal(m_hard, m_soft)
+        band = outline_band(torch.from_numpy(m_hard[None, None]).float(), px=3)[0, 0].numpy() > 0
+        # the sensor's noise is drawn after the blend: the same draws, so only the edge's values differ
+        differ = np.abs(hard - soft).max(axis=0) > 1e-3
+        assert differ[band].mean() > 0.3, differ[band].mean()
+        blended += int(differ[band].sum())
+    data.cfg.soft_edges = 0.0
+    assert blended > 0
+
+
+def test_the_outline_weight_counts_the_outline_s_errors_more():
+    """An error on the outline costs 1 + W times what it costs without the weight; one away from it the
+    same. The band is 2 px either side of the outline."""
+    m = torch.zeros(1, 1, 16, 16)
+    m[..., 4:12, 4:12] = 1
+    band = outline_band(m)
+    assert band[0, 0, 8].tolist() == [0, 0, 1, 1, 1, 1, 0, 0, 0, 0, 1, 1, 1, 1, 0, 0]
+    right = torch.where(m > 0, 8.0, -8.0)
+    on_outline, inside = right.clone(), right.clone()
+    on_outline[0, 0, 8, 4] = -8.0  # a pixel of the object's outline called background
+    inside[0, 0, 8, 8] = -8.0  # one well inside it
+    extra = {w: (mask_loss(on_outline, m, w) - mask_loss(right, m, w)).item() for w in (0.0, 3.0)}
+    assert extra[3.0] > 3.0 * extra[0.0] > 0
+    away = [(mask_loss(inside, m, w) - mask_loss(right, m, w)).item() for w in (0.0, 3.0)]
+    assert away[1] == pytest.approx(away[0], rel=1e-4) and away[0] > 0
 
 
 def test_the_head_learns_masks_and_iou_measures_them(shapes, tmp_path):

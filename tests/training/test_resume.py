@@ -67,6 +67,10 @@ def test_resume_refuses_an_empty_folder_and_pca(bop, tmp_path, capsys):
         (("--arch", "local", "--query-mask", str(tmp_path / "no.onnx")), "--query-mask: no such model file"),
         (("--arch", "mask", "--mask-jitter", "2"), "--mask-jitter is for --arch local"),
         (("--arch", "local", "--mask-jitter", "-1"), "--mask-jitter must be >= 0"),
+        (("--arch", "local", "--mask-outline", "2"), "--mask-outline is for --arch mask"),
+        (("--arch", "trunk", "--mask-soft-edges", "0.5"), "--mask-soft-edges is for --arch mask"),
+        (("--arch", "mask", "--mask-colour-jitter", "-1"), "--mask-colour-jitter must be >= 0"),
+        (("--arch", "mask", "--mask-soft-edges", "2"), "--mask-soft-edges is a chance, at most 1"),
         (("--arch", "pca"), "fitted in one pass"),
     ]:
         assert posedesc_train("--data", str(bop), "--out", str(tmp_path / "run"), "--resume", *options) == 2
