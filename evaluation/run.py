@@ -57,6 +57,9 @@ class Config:
     #: service protocol: each frame sent black outside the instance's ground-truth visible mask (the
     #: clutter-free bound, `evaluation/masks.py`); colour only
     oracle_mask: bool = False
+    #: service protocol: every frame sent again at these camera rolls, degrees (`evaluation.rolls`);
+    #: empty: each frame once, as it is
+    rolls: tuple[float, ...] = ()
     seed: int = 0
 
 

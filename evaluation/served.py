@@ -35,6 +35,7 @@ from evaluation import ours
 from evaluation.masks import black_outside, visible_masks
 from evaluation.metric import K_MAX, WRONG_OBJECT
 from evaluation.neighbours import distinct_rows
+from evaluation.rolls import RolledFrames
 from evaluation.run import SYNTHETIC_NOTE, Config, Evaluation, MethodResult, bar, instances_of, rank
 from evaluation.samples import (
     RENDERED,
@@ -103,7 +104,7 @@ def evaluate_served(cfg: Config) -> Evaluation:
             seconds["register"] = time.perf_counter() - t0
             t0 = time.perf_counter()
             depth_errors: list[tuple[float, float]] = []
-            samples, answers, call_ms, refused = _ask(
+            samples, answers, call_ms, refused, instances, dropped = _ask(
                 state, dataset, instances, kind, cfg, dataset_ids, meshes, depth_errors
             )
             seconds["ours"] = time.perf_counter() - t0
@@ -116,6 +117,12 @@ def evaluate_served(cfg: Config) -> Evaluation:
     notes = [SYNTHETIC_NOTE] if kind == SYNTHETIC else [rendered_note(kind)] if kind in RENDERED else []
     if cfg.oracle_mask:
         notes.append("oracle mask: each frame was sent black outside the instance's true visible mask")
+    if cfg.rolls:
+        notes.append(
+            f"each frame sent at camera rolls of {', '.join(f'{r:g}' for r in cfg.rolls)} deg (turned about "
+            "the principal point, poses turned with it: evaluation/rolls.py); instances whose centre left "
+            f"the frame at a roll were not sent at it ({dropped})"
+        )
     if refused:
         notes.append(f"the service refused {len(refused)} queries (counted as wrong): {sorted(set(refused))}")
     ev = Evaluation(cfg, samples, None, symmetries, seconds=seconds, notes=notes)
@@ -129,6 +136,7 @@ def evaluate_served(cfg: Config) -> Evaluation:
             "query_turns": settings.query_turns,
             "level": settings.level,
         },
+        **({"rolls": list(cfg.rolls), "rolls_dropped": dropped} if cfg.rolls else {}),
         "timing_ms": {
             "recognise_median": round(float(np.median(call_ms)), 2),
             "recognise_p90": round(float(np.percentile(call_ms, 90)), 2),
@@ -287,21 +295,26 @@ def _ask(
     its answers, each call's milliseconds, and the reasons of the queries it refused. With
     `cfg.oracle_mask`, each instance's frame is sent black outside its true visible mask. `depth_errors`
     gets, for each query sent without a distance whose best answer is the right object, the errors (mm)
-    of the distance it was cut at (the surface) and of where the answer puts the origin, against ‖t‖."""
+    of the distance it was cut at (the surface) and of where the answer puts the origin, against ‖t‖.
+    With `cfg.rolls`, every frame is sent at each camera roll (`evaluation.rolls`); the instances as
+    sent (rolled poses, in the order asked) are returned with how many were dropped (centre out of the
+    frame at a roll)."""
     # one renderer for the oracle masks and the rendered depth, on this thread (EGL: a context a thread)
     renderer = Renderer() if cfg.oracle_mask or kind in RENDERED else None
     cache = dict(meshes)  # the frames' other annotated objects join it; `meshes` stays the registered ones
     frames = _frames(
         dataset, instances, cfg.modality, kind, cfg.seed, renderer, cache, state.settings.max_faces
     )
+    rolled = RolledFrames(frames, cfg.rolls or (0.0,))
     embedder = state.embedders[cfg.modality]
     spec = embedder.info.spec
     ordered: list[Instance] = []
     views, rgbs, depths, cut_mm, call_ms, refused = [], [], [], [], [], []
-    obj = np.full((len(instances), K_MAX), -1, int)
-    answer_views = np.zeros((len(instances), K_MAX, 3))
-    with bar(len(instances), "recognise") as b, closing(renderer) if renderer else nullcontext():
-        for group, rgb, depth, scale in frames:
+    n = len(instances) * len(rolled.rolls)  # at most: a rolled centre may leave the frame
+    obj = np.full((n, K_MAX), -1, int)
+    answer_views = np.zeros((n, K_MAX, 3))
+    with bar(n, "recognise") as b, closing(renderer) if renderer else nullcontext():
+        for group, rgb, depth, scale, _ in rolled:
             sent = [rgb] * len(group)
             if cfg.oracle_mask and renderer is not None and rgb is not None:
                 frame: np.ndarray = cv2.imdecode(np.frombuffer(rgb, np.uint8), cv2.IMREAD_COLOR)  # type: ignore[assignment]  # a file the dataset holds
@@ -345,7 +358,8 @@ def _ask(
         source=kind,
         cut_mm=np.nan_to_num(np.array(cut_mm), nan=400.0),
     )
-    return samples, (obj, answer_views), call_ms, refused
+    answers = (obj[: len(ordered)], answer_views[: len(ordered)])
+    return samples, answers, call_ms, refused, ordered, rolled.dropped
 
 
 def origin_errors(errors: np.ndarray) -> dict[str, float | int]:

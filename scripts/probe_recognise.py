@@ -12,8 +12,13 @@ frames (the model's `split_frames`: "val", "test"; or "all") is then sent to `se
 recognise` as a user sends it (`evaluation.served.query`: the frame as its file, the camera, the centre and
 the distance), one at a time on one thread. Printed and written: the share within 5 / 20 / 40 deg (3-D),
 right object and viewing direction within 20 deg at k = 1 (as `posedesc evaluate --protocol service`),
-the median milliseconds of each stage the service reports, and each query's best answer (so two settings
-can be compared answer by answer: `--compare OTHER.json`).
+the median milliseconds of each stage the service reports, and each query's best answer and errors (so
+two settings can be compared answer by answer: `--compare OTHER.json`; its `paired` entry gives the
+difference of each figure with a 95 % interval that resamples instances, not queries).
+
+`--rolls 0,72,144,216,288` sends every frame again at each camera roll (`evaluation.rolls`: the frame
+turned about the principal point, the poses with it): five queries an instance instead of one, a yardstick
+that can separate set-ups 115 instances cannot (`by_roll` gives each roll's figures).
 
 `--data-dir` keeps the store between runs (made once; the objects are not registered again), so settings
 (`--settings`, fields of `service.settings.Settings`) can be tried in turn on the same templates. It is a
@@ -39,6 +44,7 @@ sys.path.insert(0, str(ROOT))
 from evaluation import ours  # noqa: E402
 from evaluation.masks import visible_masks  # noqa: E402
 from evaluation.metric import K_MAX  # noqa: E402
+from evaluation.rolls import RolledFrames, parse_rolls, roll_instance  # noqa: E402
 from evaluation.run import Config, instances_of  # noqa: E402
 from evaluation.samples import RENDERED, by_frame, select_instances, served_data  # noqa: E402
 from evaluation.served import _frames, _register, query, score  # noqa: E402
@@ -73,18 +79,29 @@ def main(argv: list[str] | None = None) -> int:
         help="the query's mask replaced by the true visible one (full), or the model's with the true one "
         "inside a band of 2 px either side of the true outline (band), or outside it (inner)",
     )
+    p.add_argument(
+        "--rolls",
+        default=None,
+        help="send every frame again at these camera rolls, degrees (evaluation/rolls.py), e.g. 0,72,144",
+    )
     p.add_argument("--json", type=Path, default=None)
     args = p.parse_args(argv)
     try:
         overrides = json.loads(args.settings)
+        args.rolls = parse_rolls(args.rolls) if args.rolls is not None else (0.0,)
     except json.JSONDecodeError as e:
         print(f"probe_recognise: --settings is not JSON: {e}", file=sys.stderr)
+        return 2
+    except ValueError as e:
+        print(f"probe_recognise: --rolls: {e}", file=sys.stderr)
         return 2
     with tempfile.TemporaryDirectory(prefix="posedesc-probe-") as tmp:
         result = probe(args, overrides, args.data_dir or Path(tmp))
     print(json.dumps({k: result[k] for k in ("settings", "objects", "templates", "k1", "stages_median_ms")}))
     if "agree_with" in result:
         print(json.dumps(result["agree_with"]))
+    if "paired" in result:
+        print(json.dumps(result["paired"]))
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(result, indent=1) + "\n")
@@ -160,9 +177,10 @@ def probe(args: argparse.Namespace, overrides: dict, data_dir: Path) -> dict:
         ids_file.write_text(json.dumps({str(k): v for k, v in dataset_ids.items()}))
     dataset_ids = {int(k): v for k, v in json.loads(ids_file.read_text()).items()}
     state = load_state(settings, {modality: embedder})
-    obj = np.full((len(instances), K_MAX), -1, int)
-    views = np.zeros((len(instances), K_MAX, 3))
-    timings, ordered = [], []
+    n = len(instances) * len(args.rolls)
+    obj = np.full((n, K_MAX), -1, int)
+    views = np.zeros((n, K_MAX, 3))
+    timings, ordered, sent_rolls = [], [], []
     renderer = None
     try:
         snap = state.store.snapshot
@@ -178,11 +196,14 @@ def probe(args: argparse.Namespace, overrides: dict, data_dir: Path) -> dict:
             state = replace(
                 state, embedders={m: TrueMask(e, args.true_mask) for m, e in state.embedders.items()}
             )
-        frames_sent = _frames(dataset, instances, modality, kind, 0, renderer, meshes, settings.max_faces)
-        for group, rgb, depth, scale in frames_sent:
+        frames_sent = RolledFrames(
+            _frames(dataset, instances, modality, kind, 0, renderer, meshes, settings.max_faces), args.rolls
+        )
+        for group, rgb, depth, scale, roll in frames_sent:
             if args.true_mask and renderer is not None and rgb is not None:
                 frame = cv2.imdecode(np.frombuffer(rgb, np.uint8), cv2.IMREAD_COLOR)
-                others = every[group[0].frame_id]  # every annotated object occludes, not only those scored
+                # every annotated object occludes, not only those scored
+                others = [roll_instance(o, roll) for o in every[group[0].frame_id]]
                 masks = visible_masks(renderer, others, meshes, frame.shape[1], frame.shape[0])
             for inst in group:
                 q = query(inst, rgb, depth, scale)
@@ -200,11 +221,13 @@ def probe(args: argparse.Namespace, overrides: dict, data_dir: Path) -> dict:
                 i = len(ordered)
                 obj[i], views[i], _ = ours.answers(r.matches, dataset_ids, K_MAX)
                 ordered.append(inst)
+                sent_rolls.append(roll)
     finally:
         close_state(state)
         if renderer is not None:
             renderer.close()
     masks_scored = [x for e in state.embedders.values() for x in getattr(e, "scores", [])]
+    obj, views = obj[: len(ordered)], views[: len(ordered)]
     rot, view, same = score(obj, views, ordered, {o: dataset.symmetry(o) for o in dataset.obj_ids})
 
     def pct(x: np.ndarray) -> float:
@@ -221,6 +244,8 @@ def probe(args: argparse.Namespace, overrides: dict, data_dir: Path) -> dict:
         "templates": n_templates,
         "index": index,
         "n": len(ordered),
+        "rolls": list(args.rolls),
+        "rolls_dropped": frames_sent.dropped,
         "k1": {
             "within_5": pct(rot[:, 0] < 5),
             "within_20": pct(rot[:, 0] < 20),
@@ -243,8 +268,25 @@ def probe(args: argparse.Namespace, overrides: dict, data_dir: Path) -> dict:
             if masks_scored
             else {}
         ),
+        "by_roll": {
+            f"{r:g}": {
+                "n": int(m.sum()),
+                "within_20": pct(rot[m, 0] < 20),
+                "right_object": pct(same[m, 0]),
+                "view_within_20": pct(view[m, 0] < 20),
+            }
+            for r in args.rolls
+            if (m := np.array(sent_rolls) == r).any()
+        },
         "best": [[int(o), *map(float, v)] for o, v in zip(obj[:, 0], views[:, 0], strict=True)],
+        # each query: frame, object, roll, 3-D error, viewing-direction error (180: wrong object), right object
+        "queries": [
+            [i.frame_id, i.obj_id, r, round(float(a), 2), round(float(b), 2), int(c)]
+            for i, r, a, b, c in zip(ordered, sent_rolls, rot[:, 0], view[:, 0], same[:, 0], strict=True)
+        ],
     }
+    if args.compare is not None and "queries" in (theirs := json.loads(args.compare.read_text())):
+        result["paired"] = paired(result["queries"], theirs["queries"], theirs.get("model", "?"))
     if args.compare is not None:
         other = json.loads(args.compare.read_text())["best"]
         same_best = [
@@ -252,6 +294,41 @@ def probe(args: argparse.Namespace, overrides: dict, data_dir: Path) -> dict:
         ]
         result["agree_with"] = {"file": args.compare.name, "same_best_answer": pct(np.array(same_best))}
     return result
+
+
+def paired(ours: list, theirs: list, name: str, draws: int = 4000, seed: int = 0) -> dict:
+    """This run against another on the queries both sent (same frame, object and roll): the difference
+    in points of each k = 1 figure, with a 95 % interval from resampling the instances (frame, object):
+    the rolls of one instance are not independent queries, so they are resampled together."""
+    mine = {(f, o, r): e for f, o, r, *e in ours}
+    other = {(f, o, r): e for f, o, r, *e in theirs}
+    common = sorted(mine.keys() & other.keys())
+    if not common:
+        return {"against": name, "n": 0}
+    clusters = sorted({(f, o) for f, o, _ in common})
+    where = {c: i for i, c in enumerate(clusters)}
+    cluster = np.array([where[(f, o)] for f, o, _ in common])
+    a, b = np.array([mine[k] for k in common]), np.array([other[k] for k in common])
+    out: dict = {"against": name, "n": len(common), "instances": len(clusters)}
+    rng = np.random.default_rng(seed)
+    picks = rng.integers(0, len(clusters), size=(draws, len(clusters)))
+    for label, hit in (
+        ("within_5", lambda e: e[:, 0] < 5),
+        ("within_20", lambda e: e[:, 0] < 20),
+        ("right_object", lambda e: e[:, 2] > 0),
+        ("view_within_20", lambda e: e[:, 1] < 20),
+    ):
+        d = hit(a).astype(float) - hit(b)
+        total = np.bincount(cluster, d, len(clusters))
+        count = np.bincount(cluster, minlength=len(clusters)).astype(float)
+        boot = 100 * total[picks].sum(axis=1) / count[picks].sum(axis=1)
+        out[label] = {
+            "difference": round(100 * float(d.mean()), 1),
+            "interval_95": [round(float(x), 1) for x in np.percentile(boot, [2.5, 97.5])],
+            "better": int((d > 0).sum()),
+            "worse": int((d < 0).sum()),
+        }
+    return out
 
 
 if __name__ == "__main__":

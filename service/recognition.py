@@ -130,7 +130,10 @@ def recognise_decoded(state: AppState, q: Query, d: Decoded, decode_s: float | N
         mask = None if keep is None else (float(p.offsets[0]), keep[0])
         spacing = state.templates.inplane_spacing(step)
         coverage = state.settings.mask_coverage
-        matches = rerank_local(snap, q, d, matches, mask, state.settings.roll_refine, spacing, q.k, coverage)
+        settings = state.settings
+        matches = rerank_local(
+            snap, q, d, matches, mask, settings.roll_refine, spacing, q.k, coverage, settings.refine_rounds
+        )
     matches = matches[: q.k]
     t5 = time.perf_counter()
     before = {} if decode_s is None else {"decode": decode_s}
@@ -172,6 +175,7 @@ def rerank_local(
     spacing: float = 0.0,
     k: int | None = None,
     coverage: float = 0.0,
+    rounds: int = 1,
 ) -> list[Match]:
     """The answers re-ranked by local similarity: the query is cut once per roll the answers give
     (turned upright for each), and its local features (`index.embed.LOCAL_NAME`, the pretrained trunk's
@@ -185,7 +189,8 @@ def rerank_local(
     the viewpoints around theirs and at their roll +- `spacing` / 3 (`spacing`: the templates' in-plane
     step), and keep the pose that scores best (`service.refine`). Measured on validation frames (README,
     Evaluation). `k`: only the best k answers are wanted (the rest are not made). `coverage`:
-    `index.local.masked_distance`'s weight of the query's mask left outside a template's silhouette."""
+    `index.local.masked_distance`'s weight of the query's mask left outside a template's silhouette.
+    `rounds`: rounds of refinement, each from where the last left the answers, its roll turn halved."""
     local = snap.models[d.modality].local
     every = [local_key(m.object_id, m.azimuth, m.elevation) for m in matches]
     have = [i for i, k in enumerate(every) if k in local]
@@ -197,7 +202,9 @@ def rerank_local(
     score = local_scores(q, d, [local[k] for k in keys], rolls, mask, cuts, coverage)
     first = list(zip(keys, rolls, strict=True))
     if refine > 0:
-        score, keys, rolls = _refined(q, d, local, score, keys, rolls, mask, refine, spacing, cuts, coverage)
+        score, keys, rolls = _refined(
+            q, d, local, score, keys, rolls, mask, refine, spacing, cuts, coverage, rounds
+        )
     order, seen = np.argsort(score, kind="stable"), set()
     out: list[Match] = []
     for j in order:  # two answers refined to one viewpoint: the better one stays
@@ -229,30 +236,33 @@ def _refined(
     spacing: float,
     cuts: dict[float, tuple[np.ndarray, np.ndarray | None]],
     coverage: float = 0.0,
+    rounds: int = 1,
 ) -> tuple[np.ndarray, list[Key], list[float]]:
     """The best `refine` answers compared also at the viewpoints around theirs and at their roll +- a
-    third of the in-plane `spacing` (`service.refine`); each keeps the (viewpoint, roll) scoring best."""
+    third of the in-plane `spacing` (`service.refine`); each keeps the (viewpoint, roll) scoring best.
+    `rounds` > 1: again from there, the roll's turn halved each round (a sixth, a twelfth, ...)."""
     table = TABLES.of(local)
-    turns = (0.0, -spacing / 3, spacing / 3) if spacing > 0 else (0.0,)
     score, keys, rolls = score.copy(), list(keys), list(rolls)
-    tried: list[tuple[int, Key, float]] = []
-    for j in np.argsort(score, kind="stable")[:refine]:
-        views = [keys[j], *table[keys[j][0]].near(keys[j], NEAR_VIEWS)]
-        for o in turns:
-            r = round(float(wrap_degrees(rolls[j] + o)), 3)
-            tried += [(int(j), v, r) for v in views if (v, r) != (keys[j], rolls[j])]
-    if not tried:
-        return score, keys, rolls
     # a pose scored already (another answer, or a neighbour of another refined answer) is not scored again:
     # the same template against the same cut of the query scores the same
     known = {(k, r): float(s) for k, r, s in zip(keys, rolls, score, strict=True)}
-    new = list(dict.fromkeys((v, r) for _, v, r in tried if (v, r) not in known))
-    if new:
-        more = local_scores(q, d, [local[v] for v, _ in new], [r for _, r in new], mask, cuts, coverage)
-        known |= {pose: float(s) for pose, s in zip(new, more, strict=True)}
-    for j, v, r in tried:
-        if known[(v, r)] < score[j]:
-            score[j], keys[j], rolls[j] = known[(v, r)], v, r
+    best = np.argsort(score, kind="stable")[:refine]
+    for step in range(rounds):  # each round from where the last left each answer, the roll's turn halved
+        turn = spacing / (3 * 2**step)
+        turns = (0.0, -turn, turn) if spacing > 0 else (0.0,)
+        tried: list[tuple[int, Key, float]] = []
+        for j in best:
+            views = [keys[j], *table[keys[j][0]].near(keys[j], NEAR_VIEWS)]
+            for o in turns:
+                r = round(float(wrap_degrees(rolls[j] + o)), 3)
+                tried += [(int(j), v, r) for v in views if (v, r) != (keys[j], rolls[j])]
+        new = list(dict.fromkeys((v, r) for _, v, r in tried if (v, r) not in known))
+        if new:
+            more = local_scores(q, d, [local[v] for v, _ in new], [r for _, r in new], mask, cuts, coverage)
+            known |= {pose: float(s) for pose, s in zip(new, more, strict=True)}
+        for j, v, r in tried:
+            if known[(v, r)] < score[j]:
+                score[j], keys[j], rolls[j] = known[(v, r)], v, r
     return score, keys, rolls
 
 

@@ -121,6 +121,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="service protocol: send each frame black outside the instance's true visible mask "
         "(the clutter-free bound; colour only)",
     )
+    p.add_argument("--rolls", default=None,
+                   help="service protocol: send every frame again turned about the principal point by "
+                   "each of these camera rolls, degrees, e.g. 0,72,144,216,288, the poses turned with it "
+                   "(a larger validation yardstick from the same frames)")  # fmt: skip
     p.add_argument("--model-3d", type=Path, default=None, help="a 3-dimensional model for the 3-D picture")
     p.add_argument(
         "--seed", type=int, default=0, help="seed of synthetic scenes and of the pictures' samples"
@@ -133,6 +137,7 @@ def run(args: argparse.Namespace) -> int:
     from pydantic import ValidationError
 
     from evaluation.report import table, write_json, write_report
+    from evaluation.rolls import parse_rolls
     from evaluation.run import Config, evaluate
     from index.embed import Embedder
 
@@ -153,6 +158,14 @@ def run(args: argparse.Namespace) -> int:
         raise UserError("--inplane-step must be in (0, 180] for the full protocol")
     if args.oracle_mask and (args.protocol != "service" or args.modality == "depth"):
         raise UserError("--oracle-mask needs the service protocol and colour (rgb or rgbd)")
+    rolls: tuple[float, ...] = ()
+    if args.rolls is not None:
+        if args.protocol != "service":
+            raise UserError("--rolls needs the service protocol")
+        try:
+            rolls = parse_rolls(args.rolls)
+        except ValueError as e:
+            raise UserError(f"--rolls: {e}") from None
     if args.query_turns is not None and not (1 <= args.query_turns <= 36):
         raise UserError("--query-turns must be in 1..36")
     cfg = Config(
@@ -171,6 +184,7 @@ def run(args: argparse.Namespace) -> int:
         query_turns=args.query_turns,
         synthetic=True if args.synthetic else None,
         oracle_mask=args.oracle_mask,
+        rolls=rolls,
         seed=args.seed,
     )
     t0 = time.perf_counter()
