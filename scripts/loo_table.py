@@ -1,6 +1,7 @@
 """Leave-one-out table: for each run that left one object out of training, that object's accuracy on every
 frame it appears in (scored with `posedesc evaluate --unseen ID`), beside the other objects', with 95 %
-Wilson intervals (an object has ~25-70 instances: a few points either way are noise).
+Wilson intervals (an object has ~25-70 instances: a few points either way are noise). With several runs,
+a last row pools them: every left-out object's instances together, and every run's other objects'.
 
     .venv/bin/python scripts/loo_table.py ID=EVAL.json [ID=EVAL.json ...] --json docs/results/loo.json
 """
@@ -33,6 +34,18 @@ def row(group: dict, method: str = "ours") -> dict:
     return out
 
 
+def pooled(rows: list[dict]) -> dict:
+    """Rows of several runs (`row`) as one: their instances together, each figure the share of all of
+    them, with its Wilson interval (the runs' objects and models differ; their instances are counted once)."""
+    n = sum(r["n"] for r in rows)
+    out: dict = {"n": n}
+    for name in ("within_20", "recognised"):
+        p = sum(r[name]["value"] * r["n"] for r in rows) / max(n, 1)
+        lo, hi = wilson(p, n)
+        out[name] = {"value": p, "ci95": [round(lo, 3), round(hi, 3)]}
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("runs", nargs="+", help="ID=EVAL.json: the object left out and its evaluation")
@@ -50,6 +63,14 @@ def main() -> None:
                 "frames": len(ev["frames"]),
                 "unseen": row(ev["unseen_objects"]),
                 "seen": row(ev["seen_objects"]),
+            }
+        )
+    if len(table) > 1:
+        table.append(
+            {
+                "left_out": "pooled",
+                "unseen": pooled([t["unseen"] for t in table]),
+                "seen": pooled([t["seen"] for t in table]),
             }
         )
     args.json.parent.mkdir(parents=True, exist_ok=True)

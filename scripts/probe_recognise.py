@@ -288,12 +288,29 @@ def probe(args: argparse.Namespace, overrides: dict, data_dir: Path) -> dict:
     if args.compare is not None and "queries" in (theirs := json.loads(args.compare.read_text())):
         result["paired"] = paired(result["queries"], theirs["queries"], theirs.get("model", "?"))
     if args.compare is not None:
-        other = json.loads(args.compare.read_text())["best"]
-        same_best = [
-            a[0] == b[0] and np.allclose(a[1:], b[1:]) for a, b in zip(result["best"], other, strict=True)
-        ]
-        result["agree_with"] = {"file": args.compare.name, "same_best_answer": pct(np.array(same_best))}
+        theirs = json.loads(args.compare.read_text())
+        pairs = _common_best(result, theirs)
+        same_best = [a[0] == b[0] and np.allclose(a[1:], b[1:]) for a, b in pairs]
+        result["agree_with"] = {
+            "file": args.compare.name,
+            "n": len(pairs),
+            "same_best_answer": pct(np.array(same_best)) if pairs else None,
+        }
     return result
+
+
+def _common_best(ours: dict, theirs: dict) -> list[tuple[list, list]]:
+    """The two runs' best answers to the queries both sent: matched by (frame, object, roll) where both
+    list their queries, else in order (older runs, which must then have sent the same queries)."""
+    if "queries" in ours and "queries" in theirs:
+        other = {tuple(q[:3]): b for q, b in zip(theirs["queries"], theirs["best"], strict=True)}
+        return [
+            (b, other[k])
+            for q, b in zip(ours["queries"], ours["best"], strict=True)
+            if (k := tuple(q[:3])) in other
+        ]
+    same = len(ours["best"]) == len(theirs["best"])
+    return list(zip(ours["best"], theirs["best"], strict=True)) if same else []
 
 
 def paired(ours: list, theirs: list, name: str, draws: int = 4000, seed: int = 0) -> dict:

@@ -39,6 +39,37 @@ def test_probe_registers_once_and_compares_answers(lmo, tmp_path, capsys):
     assert b["agree_with"]["same_best_answer"] == 100.0  # a small store is exact either way
     assert probe.main([*common, "--settings", "{nope"]) == 2
     assert "--settings is not JSON" in capsys.readouterr().err
+    # every frame again at a camera roll: the same instances, answered one query per roll, compared query
+    # by query with the run at roll 0 alone (its queries are the rolled run's first roll)
+    rolled = tmp_path / "c.json"
+    assert (
+        probe.main(
+            [*common, "--settings", level, "--rolls", "0,180", "--json", str(rolled), "--compare", str(first)]
+        )
+        == 0
+    )
+    c = json.loads(rolled.read_text())
+    assert c["rolls"] == [0.0, 180.0] and c["n"] + c["rolls_dropped"] == 8 and len(c["queries"]) == c["n"]
+    assert c["by_roll"]["0"]["n"] == 4 and c["paired"]["n"] == 4  # roll 0: the frames as they are
+    assert c["paired"]["within_20"]["difference"] == 0.0  # the same store, the same queries, the same answers
+    assert probe.main([*common, "--rolls", "0,400"]) == 2
+    assert "--rolls" in capsys.readouterr().err
+
+
+def test_paired_differences_resample_instances_not_queries():
+    paired = _script().paired
+    # 20 instances at 4 rolls; B is wrong (180°) on every roll of instances 0-5 where A is right (10°)
+    ours = [[f, 1, r, 10.0, 10.0, 1] for f in range(20) for r in (0, 90, 180, 270)]
+    theirs = [[f, 1, r, *((180.0, 180.0, 0) if f < 6 else (10.0, 10.0, 1))] for f, _, r, *_ in ours]
+    out = paired(ours, theirs, "B")
+    assert out["n"] == 80 and out["instances"] == 20
+    d = out["within_20"]
+    assert d["difference"] == 30.0 and d["better"] == 24 and d["worse"] == 0
+    lo, hi = d["interval_95"]
+    # resampling 20 instances (6 of them different), not 80 queries: about ±20 points (queries: ±10)
+    assert 0 < lo < 30.0 < hi and hi - lo > 30
+    assert out["right_object"]["difference"] == 30.0 and out["within_5"]["difference"] == 0.0
+    assert paired(ours, [[99, 1, 0, 1.0, 1.0, 1]], "none") == {"against": "none", "n": 0}
 
 
 class _AllBackground:
