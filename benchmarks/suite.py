@@ -103,6 +103,19 @@ class BenchConfig:
         )
 
 
+#: the service's settings that change what a recognition does and costs and that no section sets itself
+#: (the sections set the level, index kind, query turns and in-plane templates they measure)
+RECOGNITION_SETTINGS = ("rerank", "roll_refine", "refine_rounds", "mask_coverage", "reject_above", "threads")
+
+
+def recognition_settings() -> dict:
+    """Those settings as every section's service runs with them: the defaults, or POSEDESC_* overrides."""
+    from service.settings import Settings
+
+    settings = Settings(demo_objects=False)
+    return {name: _jsonable(getattr(settings, name)) for name in RECOGNITION_SETTINGS}
+
+
 def run(cfg: BenchConfig) -> dict:
     from index.embed import MODEL_FILES, Embedder, fingerprint, load_models
 
@@ -111,6 +124,7 @@ def run(cfg: BenchConfig) -> dict:
     cfg = replace(cfg, distinct=distinct)
     threads = pin_threads(ort_threads=1, faiss_threads=cfg.knn.search_threads, cv2_threads=1)
     out: dict = {"machine": machine(), "threads": threads, "config": _jsonable(asdict(cfg)), "sections": {}}
+    out["service_settings"] = recognition_settings()
     out["threads"] |= {"setup_onnxruntime": cfg.setup_threads, "faiss_build": cfg.knn.build_threads}
     notes: list[str] = []
     seconds: dict[str, float] = {}

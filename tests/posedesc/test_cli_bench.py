@@ -6,6 +6,7 @@ import json
 import math
 
 from posedesc.cli import main
+from service.settings import Settings
 
 
 def positive(x: object) -> bool:
@@ -20,6 +21,11 @@ def test_bench_quick(tmp_path, posedesc_models, capsys):
     result = json.loads(out.read_text())
     assert positive(result["recognize_vs_linemod_speedup_100"])
     assert positive(result["register_20k_faces_s"])
+    # what the sections' services ran with, so two runs can be told apart (POSEDESC_* overrides included)
+    assert (
+        result["service_settings"]["rerank"] == Settings().rerank
+        and "refine_rounds" in result["service_settings"]
+    )
     s = result["summary"]
     for key in (
         "onnx_b1_patches_per_s",
