@@ -76,8 +76,9 @@ def inside(inst: Instance, w: int, h: int) -> bool:
 @dataclass
 class RolledFrames:
     """`frames` (as `evaluation.served._frames` yields them: instances, rgb file, depth file, depth
-    scale) again at every roll of `rolls`; roll 0 sends the frame's own files unchanged. Each frame is
-    decoded once; the rolled files are PNG (lossless: only the warp changes the pixels)."""
+    scale) again at every roll of `rolls`; roll 0 sends the frame's own files and instances unchanged.
+    A frame is decoded once, and only when a roll other than 0 needs it; the rolled files are PNG
+    (lossless: only the warp changes the pixels)."""
 
     frames: Iterable[tuple[list[Instance], bytes | None, bytes | None, float]]
     rolls: Sequence[float]
@@ -86,19 +87,21 @@ class RolledFrames:
     def __iter__(self) -> Iterator[tuple[list[Instance], bytes | None, bytes | None, float, float]]:
         """(rolled instances, rgb file, depth file, depth scale, roll degrees) per frame and roll."""
         for group, rgb, depth, scale in self.frames:
-            colour = _decode(rgb, cv2.IMREAD_COLOR)
-            ranged = _decode(depth, cv2.IMREAD_UNCHANGED)
-            shape = (colour if colour is not None else ranged).shape  # type: ignore[union-attr]
-            h, w = shape[:2]
-            K = group[0].K
+            decoded = False
             for degrees in self.rolls:
+                if degrees == 0:
+                    yield group, rgb, depth, scale, 0.0
+                    continue
+                if not decoded:
+                    colour = _decode(rgb, cv2.IMREAD_COLOR)
+                    ranged = _decode(depth, cv2.IMREAD_UNCHANGED)
+                    shape = (colour if colour is not None else ranged).shape  # type: ignore[union-attr]
+                    h, w = shape[:2]
+                    K, decoded = group[0].K, True
                 turned = [roll_instance(i, degrees) for i in group]
-                kept = turned if degrees == 0 else [i for i in turned if inside(i, w, h)]
+                kept = [i for i in turned if inside(i, w, h)]
                 self.dropped += len(turned) - len(kept)
                 if not kept:
-                    continue
-                if degrees == 0:
-                    yield kept, rgb, depth, scale, 0.0
                     continue
                 rgb_out = None if colour is None else _png(roll_image(colour, K, degrees))
                 depth_out = None if ranged is None else _png(roll_image(ranged, K, degrees, depth=True))

@@ -285,10 +285,10 @@ def probe(args: argparse.Namespace, overrides: dict, data_dir: Path) -> dict:
             for i, r, a, b, c in zip(ordered, sent_rolls, rot[:, 0], view[:, 0], same[:, 0], strict=True)
         ],
     }
-    if args.compare is not None and "queries" in (theirs := json.loads(args.compare.read_text())):
-        result["paired"] = paired(result["queries"], theirs["queries"], theirs.get("model", "?"))
     if args.compare is not None:
         theirs = json.loads(args.compare.read_text())
+        if "queries" in theirs:
+            result["paired"] = paired(result["queries"], theirs["queries"], theirs.get("model", "?"))
         pairs = _common_best(result, theirs)
         same_best = [a[0] == b[0] and np.allclose(a[1:], b[1:]) for a, b in pairs]
         result["agree_with"] = {

@@ -129,10 +129,9 @@ def recognise_decoded(state: AppState, q: Query, d: Decoded, decode_s: float | N
     if rerank:
         mask = None if keep is None else (float(p.offsets[0]), keep[0])
         spacing = state.templates.inplane_spacing(step)
-        coverage = state.settings.mask_coverage
-        settings = state.settings
+        s = state.settings
         matches = rerank_local(
-            snap, q, d, matches, mask, settings.roll_refine, spacing, q.k, coverage, settings.refine_rounds
+            snap, q, d, matches, mask, s.roll_refine, spacing, q.k, s.mask_coverage, s.refine_rounds
         )
     matches = matches[: q.k]
     t5 = time.perf_counter()

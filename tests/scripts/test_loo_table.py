@@ -2,22 +2,11 @@
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import sys
 from pathlib import Path
 
 import pytest
-
-ROOT = Path(__file__).resolve().parents[2]
-
-
-def _script():
-    spec = importlib.util.spec_from_file_location("loo_table", ROOT / "scripts" / "loo_table.py")
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
 
 
 def _evaluation(path: Path, unseen: tuple[int, float, float], seen: tuple[int, float, float]) -> str:
@@ -37,12 +26,12 @@ def _evaluation(path: Path, unseen: tuple[int, float, float], seen: tuple[int, f
     return str(path)
 
 
-def test_runs_and_their_pool(tmp_path, monkeypatch, capsys):
+def test_runs_and_their_pool(tmp_path, monkeypatch, capsys, script):
     a = _evaluation(tmp_path / "a.json", (20, 0.5, 0.8), (100, 0.7, 0.9))
     b = _evaluation(tmp_path / "b.json", (30, 0.6, 0.6), (90, 0.6, 0.8))
     out = tmp_path / "table.json"
     monkeypatch.setattr(sys, "argv", ["loo_table.py", f"1={a}", f"6={b}", "--json", str(out)])
-    _script().main()
+    script("loo_table").main()
     table = json.loads(out.read_text())
     assert [t["left_out"] for t in table] == [1, 6, "pooled"]
     pool = table[-1]

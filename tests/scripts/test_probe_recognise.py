@@ -2,25 +2,13 @@
 
 from __future__ import annotations
 
-import importlib.util
 import json
-from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[2]
 
-
-def _script():
-    spec = importlib.util.spec_from_file_location("probe_recognise", ROOT / "scripts" / "probe_recognise.py")
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-def test_probe_registers_once_and_compares_answers(lmo, tmp_path, capsys):
-    probe = _script()
+def test_probe_registers_once_and_compares_answers(lmo, tmp_path, capsys, script):
+    probe = script("probe_recognise")
     data, first, second = tmp_path / "store", tmp_path / "a.json", tmp_path / "b.json"
     common = ["--dataset", str(lmo), "--frames", "val", "--limit", "4", "--data-dir", str(data)]
     level = json.dumps({"level": 1})
@@ -56,8 +44,8 @@ def test_probe_registers_once_and_compares_answers(lmo, tmp_path, capsys):
     assert "--rolls" in capsys.readouterr().err
 
 
-def test_paired_differences_resample_instances_not_queries():
-    paired = _script().paired
+def test_paired_differences_resample_instances_not_queries(script):
+    paired = script("probe_recognise").paired
     # 20 instances at 4 rolls; B is wrong (180°) on every roll of instances 0-5 where A is right (10°)
     ours = [[f, 1, r, 10.0, 10.0, 1] for f in range(20) for r in (0, 90, 180, 270)]
     theirs = [[f, 1, r, *((180.0, 180.0, 0) if f < 6 else (10.0, 10.0, 1))] for f, _, r, *_ in ours]
@@ -81,8 +69,8 @@ class _AllBackground:
         return np.zeros((len(inputs), 64, 64), bool)
 
 
-def test_true_mask_replaces_the_first_cut_s_mask_in_whole_or_in_part():
-    TrueMask = _script().TrueMask
+def test_true_mask_replaces_the_first_cut_s_mask_in_whole_or_in_part(script):
+    TrueMask = script("probe_recognise").TrueMask
     true = np.zeros((64, 64), bool)
     true[16:48, 16:48] = True
     one = np.zeros((1, 3, 64, 64), np.float32)

@@ -94,6 +94,17 @@ def test_query_turns_refine_the_roll(tmp_path_factory, shipped_rgb, renderer, l_
         c.__exit__(None, None, None)
 
 
+def answers_to_rolls(tmp_path_factory, models, renderer, l_shape, t_shape, phis, **settings) -> list[dict]:
+    """What `/recognize` answers for the L rolled by each of `phis`, from a service with templates every
+    30° over the whole turn and `settings`."""
+    c = serve(tmp_path_factory, models, l_shape, t_shape, inplane_step=30, inplane_max=180, **settings)
+    try:
+        answers = [ask(c, renderer, l_shape, View(AZ, EL, phi, 600.0)) for phi in phis]
+    finally:
+        c.__exit__(None, None, None)
+    return answers
+
+
 def test_refinement_finds_a_roll_between_templates(tmp_path_factory, shipped_rgb, renderer, l_shape, t_shape):
     """Templates every 30°, no query turns: an object rolled 10° (or -50°...) is 10° from the nearest
     template's roll, so without refinement no answer's roll is exact; the refinement compares the best
@@ -101,24 +112,14 @@ def test_refinement_finds_a_roll_between_templates(tmp_path_factory, shipped_rgb
     phis = (10.0, -50.0, 100.0, 160.0, -110.0, 40.0, -80.0, 130.0, -170.0, 70.0)  # 10° off a template
     errors: dict[int, list[float]] = {}
     for refine in (0, 5):
-        c = serve(
-            tmp_path_factory,
-            shipped_rgb,
-            l_shape,
-            t_shape,
-            inplane_step=30,
-            inplane_max=180,
-            roll_refine=refine,
+        answers = answers_to_rolls(
+            tmp_path_factory, shipped_rgb, renderer, l_shape, t_shape, phis, roll_refine=refine
         )
-        try:
-            errors[refine] = []
-            for phi in phis:
-                answer = ask(c, renderer, l_shape, View(AZ, EL, phi, 600.0))
-                best = answer["best"] or answer["matches"][0]  # judged unknown or not: the nearest answer
-                assert best["name"] == "L" or not refine, (phi, best)  # unrefined, one was the T
-                errors[refine].append(roll_error(best, phi) if best["name"] == "L" else 180.0)
-        finally:
-            c.__exit__(None, None, None)
+        errors[refine] = []
+        for phi, answer in zip(phis, answers, strict=True):
+            best = answer["best"] or answer["matches"][0]  # judged unknown or not: the nearest answer
+            assert best["name"] == "L" or not refine, (phi, best)  # unrefined, one was the T
+            errors[refine].append(roll_error(best, phi) if best["name"] == "L" else 180.0)
     assert min(errors[0]) >= 10.0 - 1e-6, errors  # the templates' rolls only
     # measured: refined, the model shipped at 9495db2 found 7 of the 10 exactly, the fine-tuned mask's 6;
     # the others stay on the nearest template's side (10° off); unrefined, one or two were the T
@@ -131,24 +132,21 @@ def test_a_second_round_halves_the_turn(tmp_path_factory, shipped_rgb, renderer,
     phis = (15.0, -45.0, 105.0, 165.0, -105.0, 45.0, -75.0, 135.0)  # 15° off a template
     errors: dict[int, list[float]] = {}
     for rounds in (1, 2):
-        c = serve(
+        answers = answers_to_rolls(
             tmp_path_factory,
             shipped_rgb,
+            renderer,
             l_shape,
             t_shape,
-            inplane_step=30,
-            inplane_max=180,
+            phis,
             roll_refine=5,
             refine_rounds=rounds,
         )
-        try:
-            errors[rounds] = []
-            for phi in phis:
-                best = ask(c, renderer, l_shape, View(AZ, EL, phi, 600.0))["best"]
-                assert best is not None and best["name"] == "L", (phi, best)
-                errors[rounds].append(roll_error(best, phi))
-        finally:
-            c.__exit__(None, None, None)
+        errors[rounds] = []
+        for phi, answer in zip(phis, answers, strict=True):
+            best = answer["best"]
+            assert best is not None and best["name"] == "L", (phi, best)
+            errors[rounds].append(roll_error(best, phi))
     assert min(errors[1]) >= 5.0 - 1e-6, errors  # one round: the templates' rolls +- 10° only
     # measured (shipped model of c51f601): one round 5° off for all 8, two rounds exact for all 8
     assert max(errors[2]) <= 5.0 + 1e-6 and sum(e < 1e-3 for e in errors[2]) >= 6, errors
