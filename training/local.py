@@ -55,6 +55,9 @@ class LocalConfig:
     batch: int = 16  # queries a step
     same: int = 9  # negatives of the query's own object a query
     others: int = 3  # negatives of other objects a query
+    #: of those, the share drawn from objects with real frames (the rest from every other object, the
+    #: procedural shapes mostly): real objects are what a real query is taken for
+    others_real: float = 0.0
     far: float = 25.0  # deg: a template of the same object this far from the query's pose is a negative
     tau: float = 0.05  # softmax temperature over the candidates' distances (in [0, 2])
     lr: float = 1e-4  # Adam, cosine decay to 0 over the budget (or max_steps)
@@ -118,7 +121,9 @@ class Candidates:
         picked = list(rng.choice(near, min(len(near), same // 2), replace=False)) if len(near) else []
         picked += list(rng.choice(far, same - len(picked), replace=len(far) < same - len(picked)))
         other = [o for o in range(self.data.n_objects) if o != obj] or [obj]
-        rest = [(int(rng.choice(other)), int(rng.integers(self.data.n_templates))) for _ in range(others)]
+        real = [o for o in other if self.data.train_real.get(o)] or other
+        pools = [real if rng.random() < self.cfg.others_real else other for _ in range(others)]
+        rest = [(int(rng.choice(pool)), int(rng.integers(self.data.n_templates))) for pool in pools]
         return [(obj, int(np.argmin(d))), *((obj, int(t)) for t in picked), *rest]
 
 

@@ -119,6 +119,37 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "descriptor space (the candidates the service re-ranks)",
     )
     p.add_argument(
+        "--local-same",
+        type=int,
+        default=9,
+        metavar="N",
+        help="local features (arch local): negatives of the query's own object (half of them within 70 deg) a training query "
+        "(default: %(default)s)",
+    )
+    p.add_argument(
+        "--local-far",
+        type=float,
+        default=25.0,
+        metavar="DEG",
+        help="local features (arch local): a template of the query's object this far from its pose is a negative "
+        "(default: %(default)s)",
+    )
+    p.add_argument(
+        "--local-others",
+        type=int,
+        default=3,
+        metavar="N",
+        help="local features (arch local): negatives of other objects a training query is compared with (default: %(default)s)",
+    )
+    p.add_argument(
+        "--local-others-real",
+        type=float,
+        default=0.0,
+        metavar="F",
+        help="local features (arch local): the share of those drawn from objects with real frames (the rest from every "
+        "other object, procedural shapes mostly) (default: %(default)s)",
+    )
+    p.add_argument(
         "--val",
         type=_blocks,
         default=((0.20, 0.40),),
@@ -171,6 +202,10 @@ OPTIONS = {
     "query_mask": "--query-mask",
     "mask_jitter": "--mask-jitter",
     "hard_model": "--hard-negatives",
+    "same": "--local-same",
+    "far": "--local-far",
+    "others": "--local-others",
+    "others_real": "--local-others-real",
 }
 CHECKPOINTS = ("checkpoint.pt", "best.pt", "mask.pt", "mask-best.pt", "local.pt", "local-best.pt")
 #: the checkpoint a run of each architecture resumes from (the descriptor's otherwise)
@@ -280,6 +315,17 @@ def configs(args: argparse.Namespace) -> tuple[TrainConfig, MaskConfig | LocalCo
         raise UserError("--mask-jitter is for --arch local")
     if args.mask_jitter < 0:
         raise UserError(f"--mask-jitter must be >= 0, got {args.mask_jitter:g}")
+    defaults = {"local_same": 9, "local_far": 25.0, "local_others": 3, "local_others_real": 0.0}
+    if args.arch != "local" and (given := [k for k, v in defaults.items() if getattr(args, k) != v]):
+        raise UserError(f"--{given[0].replace('_', '-')} is for --arch local")
+    if args.local_others < 0 or args.local_same < 0:
+        raise UserError(
+            f"--local-same and --local-others must be >= 0, got {args.local_same}, {args.local_others}"
+        )
+    if not 0.0 < args.local_far < 180.0:
+        raise UserError(f"--local-far is an angle in (0, 180) deg, got {args.local_far:g}")
+    if not 0.0 <= args.local_others_real <= 1.0:
+        raise UserError(f"--local-others-real is a share in [0, 1], got {args.local_others_real:g}")
     if args.hard_negatives is not None and args.arch != "local":
         raise UserError("--hard-negatives is for --arch local")
     if args.hard_negatives is not None and not args.hard_negatives.is_file():
@@ -347,6 +393,10 @@ def configs(args: argparse.Namespace) -> tuple[TrainConfig, MaskConfig | LocalCo
             seed=args.seed,
             query_mask=query_mask,
             mask_jitter=args.mask_jitter,
+            same=args.local_same,
+            far=args.local_far,
+            others=args.local_others,
+            others_real=args.local_others_real,
             hard_model="" if args.hard_negatives is None else str(args.hard_negatives.resolve()),
         )
         return cfg, lcfg

@@ -61,6 +61,23 @@ def test_candidates_are_the_nearest_template_then_negatives(shapes):
     assert all(d[t] > 25.0 for _, t in row[1:7])
 
 
+def test_other_objects_negatives_come_from_real_objects_at_the_share_asked(shapes, monkeypatch):
+    """`--local-others-real`: that share of a query's other-object negatives is drawn from the objects with
+    real training frames (here object 2 is given some), the rest from every other object."""
+    monkeypatch.setattr(shapes, "train_real", {2: [0]})
+
+    def others(share: float) -> list[int]:
+        cfg = LocalConfig(same=2, others=400, others_real=share)
+        pick, rng = Candidates(shapes, cfg), np.random.default_rng(4)
+        return [o for o, _ in pick(1, shapes.template_R[0], rng, cfg.same, cfg.others)[1 + cfg.same :]]
+
+    assert set(others(1.0)) == {2}
+    assert set(others(0.0)) == {0, 2}  # every other object alike (three shapes here)
+    half = others(0.5)
+    assert 0.6 < half.count(2) / len(half) < 0.9  # 0.5 + 0.5 / 2 expected
+    assert 1 not in half
+
+
 def test_hard_negatives_are_the_descriptors_nearest_templates_but_the_pose_itself(shapes, posedesc_models):
     """`--hard-negatives`: a query's extra negatives are among the templates nearest it in the model's
     descriptor space, leaving out its own object's templates within `far` of its pose (the template it is
