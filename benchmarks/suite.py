@@ -105,7 +105,15 @@ class BenchConfig:
 
 #: the service's settings that change what a recognition does and costs and that no section sets itself
 #: (the sections set the level, index kind, query turns and in-plane templates they measure)
-RECOGNITION_SETTINGS = ("rerank", "roll_refine", "refine_rounds", "mask_coverage", "reject_above", "threads")
+RECOGNITION_SETTINGS = (
+    "rerank",
+    "roll_sweep",
+    "roll_refine",
+    "refine_rounds",
+    "mask_coverage",
+    "reject_above",
+    "threads",
+)
 
 
 def recognition_settings() -> dict:

@@ -37,8 +37,11 @@ def visibility(dataset: Path, scene: int) -> dict[tuple[int, int], float]:
     return out
 
 
-def by_band(queries: list[list], visible: dict[tuple[int, int], float]) -> list[dict]:
-    """Per band with queries: its n and the percentages within 20 deg (3-D, view) and recognised."""
+def by_band(
+    queries: list[list], visible: dict[tuple[int, int], float], reach: list[list] | None = None
+) -> list[dict]:
+    """Per band with queries: its n and the percentages within 20 deg (3-D, view) and recognised; with the
+    probe's `reach` (per query: any of its k answers within 20 deg, 3-D and view), those too."""
     try:
         rows = np.array(
             [[visible[(int(q[0]), int(q[1]))], q[3] < 20, q[4] < 20, q[5]] for q in queries], float
@@ -51,6 +54,11 @@ def by_band(queries: list[list], visible: dict[tuple[int, int], float]) -> list[
         if not m.any():
             continue
         pct = [round(100 * float(rows[m, c].mean()), 1) for c in (1, 2, 3)]
+        among = {}
+        if reach is not None:
+            r = np.asarray(reach, float)[m]
+            among = {"within_20_among_k": round(100 * float(r[:, 0].mean()), 1),
+                     "view_within_20_among_k": round(100 * float(r[:, 1].mean()), 1)}  # fmt: skip
         out.append(
             {
                 "visible": [lo, min(hi, 1.0)],
@@ -58,6 +66,7 @@ def by_band(queries: list[list], visible: dict[tuple[int, int], float]) -> list[
                 "within_20": pct[0],
                 "view_within_20": pct[1],
                 "right_object": pct[2],
+                **among,
             }
         )
     return out
@@ -77,7 +86,7 @@ def main(argv: list[str] | None = None) -> int:
             queries = json.loads(f.read_text()).get("queries")
             if not queries:
                 raise ValueError(f"{f} has no queries: not a file of scripts/probe_recognise.py")
-            result[f.name] = by_band(queries, visible)
+            result[f.name] = by_band(queries, visible, json.loads(f.read_text()).get("reach"))
     except (OSError, ValueError) as e:
         print(f"by_visibility: {e}", file=sys.stderr)
         return 2
@@ -88,6 +97,11 @@ def main(argv: list[str] | None = None) -> int:
             print(
                 f"  visible {lo:.2f}-{hi:.2f}  n {b['n']:4d}  within 20: {b['within_20']:5.1f}  "
                 f"view: {b['view_within_20']:5.1f}  object: {b['right_object']:5.1f}"
+                + (
+                    f"  among k: within 20 {b['within_20_among_k']:5.1f}  view {b['view_within_20_among_k']:5.1f}"
+                    if "within_20_among_k" in b
+                    else ""
+                )
             )
     if args.json:
         command = "scripts/by_visibility.py " + " ".join(sys.argv[1:] if argv is None else argv)

@@ -84,8 +84,17 @@ def main(argv: list[str] | None = None) -> int:
         default=None,
         help="send every frame again at these camera rolls, degrees (evaluation/rolls.py), e.g. 0,72,144",
     )
+    p.add_argument(
+        "--k",
+        type=int,
+        default=K_MAX,
+        help="answers asked a query: `among_k` and `reach` say whether any of them is within 20 deg",
+    )
     p.add_argument("--json", type=Path, default=None)
     args = p.parse_args(argv)
+    if args.k < 1:
+        print(f"probe_recognise: --k must be >= 1, got {args.k}", file=sys.stderr)
+        return 2
     try:
         overrides = json.loads(args.settings)
         args.rolls = parse_rolls(args.rolls) if args.rolls is not None else (0.0,)
@@ -151,7 +160,8 @@ def probe(args: argparse.Namespace, overrides: dict, data_dir: Path) -> dict:
     )
     cfg = Config(args.dataset, args.model, modality, scene=args.scene, frames=frames, methods=("ours",))
     instances = instances_of(cfg, dataset, dataset.obj_ids)[: args.limit or None]
-    settings = Settings(data_dir=data_dir, demo_objects=False, threads=1, **overrides)
+    more = {"max_k": args.k} if args.k > Settings().max_k else {}
+    settings = Settings(data_dir=data_dir, demo_objects=False, threads=1, **{**more, **overrides})
     ids_file = data_dir / "probe-dataset-ids.json"
     if not ids_file.is_file():
         state = load_state(settings, {modality: embedder})
@@ -178,8 +188,8 @@ def probe(args: argparse.Namespace, overrides: dict, data_dir: Path) -> dict:
     dataset_ids = {int(k): v for k, v in json.loads(ids_file.read_text()).items()}
     state = load_state(settings, {modality: embedder})
     n = len(instances) * len(args.rolls)
-    obj = np.full((n, K_MAX), -1, int)
-    views = np.zeros((n, K_MAX, 3))
+    obj = np.full((n, args.k), -1, int)
+    views = np.zeros((n, args.k, 3))
     timings, ordered, sent_rolls = [], [], []
     renderer = None
     try:
@@ -206,7 +216,7 @@ def probe(args: argparse.Namespace, overrides: dict, data_dir: Path) -> dict:
                 others = [roll_instance(o, roll) for o in every[group[0].frame_id]]
                 masks = visible_masks(renderer, others, meshes, frame.shape[1], frame.shape[0])
             for inst in group:
-                q = query(inst, rgb, depth, scale)
+                q = replace(query(inst, rgb, depth, scale), k=args.k)
                 if args.true_mask:
                     k = next(j for j, o in enumerate(others) if o.obj_id == inst.obj_id)
                     mask3 = np.repeat(masks[k][..., None].astype(np.uint8) * 255, 3, axis=2)
@@ -219,7 +229,7 @@ def probe(args: argparse.Namespace, overrides: dict, data_dir: Path) -> dict:
                 wall = 1000 * (time.perf_counter() - t0)
                 timings.append({**r.timings_ms, "wall": wall})
                 i = len(ordered)
-                obj[i], views[i], _ = ours.answers(r.matches, dataset_ids, K_MAX)
+                obj[i], views[i], _ = ours.answers(r.matches, dataset_ids, args.k)
                 ordered.append(inst)
                 sent_rolls.append(roll)
     finally:
@@ -278,6 +288,14 @@ def probe(args: argparse.Namespace, overrides: dict, data_dir: Path) -> dict:
             for r in args.rolls
             if (m := np.array(sent_rolls) == r).any()
         },
+        # whether any of a query's k answers is within 20 deg (3-D; viewing direction): what the re-ranking
+        # and refinement hand the first place, and what they could have
+        "among_k": {
+            "k": args.k,
+            "within_20": pct((rot < 20).any(1)),
+            "view_within_20": pct((view < 20).any(1)),
+        },
+        "reach": [[int(a), int(b)] for a, b in zip((rot < 20).any(1), (view < 20).any(1), strict=True)],
         "best": [[int(o), *map(float, v)] for o, v in zip(obj[:, 0], views[:, 0], strict=True)],
         # each query: frame, object, roll, 3-D error, viewing-direction error (180: wrong object), right object
         "queries": [

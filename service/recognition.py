@@ -21,7 +21,15 @@ import cv2
 import numpy as np
 
 from index.embed import Embedder
-from index.local import cell_cosines, cell_weights, l2, masked_distance, split_silhouettes
+from index.local import (
+    cell_cosines,
+    cell_cosines_across,
+    cell_weights,
+    l2,
+    masked_distance,
+    masked_distance_across,
+    split_silhouettes,
+)
 from index.patches import PatchSpec, batch_inputs, crops, fill_depth, patch_camera, turn_masks
 from index.pose import wrap_degrees
 from index.store import Match, Snapshot, local_key
@@ -130,8 +138,9 @@ def recognise_decoded(state: AppState, q: Query, d: Decoded, decode_s: float | N
         mask = None if keep is None else (float(p.offsets[0]), keep[0])
         spacing = state.templates.inplane_spacing(step)
         s = state.settings
+        sweep = (s.roll_sweep, [float(a) for a in state.templates.inplane(step)])
         matches = rerank_local(
-            snap, q, d, matches, mask, s.roll_refine, spacing, q.k, s.mask_coverage, s.refine_rounds
+            snap, q, d, matches, mask, s.roll_refine, spacing, q.k, s.mask_coverage, s.refine_rounds, sweep
         )
     matches = matches[: q.k]
     t5 = time.perf_counter()
@@ -175,6 +184,7 @@ def rerank_local(
     k: int | None = None,
     coverage: float = 0.0,
     rounds: int = 1,
+    sweep: tuple[int, Sequence[float]] = (0, ()),
 ) -> list[Match]:
     """The answers re-ranked by local similarity: the query is cut once per roll the answers give
     (turned upright for each), and its local features (`index.embed.LOCAL_NAME`, the pretrained trunk's
@@ -189,7 +199,9 @@ def rerank_local(
     step), and keep the pose that scores best (`service.refine`). Measured on validation frames (README,
     Evaluation). `k`: only the best k answers are wanted (the rest are not made). `coverage`:
     `index.local.masked_distance`'s weight of the query's mask left outside a template's silhouette.
-    `rounds`: rounds of refinement, each from where the last left the answers, its roll turn halved."""
+    `rounds`: rounds of refinement, each from where the last left the answers, its roll turn halved.
+    `sweep` (n, the templates' in-plane angles): before refinement, the best n answers are also compared at
+    every other in-plane angle of their viewpoint, and each keeps the roll that scores best (`_swept`)."""
     local = snap.models[d.modality].local
     every = [local_key(m.object_id, m.azimuth, m.elevation) for m in matches]
     have = [i for i, k in enumerate(every) if k in local]
@@ -200,9 +212,14 @@ def rerank_local(
     cuts: dict[float, tuple[np.ndarray, np.ndarray | None]] = {}  # the query's cuts, shared with refinement
     score = local_scores(q, d, [local[k] for k in keys], rolls, mask, cuts, coverage)
     first = list(zip(keys, rolls, strict=True))
+    # every pose scored, so that the sweep and the refinement score none twice: the same template against
+    # the same cut of the query scores the same
+    known = {pose: float(s) for pose, s in zip(first, score, strict=True)}
+    if sweep[0] > 0 and len(sweep[1]) > 1:
+        score, rolls = _swept(q, d, local, score, keys, rolls, mask, sweep, cuts, known, coverage)
     if refine > 0:
         score, keys, rolls = _refined(
-            q, d, local, score, keys, rolls, mask, refine, spacing, cuts, coverage, rounds
+            q, d, local, score, keys, rolls, mask, refine, spacing, cuts, known, coverage, rounds
         )
     order, seen = np.argsort(score, kind="stable"), set()
     out: list[Match] = []
@@ -217,6 +234,46 @@ def rerank_local(
             m = replace(m, azimuth=keys[j][1], elevation=keys[j][2], inplane=rolls[j])
         out.append(m)
     return (out + [m for i, m in enumerate(matches) if every[i] not in local])[:k]
+
+
+def _swept(
+    q: Query,
+    d: Decoded,
+    local: Mapping[Key, np.ndarray],
+    score: np.ndarray,
+    keys: list[Key],
+    rolls: list[float],
+    mask: tuple[float, np.ndarray] | None,
+    sweep: tuple[int, Sequence[float]],
+    cuts: dict[float, tuple[np.ndarray, np.ndarray | None]],
+    known: dict[tuple[Key, float], float],
+    coverage: float = 0.0,
+) -> tuple[np.ndarray, list[float]]:
+    """The best n answers (`sweep`: n, angles) compared also at every other of the templates' in-plane
+    angles (shifted by the answer's own offset from its nearest angle, a turn of the query's), each
+    template read once for all of them (`scores_across_rolls`); each keeps the roll that scores best. The
+    descriptor gives each viewpoint one roll, its nearest variant's, and for an occluded object
+    that roll is often wrong where the viewpoint is right (README, Evaluation). The query's cuts at those
+    rolls are mostly made already (`cuts`): the re-ranking's answers span the turn. `known`: the poses
+    scored so far, to which this adds its own."""
+    turns = np.asarray(sweep[1], float)
+    best = np.argsort(score, kind="stable")[: sweep[0]]
+    by_gap: dict[float, list[int]] = {}  # answers by their offset from the nearest angle (a query turn's)
+    offsets = np.asarray(wrap_degrees(np.asarray(rolls, float)[best, None] - turns[None]))
+    nearest = offsets[np.arange(len(best)), np.argmin(np.abs(offsets), axis=1)]
+    for j, off in zip(best, nearest, strict=True):
+        by_gap.setdefault(round(float(off), 3), []).append(int(j))
+    score, rolls = score.copy(), list(rolls)
+    for gap, group in by_gap.items():
+        turned = sorted({round(float(wrap_degrees(a + gap)), 3) for a in turns})
+        table = scores_across_rolls(q, d, [local[keys[j]] for j in group], turned, mask, cuts, coverage)
+        for j, row in zip(group, table, strict=True):
+            for r, s in zip(turned, row, strict=True):
+                known.setdefault((keys[j], r), float(s))  # a pose scored already keeps its score
+            i = int(np.argmin(row))
+            if known[(keys[j], turned[i])] < score[j]:
+                score[j], rolls[j] = known[(keys[j], turned[i])], turned[i]
+    return score, rolls
 
 
 #: viewpoint refinement: the nearest other viewpoints tried (within 1.5 neighbour steps: `service.refine`)
@@ -234,17 +291,16 @@ def _refined(
     refine: int,
     spacing: float,
     cuts: dict[float, tuple[np.ndarray, np.ndarray | None]],
+    known: dict[tuple[Key, float], float],
     coverage: float = 0.0,
     rounds: int = 1,
 ) -> tuple[np.ndarray, list[Key], list[float]]:
     """The best `refine` answers compared also at the viewpoints around theirs and at their roll +- a
     third of the in-plane `spacing` (`service.refine`); each keeps the (viewpoint, roll) scoring best.
-    `rounds` > 1: again from there, the roll's turn halved each round (a sixth, a twelfth, ...)."""
+    `rounds` > 1: again from there, the roll's turn halved each round (a sixth, a twelfth, ...). `known`:
+    the poses scored so far (`rerank_local`), to which this adds its own; none is scored twice."""
     table = TABLES.of(local)
     score, keys, rolls = score.copy(), list(keys), list(rolls)
-    # a pose scored already (another answer, or a neighbour of another refined answer) is not scored again:
-    # the same template against the same cut of the query scores the same
-    known = {(k, r): float(s) for k, r, s in zip(keys, rolls, score, strict=True)}
     best = np.argsort(score, kind="stable")[:refine]
     for step in range(rounds):  # each round from where the last left each answer, the roll's turn halved
         turn = spacing / (3 * 2**step)
@@ -279,20 +335,7 @@ def local_scores(
     filled here; a roll found in it is not cut again (the refinement asks again for rolls the re-ranking
     cut). Shape: (N,)."""
     cuts = {} if cuts is None else cuts
-    missing = sorted(set(rolls) - cuts.keys())
-    if missing:
-        p = cut(q, d.rgb, d.depth, d.embedder.info.spec, missing)  # undoes each roll: the object upright
-        keep = None
-        if mask is not None:
-            spec = d.embedder.info.spec
-            keep = np.stack([turn_masks(mask[1][None], r - mask[0], spec)[0] for r in missing])
-            p = masked(filled(p), keep)
-        elif d.embedder.has_mask:
-            p, keep = foreground(d, p)
-        window = d.embedder.info.window_mm
-        x = batch_inputs(d.modality, p.rgb, p.depth, p.distance, window, fill=keep is None)
-        for i, (r, f) in enumerate(zip(missing, d.embedder.local(x), strict=True)):
-            cuts[r] = (f, None if keep is None else keep[i])
+    _cut_rolls(q, d, rolls, mask, cuts)
     distinct = sorted(set(rolls))
     feats = np.stack([cuts[r][0] for r in distinct])
     where = {r: i for i, r in enumerate(distinct)}
@@ -310,6 +353,60 @@ def local_scores(
     out = np.empty_like(score)
     out[order] = score
     return out
+
+
+def _cut_rolls(
+    q: Query,
+    d: Decoded,
+    rolls: Sequence[float],
+    mask: tuple[float, np.ndarray] | None,
+    cuts: dict[float, tuple[np.ndarray, np.ndarray | None]],
+) -> None:
+    """Fills `cuts` with the query's local features and mask at each of `rolls` it lacks (`local_scores`)."""
+    missing = sorted(set(rolls) - cuts.keys())
+    if not missing:
+        return
+    p = cut(q, d.rgb, d.depth, d.embedder.info.spec, missing)  # undoes each roll: the object upright
+    keep = None
+    if mask is not None:
+        spec = d.embedder.info.spec
+        keep = np.stack([turn_masks(mask[1][None], r - mask[0], spec)[0] for r in missing])
+        p = masked(filled(p), keep)
+    elif d.embedder.has_mask:
+        p, keep = foreground(d, p)
+    window = d.embedder.info.window_mm
+    x = batch_inputs(d.modality, p.rgb, p.depth, p.distance, window, fill=keep is None)
+    for i, (r, f) in enumerate(zip(missing, d.embedder.local(x), strict=True)):
+        cuts[r] = (f, None if keep is None else keep[i])
+
+
+def scores_across_rolls(
+    q: Query,
+    d: Decoded,
+    refs: Sequence[np.ndarray],
+    rolls: Sequence[float],
+    mask: tuple[float, np.ndarray] | None,
+    cuts: dict[float, tuple[np.ndarray, np.ndarray | None]],
+    coverage: float = 0.0,
+) -> np.ndarray:
+    """`local_scores` of every template (`refs`) against the query cut at every one of `rolls`, each
+    template read once (`index.local.cell_cosines_across`). Shape: (N, R)."""
+    _cut_rolls(q, d, rolls, mask, cuts)
+    grid = d.embedder.local_grid
+    feats = np.stack([cuts[r][0] for r in rolls])
+    t = np.stack([np.asarray(f) for f in refs])
+    n, r = len(t), len(rolls)
+    if t.shape[1] == feats.shape[1]:  # no silhouettes stored: the pairs one by one
+        pairs = [(i, j) for i in range(n) for j in range(r)]
+        flat = local_scores(
+            q, d, [refs[i] for i, _ in pairs], [rolls[j] for _, j in pairs], mask, cuts, coverage
+        )
+        return flat.reshape(n, r)
+    t, silhouettes = split_silhouettes(t, grid)
+    masks = [m for m in (cuts[x][1] for x in rolls) if m is not None]  # all or none: one model, one query
+    query_mask = cell_weights(np.stack(masks), grid) if masks else None
+    cos = cell_cosines_across(feats, t, grid)
+    return masked_distance_across(cos, np.asarray(silhouettes, np.float32), query_mask, coverage)
 
 
 def foreground(d: Decoded, p: Patches) -> tuple[Patches, np.ndarray]:

@@ -2,7 +2,15 @@
 
 import numpy as np
 
-from index.local import cell_cosines, cell_weights, l2, masked_cosine
+from index.local import (
+    cell_cosines,
+    cell_cosines_across,
+    cell_weights,
+    l2,
+    masked_cosine,
+    masked_distance,
+    masked_distance_across,
+)
 
 
 def _maps(rng, n=2, c=5, g=4):
@@ -67,3 +75,39 @@ def test_coverage_charges_the_query_mask_a_silhouette_leaves_out():
     base = masked_distance(cos, sil, q)
     np.testing.assert_allclose(masked_distance(cos, sil, q, 0.3), base + 0.3 * np.array([0.0, 0.5, 0.0]))
     np.testing.assert_allclose(masked_distance(cos, sil, None, 0.3), masked_distance(cos, sil))
+
+
+def test_cosines_across_rolls_are_the_pairwise_ones():
+    """`cell_cosines_across` (every template against every query row, float16 as stored) equals
+    `cell_cosines` of each pair, a zero cell included."""
+    rng = np.random.default_rng(5)
+    c, g = 24, 4
+    queries = rng.normal(size=(3, c * g * g)).astype(np.float32)
+    templates = rng.normal(size=(5, c * g * g)).astype(np.float16)
+    templates[2, : g * g] = 0.0  # channel 0 zero everywhere in template 2: still a cosine of the rest
+    templates[1].reshape(c, g * g)[:, 3] = 0.0  # cell 3 of template 1 all zero: cosine 0
+    across = cell_cosines_across(queries, templates, g)
+    assert across.shape == (5, 3, g * g)
+    for r in range(3):
+        pairwise = cell_cosines(queries[r : r + 1], templates, g)
+        np.testing.assert_allclose(across[:, r], pairwise, atol=1e-5)
+    assert np.all(across[1, :, 3] == 0.0)
+
+
+def test_distances_across_rolls_are_the_pairwise_ones():
+    """`masked_distance_across` equals `masked_distance` of each (template, query row) pair, with the
+    coverage term, an empty silhouette and an empty query mask included."""
+    rng = np.random.default_rng(6)
+    n, r, g2 = 4, 3, 16
+    cos = rng.uniform(-1, 1, size=(n, r, g2)).astype(np.float32)
+    sil = (rng.random((n, g2)) * (rng.random((n, g2)) > 0.5)).astype(np.float32)
+    sil[1] = 0.0
+    qm = (rng.random((r, g2)) > 0.4).astype(np.float32)
+    qm[2] = 0.0
+    for mask in (qm, None):
+        across = masked_distance_across(cos, sil, mask, coverage=0.3)
+        for j in range(r):
+            pairwise = masked_distance(
+                cos[:, j], sil, None if mask is None else np.repeat(mask[j][None], n, 0), 0.3
+            )
+            np.testing.assert_allclose(across[:, j], pairwise, atol=1e-6)

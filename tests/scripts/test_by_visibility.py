@@ -29,6 +29,10 @@ def test_bands_count_each_query_once(script):
         "right_object": 50.0,
     }
     assert bands[1]["within_20"] == 0.0 and bands[2]["within_20"] == 100.0
+    # with the probe's `reach` (any of a query's k answers within 20 deg: 3-D, view)
+    reached = by_visibility.by_band(queries, visible, [[1, 1], [0, 1], [1, 1], [1, 1]])
+    assert (reached[0]["within_20_among_k"], reached[0]["view_within_20_among_k"]) == (50.0, 100.0)
+    assert reached[1]["within_20_among_k"] == 100.0 and "within_20_among_k" not in bands[1]
 
 
 def test_a_committed_probe_on_the_real_scene(lmo, tmp_path, capsys, script):

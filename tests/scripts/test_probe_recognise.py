@@ -42,6 +42,18 @@ def test_probe_registers_once_and_compares_answers(lmo, tmp_path, capsys, script
     assert c["paired"]["within_20"]["difference"] == 0.0  # the same store, the same queries, the same answers
     assert probe.main([*common, "--rolls", "0,400"]) == 2
     assert "--rolls" in capsys.readouterr().err
+    # more answers than the service's default cap: whether any of them is within 20 deg, per query
+    many = tmp_path / "d.json"
+    assert probe.main([*common, "--settings", level, "--k", "150", "--json", str(many)]) == 0
+    d = json.loads(many.read_text())
+    assert d["among_k"]["k"] == 150 and len(d["reach"]) == d["n"] == 4
+    assert d["k1"] == a["k1"]  # the same first answers
+    assert d["among_k"]["within_20"] >= d["k1"]["within_20"]
+    assert all(
+        r[0] <= r[1] for r in d["reach"]
+    )  # a 3-D pose within 20 deg has its viewing direction within 20
+    assert probe.main([*common, "--k", "0"]) == 2
+    assert "--k must be >= 1" in capsys.readouterr().err
 
 
 def test_paired_differences_resample_instances_not_queries(script):
