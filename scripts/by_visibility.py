@@ -6,7 +6,8 @@
 Reads the `queries` of `scripts/probe_recognise.py` files (frame, object, roll, 3-D error, viewing
 direction error, right object) and the dataset's `scene_gt_info.json` (`visib_fract`: the share of the
 object's silhouette not hidden by others), and prints, per file and per band of that share, the queries
-within 20 deg (3-D and viewing direction) and recognised at k = 1. A frame sent at several rolls counts
+within 20 deg (3-D and viewing direction) and recognised at k = 1; for a probe run with `--k N`, also
+the queries with any of their N answers within 20 deg (its `reach`). A frame sent at several rolls counts
 once a roll, as in the probe's own figures.
 """
 
@@ -83,10 +84,13 @@ def main(argv: list[str] | None = None) -> int:
         visible = visibility(args.dataset, args.scene)
         result = {}
         for f in args.files:
-            queries = json.loads(f.read_text()).get("queries")
+            probe = json.loads(f.read_text())
+            queries, reach = probe.get("queries"), probe.get("reach")
             if not queries:
                 raise ValueError(f"{f} has no queries: not a file of scripts/probe_recognise.py")
-            result[f.name] = by_band(queries, visible, json.loads(f.read_text()).get("reach"))
+            if reach is not None and len(reach) != len(queries):
+                raise ValueError(f"{f}: {len(reach)} reach rows for {len(queries)} queries")
+            result[f.name] = by_band(queries, visible, reach)
     except (OSError, ValueError) as e:
         print(f"by_visibility: {e}", file=sys.stderr)
         return 2

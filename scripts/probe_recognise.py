@@ -20,6 +20,10 @@ difference of each figure with a 95 % interval that resamples instances, not que
 turned about the principal point, the poses with it): five queries an instance instead of one, a yardstick
 that can separate set-ups 115 instances cannot (`by_roll` gives each roll's figures).
 
+`--k N` asks for N answers a query (more than the service's default cap of 100 raises it): `among_k` and
+each query's `reach` say whether any of them is within 20 deg (3-D; viewing direction), what the
+re-ranking could have put first (`scripts/by_visibility.py` splits it by how much of the object shows).
+
 `--data-dir` keeps the store between runs (made once; the objects are not registered again), so settings
 (`--settings`, fields of `service.settings.Settings`) can be tried in turn on the same templates. It is a
 measuring tool for choices made on validation frames; the figures of record are `posedesc evaluate`'s.
