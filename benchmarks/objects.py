@@ -24,7 +24,7 @@ import numpy as np
 import trimesh
 
 from index.embed import Embedder
-from index.local import with_silhouettes
+from index.local import with_relief, with_silhouettes
 from index.patches import batch_inputs
 from index.pose import View
 from index.register import TemplateConfig, embed_templates, template_twins, template_views
@@ -251,10 +251,16 @@ def inplane_template_sets(
                         *(
                             (
                                 up,
-                                with_silhouettes(
-                                    e.local(variant_inputs(base[up], k, colour)),
-                                    variant_inputs(shown, k, False)[:, 0],
+                                with_relief(
+                                    with_silhouettes(
+                                        e.local(variant_inputs(base[up], k, colour)),
+                                        variant_inputs(shown, k, False)[:, 0],
+                                        e.local_grid,
+                                    ),
+                                    variant_inputs(t.depth[keep[up]][:, None], k, False)[:, 0],
+                                    np.array([views[i].distance for i in keep[up]]),
                                     e.local_grid,
+                                    window_mm,
                                 ),
                             )
                             if e.has_local

@@ -50,7 +50,7 @@ from benchmarks.objects import TURN_FREE_VARIANTS, ObjectSet, inplane_template_s
 from benchmarks.server import Server
 from benchmarks.stores import fill_store
 from benchmarks.timing import Timing, measure
-from index.embed import MODEL_FILES, Embedder, fingerprint, load_models
+from index.embed import MODEL_FILES, Embedder, fingerprint, load_models, store_key, store_keys
 from index.register import TemplateConfig
 from index.store import TemplateSet
 
@@ -148,10 +148,10 @@ def run(
         query = _query(objects, modality, cfg.k)
         for i, m in enumerate(models):
             data, upright = tmp / f"roll-{i}", tmp / f"upright-{i}"
-            stores = {modality: (m.timed.dim, fingerprint(m.path))}
+            stores = {modality: store_key(m.timed)}
             roll_sets: dict[str, list[TemplateSet]] = {modality: sets[m.label]}
             if m is served:
-                stores |= {o: (e.dim, fingerprint(e.path)) for o, e in others.items()}
+                stores |= store_keys(others)
                 roll_sets |= {o: sets[f"default {o}"] for o in others}
             with tqdm(
                 total=2 * cfg.objects, desc=f"roll: stores ({m.label})", unit="object", disable=None

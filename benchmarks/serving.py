@@ -19,7 +19,7 @@ import numpy as np
 import trimesh
 from PIL import Image
 
-from index.embed import fingerprint, load_models
+from index.embed import load_models, store_keys
 from index.pose import View, view_to_pose
 from index.register import TemplateConfig, register
 from index.render import RenderWorker
@@ -64,7 +64,7 @@ def bench_registration(models: Path, repeats: int) -> None:
     mesh = mesh_20k()
     print(f"registration of a {len(mesh.faces)}-face mesh, models {sorted(embedders)} (median of {repeats})")
     with tempfile.TemporaryDirectory() as d, ThreadPoolExecutor(2) as pool:
-        store = Store(d, {m: (e.dim, fingerprint(e.path)) for m, e in embedders.items()})
+        store = Store(d, store_keys(embedders))
         for step in (0.0, 45.0, 15.0):
             cfg = TemplateConfig(inplane_step=step)
             runs = [

@@ -17,7 +17,7 @@ import faiss
 import numpy as np
 
 from benchmarks.objects import ObjectSet
-from index.embed import Embedder, fingerprint
+from index.embed import Embedder, store_keys
 from index.store import FaissSnapshot, ModelIndex, ObjectRecord, Store, TemplateSet
 
 
@@ -50,7 +50,7 @@ def fill_data_dir(
     for e in embedders.values():
         objects.embed_all(e, n, progress)
     sets = {m: [objects.template_set(e, j) for j in range(n)] for m, e in embedders.items()}
-    fill_store(data_dir, {m: (e.dim, fingerprint(e.path)) for m, e in embedders.items()}, sets, progress)
+    fill_store(data_dir, store_keys(embedders), sets, progress)
 
 
 def fill_store(

@@ -111,6 +111,7 @@ RECOGNITION_SETTINGS = (
     "roll_refine",
     "refine_rounds",
     "mask_coverage",
+    "relief_weight",
     "reject_above",
     "threads",
 )

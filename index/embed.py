@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import hashlib
 import os
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -224,3 +225,19 @@ def load_models(models_dir: str | Path, threads: int | None = None) -> dict[str,
 def fingerprint(path: str | Path) -> str:
     """Short sha256 of a model file: templates made with one model are useless to another."""
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()[:16]
+
+
+def store_key(e: Embedder) -> tuple[int, str]:
+    """What a store files a model's templates under: its descriptor size and its file's fingerprint, with
+    the layout of what a template stores where that changed: a model with local features stores each
+    template's relief too (`index.local.with_relief`), so a store's templates made before it are made
+    again, as for a new model file, rather than scored without it."""
+    tag = fingerprint(e.path)
+    if e.has_local:
+        tag = hashlib.sha256(f"{tag}:relief".encode()).hexdigest()[:16]
+    return e.dim, tag
+
+
+def store_keys(embedders: Mapping[str, Embedder]) -> dict[str, tuple[int, str]]:
+    """`store_key` of each model, by modality: the `models` a store is opened with."""
+    return {m: store_key(e) for m, e in embedders.items()}

@@ -144,9 +144,77 @@ def with_silhouettes(local: np.ndarray, depth: np.ndarray, grid: int) -> np.ndar
     return np.concatenate([np.asarray(local, np.float32), cell_weights(depth > 0, grid)], axis=1)
 
 
-def split_silhouettes(stored: np.ndarray, grid: int) -> tuple[np.ndarray, np.ndarray]:
-    """`with_silhouettes` undone. Shape: (N, F + G * G) -> (N, F), (N, G * G)."""
-    return stored[:, : -grid * grid], stored[:, -grid * grid :]
+def with_relief(
+    stored: np.ndarray, depth: np.ndarray, distance: np.ndarray, grid: int, window_mm: float
+) -> np.ndarray:
+    """`with_silhouettes`' rows with each template's relief appended (`relief`: its cells' depth relative
+    to the render distance), as registration stores them for a model that reads depth.
+    Shape: (N, F + G * G), (N, S, S) mm, (N,) mm -> (N, F + 2 * G * G)."""
+    values, _ = relief(depth, distance, grid, window_mm)
+    return np.concatenate([np.asarray(stored, np.float32), values], axis=1)
+
+
+def split_stored(
+    stored: np.ndarray, features: int, grid: int
+) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """A stored row undone by its width: local features (`features` values), then the silhouette's cell
+    weights (`with_silhouettes`) and the relief (`with_relief`) where stored. Shape: (N, F [+ G * G
+    [+ G * G]]) -> (N, F), (N, G * G) or None, (N, G * G) or None."""
+    g2, width = grid * grid, stored.shape[1]
+    if width not in (features, features + g2, features + 2 * g2):
+        raise ValueError(
+            f"stored local rows of {width} values fit neither {features} features nor their masks"
+        )
+    cells = [stored[:, features + i * g2 : features + (i + 1) * g2] for i in range((width - features) // g2)]
+    return stored[:, :features], *(cells + [None, None])[:2]  # type: ignore[return-value]
+
+
+def relief(
+    depth: np.ndarray, distance: np.ndarray, grid: int, window_mm: float, keep: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Each cell's mean depth relative to `distance`, in windows (`window_mm`), over its pixels with depth
+    (and inside `keep`), and the share of its pixels that have one (0 where none). The object's shape as
+    depth sees it: for RGB-D queries the re-ranking compares it with the template's (`relief_distance`).
+    Shape: (N, S, S) mm, (N,) mm, keep (N, S, S) bool -> (N, G * G) x 2."""
+    depth = np.asarray(depth, np.float32)
+    n, s = depth.shape[:2]
+    k = s // grid
+    valid = depth > 0 if keep is None else (depth > 0) & keep
+    near = np.asarray(distance, np.float32).reshape(-1, 1, 1)
+    rel = np.where(valid, (depth - near) / window_mm, 0.0).astype(np.float32)
+    sums = rel.reshape(n, grid, k, grid, k).sum(axis=(2, 4)).reshape(n, -1)
+    counts = valid.reshape(n, grid, k, grid, k).sum(axis=(2, 4)).reshape(n, -1).astype(np.float32)
+    return sums / np.maximum(counts, 1.0), counts / (k * k)
+
+
+#: `relief_distance`: the fewest cells two reliefs must share to be compared
+RELIEF_MIN_CELLS = 3
+
+
+def relief_distance(
+    query: np.ndarray, shares: np.ndarray, templates: np.ndarray, silhouettes: np.ndarray, clip: float
+) -> np.ndarray:
+    """How far a query's relief is from each template's (`relief`), over the cells both cover more than
+    half: the root mean square of their difference once its mean (the two distances' offset: the query's is
+    measured at the surface, the template's at the object's origin) is taken out, each cell's residual
+    clipped to +- `clip` (windows) so that a cell of an occluder or a depth hole costs at most that. 0 where
+    they share fewer than `RELIEF_MIN_CELLS` cells. Shape: query, shares (N, G * G) or (R, 1, G * G)
+    against templates, silhouettes (N, G * G) -> (N,) or (R, N)."""
+    both = (shares > 0.5) & (silhouettes > 0.5)
+    n = both.sum(axis=-1)
+    diff = np.where(both, query - templates, 0.0)
+    offset = diff.sum(axis=-1) / np.maximum(n, 1)
+    residual = np.where(both, np.clip(diff - offset[..., None], -clip, clip), 0.0)
+    rms = np.sqrt((residual * residual).sum(axis=-1) / np.maximum(n, 1))
+    return np.where(n >= RELIEF_MIN_CELLS, rms, 0.0).astype(np.float32)
+
+
+def relief_distance_across(
+    query: np.ndarray, shares: np.ndarray, templates: np.ndarray, silhouettes: np.ndarray, clip: float
+) -> np.ndarray:
+    """`relief_distance` of every template against every query row. Shape: (R, G * G) x 2, (N, G * G) x 2
+    -> (N, R)."""
+    return relief_distance(query[:, None], shares[:, None], templates[None], silhouettes[None], clip).T
 
 
 def l2(query: np.ndarray, templates: np.ndarray) -> np.ndarray:

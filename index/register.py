@@ -34,7 +34,7 @@ import numpy as np
 import trimesh
 
 from index.embed import Embedder
-from index.local import with_silhouettes
+from index.local import with_relief, with_silhouettes
 from index.mesh import MeshError, load_mesh, simplify
 from index.pose import View
 from index.render import INVISIBLE, Renderer, RenderWorker, Templates
@@ -151,7 +151,10 @@ def embed_templates(
         None if rgb is None else rgb[up], None if depth is None else depth[up], nominal[up], False, local=True
     )
     # where each template's object is: the re-ranking compares the cells it covers (`index.local`)
+    # and the shape depth sees there, for queries with depth: stored for every model with local features,
+    # since the RGB-D model takes the rgb model's templates (`template_twins`); 512 bytes a viewpoint
     local = with_silhouettes(local, t.depth[idx][up], embedder.local_grid)
+    local = with_relief(local, t.depth[idx][up], nominal[up], embedder.local_grid, embedder.info.window_mm)
     return TemplateSet(poses, desc, up, local)
 
 

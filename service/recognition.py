@@ -28,7 +28,10 @@ from index.local import (
     l2,
     masked_distance,
     masked_distance_across,
-    split_silhouettes,
+    relief,
+    relief_distance,
+    relief_distance_across,
+    split_stored,
 )
 from index.patches import PatchSpec, batch_inputs, crops, fill_depth, patch_camera, turn_masks
 from index.pose import wrap_degrees
@@ -135,13 +138,12 @@ def recognise_decoded(state: AppState, q: Query, d: Decoded, decode_s: float | N
     matches = snap.answers(d.modality, desc, max(q.k, rerank), p.offsets, variants)
     t4 = time.perf_counter()
     if rerank:
-        mask = None if keep is None else (float(p.offsets[0]), keep[0])
-        spacing = state.templates.inplane_spacing(step)
         s = state.settings
+        mask = None if keep is None else (float(p.offsets[0]), keep[0])
+        how = Scoring(mask, s.mask_coverage, s.relief_weight)
+        spacing = state.templates.inplane_spacing(step)
         sweep = (s.roll_sweep, [float(a) for a in state.templates.inplane(step)])
-        matches = rerank_local(
-            snap, q, d, matches, mask, s.roll_refine, spacing, q.k, s.mask_coverage, s.refine_rounds, sweep
-        )
+        matches = rerank_local(snap, q, d, matches, how, s.roll_refine, spacing, q.k, s.refine_rounds, sweep)
     matches = matches[: q.k]
     t5 = time.perf_counter()
     before = {} if decode_s is None else {"decode": decode_s}
@@ -173,16 +175,46 @@ def recognise_decoded(state: AppState, q: Query, d: Decoded, decode_s: float | N
     )
 
 
+@dataclass(frozen=True)
+class Scoring:
+    """How the re-ranking scores a stored template against the query (`local_scores`). `mask`: (in-plane,
+    mask (S, S)) of the query cut at that in-plane, as the descriptor's stage found it: turned to each
+    roll (`turn_masks`) rather than found again, which would run the mask head once a roll. `coverage`:
+    `index.local.masked_distance`'s weight of the query's mask left outside a template's silhouette.
+    `relief`: the weight of `index.local.relief_distance` (the query's depth against the template's
+    shape, in windows) added to the score where both have depth: the query's depth and a template stored
+    with its relief (`index.local.with_relief`)."""
+
+    mask: tuple[float, np.ndarray] | None = None
+    coverage: float = 0.0
+    relief: float = 0.0
+
+
+@dataclass(frozen=True)
+class Cut:
+    """The query cut upright at one roll, as the re-ranking compares it: the local features (F,), its mask
+    (S, S) bool or None, and its relief (`index.local.relief`: values and shares, (G * G,) each) or None
+    without depth."""
+
+    features: np.ndarray
+    mask: np.ndarray | None
+    relief: tuple[np.ndarray, np.ndarray] | None
+
+
+#: `index.local.relief_distance`'s clip: a cell's residual depth counts up to this (mm). Chosen with the
+#: weight on validation frames (README, Evaluation); the Kinect's noise is about 2 mm at 1 m
+RELIEF_CLIP_MM = 20.0
+
+
 def rerank_local(
     snap: Snapshot,
     q: Query,
     d: Decoded,
     matches: list[Match],
-    mask: tuple[float, np.ndarray] | None = None,
+    how: Scoring = Scoring(),
     refine: int = 0,
     spacing: float = 0.0,
     k: int | None = None,
-    coverage: float = 0.0,
     rounds: int = 1,
     sweep: tuple[int, Sequence[float]] = (0, ()),
 ) -> list[Match]:
@@ -190,18 +222,16 @@ def rerank_local(
     (turned upright for each), and its local features (`index.embed.LOCAL_NAME`, the pretrained trunk's
     map) compared with those of each answer's upright template, cell by cell where the object is
     (`index.local.masked_distance`): the template's silhouette, and the query's mask when the model has
-    one (a head on the trunk, or the depth's for RGB-D). `mask`: (in-plane, mask (S, S)) of the query
-    cut at that in-plane, as the descriptor's stage found it: turned to each roll (`turn_masks`) rather
-    than found again, which would run the mask head once a roll. Templates stored without silhouettes
-    (older stores) are compared as whole maps (`l2`). An answer whose viewpoint has no local features
-    keeps its place after those that have. `refine` > 0: the best `refine` answers are also compared at
-    the viewpoints around theirs and at their roll +- `spacing` / 3 (`spacing`: the templates' in-plane
-    step), and keep the pose that scores best (`service.refine`). Measured on validation frames (README,
-    Evaluation). `k`: only the best k answers are wanted (the rest are not made). `coverage`:
-    `index.local.masked_distance`'s weight of the query's mask left outside a template's silhouette.
-    `rounds`: rounds of refinement, each from where the last left the answers, its roll turn halved.
-    `sweep` (n, the templates' in-plane angles): before refinement, the best n answers are also compared at
-    every other in-plane angle of their viewpoint, and each keeps the roll that scores best (`_swept`)."""
+    one (a head on the trunk, or the depth's for RGB-D); with depth, also their reliefs (`Scoring`).
+    Templates stored without silhouettes (older stores) are compared as whole maps (`l2`). An answer whose
+    viewpoint has no local features keeps its place after those that have. `refine` > 0: the best
+    `refine` answers are also compared at the viewpoints around theirs and at their roll +- `spacing` / 3
+    (`spacing`: the templates' in-plane step), and keep the pose that scores best (`service.refine`).
+    Measured on validation frames (README, Evaluation). `k`: only the best k answers are wanted (the rest
+    are not made). `rounds`: rounds of refinement, each from where the last left the answers, its roll
+    turn halved. `sweep` (n, the templates' in-plane angles): before refinement, the best n answers are
+    also compared at every other in-plane angle of their viewpoint, and each keeps the roll that scores
+    best (`_swept`)."""
     local = snap.models[d.modality].local
     every = [local_key(m.object_id, m.azimuth, m.elevation) for m in matches]
     have = [i for i, k in enumerate(every) if k in local]
@@ -209,17 +239,17 @@ def rerank_local(
         return matches
     keys = [every[i] for i in have]
     rolls = [round(matches[i].inplane, 3) for i in have]
-    cuts: dict[float, tuple[np.ndarray, np.ndarray | None]] = {}  # the query's cuts, shared with refinement
-    score = local_scores(q, d, [local[k] for k in keys], rolls, mask, cuts, coverage)
+    cuts: dict[float, Cut] = {}  # the query's cuts, shared with refinement
+    score = local_scores(q, d, [local[k] for k in keys], rolls, how, cuts)
     first = list(zip(keys, rolls, strict=True))
     # every pose scored, so that the sweep and the refinement score none twice: the same template against
     # the same cut of the query scores the same
     known = {pose: float(s) for pose, s in zip(first, score, strict=True)}
     if sweep[0] > 0 and len(sweep[1]) > 1:
-        score, rolls = _swept(q, d, local, score, keys, rolls, mask, sweep, cuts, known, coverage)
+        score, rolls = _swept(q, d, local, score, keys, rolls, how, sweep, cuts, known)
     if refine > 0:
         score, keys, rolls = _refined(
-            q, d, local, score, keys, rolls, mask, refine, spacing, cuts, known, coverage, rounds
+            q, d, local, score, keys, rolls, how, refine, spacing, cuts, known, rounds
         )
     order, seen = np.argsort(score, kind="stable"), set()
     out: list[Match] = []
@@ -243,11 +273,10 @@ def _swept(
     score: np.ndarray,
     keys: list[Key],
     rolls: list[float],
-    mask: tuple[float, np.ndarray] | None,
+    how: Scoring,
     sweep: tuple[int, Sequence[float]],
-    cuts: dict[float, tuple[np.ndarray, np.ndarray | None]],
+    cuts: dict[float, Cut],
     known: dict[tuple[Key, float], float],
-    coverage: float = 0.0,
 ) -> tuple[np.ndarray, list[float]]:
     """The best n answers (`sweep`: n, angles) compared also at every other of the templates' in-plane
     angles (shifted by the answer's own offset from its nearest angle, a turn of the query's), each
@@ -266,7 +295,7 @@ def _swept(
     score, rolls = score.copy(), list(rolls)
     for gap, group in by_gap.items():
         turned = sorted({round(float(wrap_degrees(a + gap)), 3) for a in turns})
-        table = scores_across_rolls(q, d, [local[keys[j]] for j in group], turned, mask, cuts, coverage)
+        table = scores_across_rolls(q, d, [local[keys[j]] for j in group], turned, how, cuts)
         for j, row in zip(group, table, strict=True):
             for r, s in zip(turned, row, strict=True):
                 known.setdefault((keys[j], r), float(s))  # a pose scored already keeps its score
@@ -287,12 +316,11 @@ def _refined(
     score: np.ndarray,
     keys: list[Key],
     rolls: list[float],
-    mask: tuple[float, np.ndarray] | None,
+    how: Scoring,
     refine: int,
     spacing: float,
-    cuts: dict[float, tuple[np.ndarray, np.ndarray | None]],
+    cuts: dict[float, Cut],
     known: dict[tuple[Key, float], float],
-    coverage: float = 0.0,
     rounds: int = 1,
 ) -> tuple[np.ndarray, list[Key], list[float]]:
     """The best `refine` answers compared also at the viewpoints around theirs and at their roll +- a
@@ -313,7 +341,7 @@ def _refined(
                 tried += [(int(j), v, r) for v in views if (v, r) != (keys[j], rolls[j])]
         new = list(dict.fromkeys((v, r) for _, v, r in tried if (v, r) not in known))
         if new:
-            more = local_scores(q, d, [local[v] for v, _ in new], [r for _, r in new], mask, cuts, coverage)
+            more = local_scores(q, d, [local[v] for v, _ in new], [r for _, r in new], how, cuts)
             known |= {pose: float(s) for pose, s in zip(new, more, strict=True)}
         for j, v, r in tried:
             if known[(v, r)] < score[j]:
@@ -326,33 +354,55 @@ def local_scores(
     d: Decoded,
     refs: Sequence[np.ndarray],
     rolls: Sequence[float],
-    mask: tuple[float, np.ndarray] | None = None,
-    cuts: dict[float, tuple[np.ndarray, np.ndarray | None]] | None = None,
-    coverage: float = 0.0,
+    how: Scoring = Scoring(),
+    cuts: dict[float, Cut] | None = None,
 ) -> np.ndarray:
-    """The re-ranking's score of each stored template (`refs`, local features and silhouettes) against the
-    query cut upright at its roll (`rolls`, degrees). `cuts`: the query's local features and mask by roll,
-    filled here; a roll found in it is not cut again (the refinement asks again for rolls the re-ranking
-    cut). Shape: (N,)."""
+    """The re-ranking's score of each stored template (`refs`: local features, and silhouettes and relief
+    where stored) against the query cut upright at its roll (`rolls`, degrees), scored as `how` says.
+    `cuts`: the query's cuts by roll, filled here; a roll found in it is not cut again (the refinement
+    asks again for rolls the re-ranking cut). Shape: (N,)."""
     cuts = {} if cuts is None else cuts
-    _cut_rolls(q, d, rolls, mask, cuts)
+    _cut_rolls(q, d, rolls, how.mask, cuts)
     distinct = sorted(set(rolls))
-    feats = np.stack([cuts[r][0] for r in distinct])
+    feats = np.stack([cuts[r].features for r in distinct])
     where = {r: i for i, r in enumerate(distinct)}
     order = np.argsort([where[r] for r in rolls], kind="stable")  # one roll's templates side by side
     row = np.array([where[rolls[i]] for i in order], int)
-    t = np.stack([np.asarray(refs[i]) for i in order])
-    grid = d.embedder.local_grid
-    if t.shape[1] == feats.shape[1]:  # no silhouettes stored
+    t, silhouettes, shape = split_stored(
+        np.stack([np.asarray(refs[i]) for i in order]), feats.shape[1], grid := d.embedder.local_grid
+    )
+    if silhouettes is None:  # no silhouettes stored
         score = l2(feats[row], t)
     else:
-        t, silhouettes = split_silhouettes(t, grid)
-        masks = [m for r in distinct if (m := cuts[r][1]) is not None]  # all or none: one model, one query
+        masks = [m for r in distinct if (m := cuts[r].mask) is not None]  # all or none: one model, one query
         query_mask = cell_weights(np.stack(masks), grid)[row] if masks else None
-        score = masked_distance(cell_cosines(feats, t, grid, row), silhouettes, query_mask, coverage)
+        score = masked_distance(cell_cosines(feats, t, grid, row), silhouettes, query_mask, how.coverage)
+        if (reliefs := _reliefs(how, cuts, distinct, shape)) is not None:
+            values, shares, theirs = reliefs
+            clip = RELIEF_CLIP_MM / d.embedder.info.window_mm
+            score = score + how.relief * relief_distance(
+                values[row], shares[row], theirs, _f32(silhouettes), clip
+            )
     out = np.empty_like(score)
     out[order] = score
     return out
+
+
+def _reliefs(
+    how: Scoring, cuts: Mapping[float, Cut], rolls: Sequence[float], shape: np.ndarray | None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """The query's reliefs at `rolls` (values, shares: (R, G * G) each) and the templates' (`shape`, as
+    float32) when the score weighs them: a relief weight, templates stored with theirs and a query with
+    depth; else None."""
+    reliefs = [cuts[r].relief for r in rolls]
+    if not how.relief or shape is None or any(x is None for x in reliefs):
+        return None
+    values, shares = zip(*reliefs, strict=True)  # none is None here
+    return np.stack(values), np.stack(shares), _f32(shape)
+
+
+def _f32(x: np.ndarray) -> np.ndarray:
+    return np.asarray(x, np.float32)
 
 
 def _cut_rolls(
@@ -360,9 +410,9 @@ def _cut_rolls(
     d: Decoded,
     rolls: Sequence[float],
     mask: tuple[float, np.ndarray] | None,
-    cuts: dict[float, tuple[np.ndarray, np.ndarray | None]],
+    cuts: dict[float, Cut],
 ) -> None:
-    """Fills `cuts` with the query's local features and mask at each of `rolls` it lacks (`local_scores`)."""
+    """Fills `cuts` with the query's cuts at each of `rolls` it lacks (`local_scores`)."""
     missing = sorted(set(rolls) - cuts.keys())
     if not missing:
         return
@@ -376,8 +426,13 @@ def _cut_rolls(
         p, keep = foreground(d, p)
     window = d.embedder.info.window_mm
     x = batch_inputs(d.modality, p.rgb, p.depth, p.distance, window, fill=keep is None)
+    shapes = None
+    if p.depth is not None:  # the depth as cut (holes filled, emptied outside the mask): its relief
+        distance = np.full(len(missing), p.distance, np.float32)
+        shapes = relief(p.depth, distance, d.embedder.local_grid, window, keep)
     for i, (r, f) in enumerate(zip(missing, d.embedder.local(x), strict=True)):
-        cuts[r] = (f, None if keep is None else keep[i])
+        reliefs = None if shapes is None else (shapes[0][i], shapes[1][i])
+        cuts[r] = Cut(f, None if keep is None else keep[i], reliefs)
 
 
 def scores_across_rolls(
@@ -385,28 +440,29 @@ def scores_across_rolls(
     d: Decoded,
     refs: Sequence[np.ndarray],
     rolls: Sequence[float],
-    mask: tuple[float, np.ndarray] | None,
-    cuts: dict[float, tuple[np.ndarray, np.ndarray | None]],
-    coverage: float = 0.0,
+    how: Scoring,
+    cuts: dict[float, Cut],
 ) -> np.ndarray:
     """`local_scores` of every template (`refs`) against the query cut at every one of `rolls`, each
     template read once (`index.local.cell_cosines_across`). Shape: (N, R)."""
-    _cut_rolls(q, d, rolls, mask, cuts)
+    _cut_rolls(q, d, rolls, how.mask, cuts)
     grid = d.embedder.local_grid
-    feats = np.stack([cuts[r][0] for r in rolls])
-    t = np.stack([np.asarray(f) for f in refs])
+    feats = np.stack([cuts[r].features for r in rolls])
+    t, silhouettes, shape = split_stored(np.stack([np.asarray(f) for f in refs]), feats.shape[1], grid)
     n, r = len(t), len(rolls)
-    if t.shape[1] == feats.shape[1]:  # no silhouettes stored: the pairs one by one
+    if silhouettes is None:  # no silhouettes stored: the pairs one by one
         pairs = [(i, j) for i in range(n) for j in range(r)]
-        flat = local_scores(
-            q, d, [refs[i] for i, _ in pairs], [rolls[j] for _, j in pairs], mask, cuts, coverage
-        )
+        flat = local_scores(q, d, [refs[i] for i, _ in pairs], [rolls[j] for _, j in pairs], how, cuts)
         return flat.reshape(n, r)
-    t, silhouettes = split_silhouettes(t, grid)
-    masks = [m for m in (cuts[x][1] for x in rolls) if m is not None]  # all or none: one model, one query
+    masks = [m for m in (cuts[x].mask for x in rolls) if m is not None]  # all or none: one model, one query
     query_mask = cell_weights(np.stack(masks), grid) if masks else None
     cos = cell_cosines_across(feats, t, grid)
-    return masked_distance_across(cos, np.asarray(silhouettes, np.float32), query_mask, coverage)
+    score = masked_distance_across(cos, _f32(silhouettes), query_mask, how.coverage)
+    if (reliefs := _reliefs(how, cuts, rolls, shape)) is not None:
+        clip = RELIEF_CLIP_MM / d.embedder.info.window_mm
+        values, shares, theirs = reliefs
+        score = score + how.relief * relief_distance_across(values, shares, theirs, _f32(silhouettes), clip)
+    return score
 
 
 def foreground(d: Decoded, p: Patches) -> tuple[Patches, np.ndarray]:

@@ -87,6 +87,13 @@ class Settings(BaseSettings):
         0.3, ge=0, le=10, description="re-ranking with a query mask: add this times the share of the mask "
         "that a template's silhouette leaves uncovered (0: off)",
     )  # fmt: skip
+    # 5 (residuals clipped at 20 mm, `service.recognition.RELIEF_CLIP_MM`): chosen on the RGB-D validation
+    # frames sent at five camera rolls among 1, 3, 6, 10 unclipped, 3, 5, 8 clipped at 10 mm, 8, 12 at 6 mm
+    # (README, Evaluation: +14.8 points within 20 deg; 8 at 10 mm tied, the wider clip kept for real depth)
+    relief_weight: float = Field(
+        5.0, ge=0, le=100, description="re-ranking with depth: add this times the distance between the "
+        "query's relief and a template's (rms of their cells' depth difference, in windows; 0: off)",
+    )  # fmt: skip
     # A number replaces every model's calibrated threshold (`service.rejection`); "off": never reject.
     reject_above: Annotated[float, Field(ge=0, allow_inf_nan=False)] | Literal["off"] | None = Field(
         None, description="answer best = null when the best answer's score (distance) is above this; "

@@ -9,7 +9,7 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
-from index.embed import Embedder, fingerprint, load_models
+from index.embed import Embedder, load_models, store_keys
 from index.register import TemplateConfig
 from index.render import RenderWorker
 from index.shared_files import SharedFiles
@@ -73,7 +73,7 @@ def load_state(settings: Settings, embedders: dict[str, Embedder] | None = None)
     store = open_store(
         settings.store,
         settings.data_dir,
-        {m: (e.dim, fingerprint(e.path)) for m, e in embedders.items()},
+        store_keys(embedders),
         kind=settings.index_kind,
         sweep_seconds=settings.store_sweep_seconds,
         prefix=settings.store_prefix,

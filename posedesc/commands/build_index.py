@@ -38,7 +38,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from index.embed import fingerprint, load_models
+    from index.embed import load_models, store_keys
     from index.mesh import FORMATS_TEXT, MESH_FORMATS, MeshError, load_mesh
     from index.register import TemplateConfig, register
     from index.render import RenderWorker
@@ -51,9 +51,7 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"no meshes ({FORMATS_TEXT}) in {args.meshes}")
     embedders = load_models(args.models)
     try:
-        store = open_store(
-            args.store, args.data_dir, {m: (e.dim, fingerprint(e.path)) for m, e in embedders.items()}
-        )
+        store = open_store(args.store, args.data_dir, store_keys(embedders))
     except StoreError as e:
         raise UserError(str(e)) from None
     present = {r.name for r in store.snapshot.objects.values()}

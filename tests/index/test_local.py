@@ -1,6 +1,7 @@
 """Local similarity: cells of a trunk map, weighted by where the query's object is."""
 
 import numpy as np
+import pytest
 
 from index.local import (
     cell_cosines,
@@ -111,3 +112,67 @@ def test_distances_across_rolls_are_the_pairwise_ones():
                 cos[:, j], sil, None if mask is None else np.repeat(mask[j][None], n, 0), 0.3
             )
             np.testing.assert_allclose(across[:, j], pairwise, atol=1e-6)
+
+
+def test_relief_is_each_cells_depth_from_the_distance_over_the_pixels_with_depth():
+    """`relief`: cell means of depth - distance in windows, over pixels with depth (and inside `keep`), and
+    the share of each cell's pixels that have one."""
+    from index.local import relief
+
+    depth = np.zeros((1, 8, 8), np.float32)
+    depth[0, :4, :4] = 1010.0  # cell (0, 0) of a 2 x 2 grid: 10 mm behind the distance
+    depth[0, :4, 4:] = 990.0
+    depth[0, 0, 4:] = 0.0  # a row of cell (0, 1) without depth: not in its mean, out of its share
+    depth[0, 4:, :4] = 1100.0  # cell (1, 0), hidden by `keep` below
+    keep = np.ones((1, 8, 8), bool)
+    keep[0, 4:, :4] = False
+    values, shares = relief(depth, np.array([1000.0]), 2, 200.0, keep)
+    np.testing.assert_allclose(values[0], [0.05, -0.05, 0.0, 0.0], atol=1e-6)
+    np.testing.assert_allclose(shares[0], [1.0, 0.75, 0.0, 0.0])
+
+
+def test_relief_distance_ignores_the_offset_and_clips_an_occluded_cell():
+    """Two reliefs of one shape at different distances are 0 apart; a cell 30 mm off (an occluder) adds at
+    most the clip; a shape tilted the other way is far; fewer than `RELIEF_MIN_CELLS` shared cells: 0."""
+    from index.local import RELIEF_MIN_CELLS, relief_distance, relief_distance_across
+
+    g2 = 16
+    shape = np.linspace(-0.1, 0.1, g2, dtype=np.float32)  # a slope, in windows
+    sil = np.ones(g2, np.float32)
+    shares = np.ones(g2, np.float32)
+    occluded = shape + 0.3
+    occluded[5] -= 0.15  # one cell 30 mm nearer than the rest of the surface
+    queries = np.stack([shape + 0.3, occluded, -shape])
+    d = relief_distance(queries, np.stack([shares] * 3), np.stack([shape] * 3), np.stack([sil] * 3), 0.1)
+    assert d[0] == pytest.approx(0.0, abs=1e-6)
+    assert 0.0 < d[1] <= 0.1 / np.sqrt(g2) + 0.01  # the clipped cell's share of the rms, the mean's shift
+    assert d[2] > 0.05
+    few = np.zeros(g2, np.float32)
+    few[: RELIEF_MIN_CELLS - 1] = 1.0
+    assert relief_distance(queries[2:], few[None], shape[None], sil[None], 0.1)[0] == 0.0
+    # every template against every query row: the pairwise distances
+    templates = np.stack([shape, -shape])
+    across = relief_distance_across(queries, np.stack([shares] * 3), templates, np.stack([sil, sil]), 0.1)
+    assert across.shape == (2, 3)
+    for j in range(3):
+        pairwise = relief_distance(
+            np.stack([queries[j]] * 2), np.stack([shares] * 2), templates, np.stack([sil, sil]), 0.1
+        )
+        np.testing.assert_allclose(across[:, j], pairwise, atol=1e-6)
+
+
+def test_a_stored_row_splits_by_its_width():
+    """`split_stored`: features alone, with silhouettes, with silhouettes and relief; any other width is
+    refused."""
+    from index.local import split_stored
+
+    f, g = 6, 2
+    row = np.arange(f + 2 * g * g, dtype=np.float32)[None]
+    feats, sil, rel = split_stored(row, f, g)
+    assert feats.shape == (1, f) and sil is not None and rel is not None
+    assert sil[0, 0] == f and rel[0, 0] == f + g * g
+    feats, sil, rel = split_stored(row[:, : f + g * g], f, g)
+    assert sil is not None and rel is None
+    assert split_stored(row[:, :f], f, g)[1:] == (None, None)
+    with pytest.raises(ValueError, match="fit neither"):
+        split_stored(row[:, : f + 1], f, g)

@@ -3,12 +3,13 @@
 from __future__ import annotations
 
 from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
 
 import numpy as np
 import pytest
 import trimesh
 
-from index.embed import Embedder, ModelInfo, fingerprint, load_models
+from index.embed import Embedder, ModelInfo, load_models, store_keys
 from index.mesh import MeshError
 from index.pose import View
 from index.register import TemplateConfig, embed_templates, reembed, register, template_views
@@ -24,7 +25,7 @@ def embedders(posedesc_models):
 
 
 def keys(embedders):
-    return {m: (e.dim, fingerprint(e.path)) for m, e in embedders.items()}
+    return store_keys(embedders)
 
 
 def test_template_views_per_symmetry():
@@ -192,3 +193,20 @@ def test_an_rgbd_model_made_from_the_rgb_one_shares_its_templates(
     rendered = render_worker.submit(lambda r: {200.0: r.render(l_shape, [view])}).result()
     (match,) = store.search("rgbd", embed_templates(rgbd, rendered).descriptors, 1)[0]
     assert (match.azimuth, match.elevation) == (view.azimuth, view.elevation) and match.distance < 1e-4
+
+
+def test_a_store_made_before_the_relief_makes_local_templates_again(embedders):
+    """`store_key`: a model with local features files its templates under its fingerprint tagged with the
+    relief's layout, so a store made before that layout (keyed by the file's fingerprint alone) makes them
+    again (`Store.missing`, as for a changed model file); a model without local features keeps its key."""
+    from index.embed import Embedder, fingerprint, store_key
+
+    plain = embedders["rgb"]
+    assert not plain.has_local and store_key(plain) == (plain.dim, fingerprint(plain.path))
+    shipped = Path(__file__).parents[2] / "models" / "posedesc-rgb.onnx"
+    if not shipped.is_file():
+        pytest.skip("no shipped rgb model")
+    e = Embedder(shipped, 1)
+    assert e.has_local
+    dim, tag = store_key(e)
+    assert dim == e.dim and tag != fingerprint(shipped) and len(tag) == 16

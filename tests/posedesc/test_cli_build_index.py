@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from index.embed import fingerprint, load_models
+from index.embed import load_models, store_keys
 from index.store import Store
 from posedesc.cli import main
 
@@ -24,7 +24,7 @@ def test_build_index(tmp_path, posedesc_models, l_shape, capsys):
     assert main([*args, "--level", "1"]) == 0  # a second run skips what is there
     assert "0 objects added" in capsys.readouterr().out
     embedders = load_models(posedesc_models)
-    store = Store(data, {m: (e.dim, fingerprint(e.path)) for m, e in embedders.items()})
+    store = Store(data, store_keys(embedders))
     (rec,) = store.snapshot.objects.values()
     assert rec.name == "lshape" and rec.templates["rgb"] == len(store.snapshot.models["rgb"].ids) > 10
     assert np.isfinite(store.snapshot.models["depth"].poses).all()
