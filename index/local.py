@@ -10,6 +10,11 @@ flattened: C channels on a G x G grid of cells. Two ways to compare a query with
   a head on the trunk, or an RGB-D model's depth), in the query. Clutter drops out of the score.
   Measured on validation frames (README, Evaluation): within 20 deg 32 -> 44 %, right object 56 -> 76 %,
   against `l2` on the same candidates.
+
+With depth, the shape too: `relief` is each cell's mean depth from the patch's distance, stored for every
+template after its silhouette (`with_relief`) and taken from an RGB-D query's depth inside its mask;
+`relief_distance` compares the two up to their offset. Measured on validation frames (README, Evaluation):
+the RGB-D model within 20 deg 76.6 -> 91.4 %.
 """
 
 from __future__ import annotations
@@ -148,7 +153,8 @@ def with_relief(
     stored: np.ndarray, depth: np.ndarray, distance: np.ndarray, grid: int, window_mm: float
 ) -> np.ndarray:
     """`with_silhouettes`' rows with each template's relief appended (`relief`: its cells' depth relative
-    to the render distance), as registration stores them for a model that reads depth.
+    to the render distance), as registration stores them for every model with local features (the RGB-D
+    model takes the rgb model's templates).
     Shape: (N, F + G * G), (N, S, S) mm, (N,) mm -> (N, F + 2 * G * G)."""
     values, _ = relief(depth, distance, grid, window_mm)
     return np.concatenate([np.asarray(stored, np.float32), values], axis=1)

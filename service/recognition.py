@@ -368,9 +368,8 @@ def local_scores(
     where = {r: i for i, r in enumerate(distinct)}
     order = np.argsort([where[r] for r in rolls], kind="stable")  # one roll's templates side by side
     row = np.array([where[rolls[i]] for i in order], int)
-    t, silhouettes, shape = split_stored(
-        np.stack([np.asarray(refs[i]) for i in order]), feats.shape[1], grid := d.embedder.local_grid
-    )
+    grid = d.embedder.local_grid
+    t, silhouettes, shape = split_stored(np.stack([np.asarray(refs[i]) for i in order]), feats.shape[1], grid)
     if silhouettes is None:  # no silhouettes stored
         score = l2(feats[row], t)
     else:
