@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from index.embed import Embedder, ModelInfo, load_models, store_keys
+from index.embed import Embedder, ModelInfo, fingerprint, load_models, store_key, store_keys
 from index.mesh import MeshError
 from index.pose import View
 from index.register import TemplateConfig, embed_templates, reembed, register, template_views
@@ -22,10 +22,6 @@ CFG = TemplateConfig(level=2)  # 71 viewpoints: the same code path as level 3, f
 @pytest.fixture(scope="module")
 def embedders(posedesc_models):
     return load_models(posedesc_models)
-
-
-def keys(embedders):
-    return store_keys(embedders)
 
 
 def test_template_views_per_symmetry():
@@ -46,7 +42,7 @@ def test_template_views_per_symmetry():
 
 
 def test_register_then_find_its_own_templates(tmp_path, l_shape, render_worker, embedders):
-    store = Store(tmp_path, keys(embedders))
+    store = Store(tmp_path, store_keys(embedders))
     with ThreadPoolExecutor(2) as pool:
         reg = register(
             l_shape, "L", "none", worker=render_worker, embedders=embedders, store=store, cfg=CFG, pool=pool
@@ -72,7 +68,7 @@ def test_register_then_find_its_own_templates(tmp_path, l_shape, render_worker, 
 def test_in_plane_variants_are_stored_with_their_angle(tmp_path, l_shape, render_worker, embedders):
     cfg = TemplateConfig(level=1, inplane_step=30, inplane_max=30)
     only_rgb = {"rgb": embedders["rgb"]}
-    store = Store(tmp_path, keys(only_rgb))
+    store = Store(tmp_path, store_keys(only_rgb))
     register(l_shape, "L", "none", worker=render_worker, embedders=only_rgb, store=store, cfg=cfg)
     mi = store.snapshot.models["rgb"]
     assert sorted(set(np.round(mi.poses[:, 2]).tolist())) == [-30.0, 0.0, 30.0]
@@ -83,7 +79,7 @@ def test_in_plane_variants_are_stored_with_their_angle(tmp_path, l_shape, render
 
 
 def test_unusable_meshes(tmp_path, render_worker, embedders):
-    store = Store(tmp_path, keys(embedders))
+    store = Store(tmp_path, store_keys(embedders))
     speck = trimesh.creation.box(extents=[0.01, 0.01, 0.01])  # a mesh in metres given as mm
     with pytest.raises(MeshError, match="invisible"):
         register(speck, "speck", "none", worker=render_worker, embedders=embedders, store=store, cfg=CFG)
@@ -92,10 +88,10 @@ def test_unusable_meshes(tmp_path, render_worker, embedders):
 
 def test_reembed_after_a_model_changed(tmp_path, l_shape, render_worker, embedders):
     only_rgb = {"rgb": embedders["rgb"]}
-    store = Store(tmp_path, keys(only_rgb))
+    store = Store(tmp_path, store_keys(only_rgb))
     reg = register(l_shape, "L", "180", worker=render_worker, embedders=only_rgb, store=store, cfg=CFG)
     store.close()
-    store = Store(tmp_path, keys(embedders))  # depth and rgbd are new: the object lacks their templates
+    store = Store(tmp_path, store_keys(embedders))  # depth and rgbd are new: the object lacks their templates
     assert store.missing() == {"rgb": [], "depth": [reg.record.object_id], "rgbd": [reg.record.object_id]}
     assert reembed(store, render_worker, embedders, CFG) == 2
     assert store.missing() == {"rgb": [], "depth": [], "rgbd": []}
@@ -132,7 +128,7 @@ def test_each_model_gets_its_own_in_plane_templates(tmp_path, l_shape, render_wo
     first model's templates over the whole turn, the second's upright."""
     assert rolled_rgb.info.inplane_step == 90.0 and embedders["depth"].info.inplane_step == 0.0
     models = {"rgb": rolled_rgb, "depth": embedders["depth"]}
-    store = Store(tmp_path, keys(models))
+    store = Store(tmp_path, store_keys(models))
     cfg = TemplateConfig(level=1)
     reg = register(l_shape, "L", "none", worker=render_worker, embedders=models, store=store, cfg=cfg)
     n = len(template_views("none", cfg))
@@ -178,7 +174,7 @@ def test_an_rgbd_model_made_from_the_rgb_one_shares_its_templates(
     assert template_twins({"rgb": embedders["rgb"], "rgbd": embedders["rgbd"]}) == {}  # paper nets read depth
 
     models = {"rgb": rgb, "rgbd": rgbd}
-    store = Store(tmp_path / "store", keys(models))
+    store = Store(tmp_path / "store", store_keys(models))
     with ThreadPoolExecutor(2) as pool:
         register(
             l_shape, "L", "none", worker=render_worker, embedders=models, store=store, cfg=CFG, pool=pool
@@ -199,8 +195,6 @@ def test_a_store_made_before_the_relief_makes_local_templates_again(embedders):
     """`store_key`: a model with local features files its templates under its fingerprint tagged with the
     relief's layout, so a store made before that layout (keyed by the file's fingerprint alone) makes them
     again (`Store.missing`, as for a changed model file); a model without local features keeps its key."""
-    from index.embed import Embedder, fingerprint, store_key
-
     plain = embedders["rgb"]
     assert not plain.has_local and store_key(plain) == (plain.dim, fingerprint(plain.path))
     shipped = Path(__file__).parents[2] / "models" / "posedesc-rgb.onnx"
