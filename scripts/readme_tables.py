@@ -1,0 +1,304 @@
+"""The README's accuracy and speed tables, made from the committed result JSON of docs/results/.
+
+Each table lives in README.md between `<!-- table:NAME -->` and `<!-- /table:NAME -->`; this script writes
+it there from the rows below, each row naming its JSON file, the key path of every figure in it and the
+command that wrote the file (a footnote under the table). A later result is a new `Row` (or a row pointed at
+a new file), not a new table. `tests/scripts/test_readme_tables.py` fails when the README's tables differ
+from what their JSON says.
+
+    .venv/bin/python scripts/readme_tables.py            # rewrite the README's tables
+    .venv/bin/python scripts/readme_tables.py --check    # exit 1 when they are stale
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import re
+import sys
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+ROOT = Path(__file__).resolve().parents[1]
+README = ROOT / "README.md"
+RESULTS = ROOT / "docs" / "results"
+
+
+# A column's `fmt` is a name here, optionally with a unit after a colon ("target:ms").
+FORMATS: dict[str, Callable[[Any, str], str]] = {
+    "pct": lambda x, _: f"{100 * float(x):.1f}",  # a share 0..1 as percent, one decimal
+    "int": lambda x, _: f"{int(x):,}",
+    "ms": lambda x, _: f"{float(x):.1f} ms",
+    "s": lambda x, _: f"{float(x):.2f} s",
+    # the bench's target as its JSON writes it ("<= 5"), with the unit
+    "target": lambda x, unit: f"{str(x).replace('<=', '≤').replace('>=', '≥')} {unit}".strip(),
+    "met": lambda x, _: "met" if x else "**missed**",
+}
+
+
+@dataclass(frozen=True)
+class Column:
+    header: str
+    fmt: str = "text"
+    path: str = ""  # default key path, dot-separated; `{name}` is filled from the row's `vars`
+
+
+@dataclass(frozen=True)
+class Row:
+    label: str
+    file: str  # under docs/results/
+    command: str  # what wrote the file (shown as a footnote)
+    vars: Mapping[str, str] = field(default_factory=dict)
+    cells: Mapping[str, str] = field(default_factory=dict)  # column header -> key path, over the default
+
+
+@dataclass(frozen=True)
+class Table:
+    name: str
+    columns: tuple[Column, ...]
+    rows: tuple[Row, ...]
+    note: str = ""  # under the table, above the commands
+
+
+EVAL = ".venv/bin/posedesc evaluate --dataset ../shared/data/lmo"
+ROLLS = "--rolls 0,72,144,216,288 --methods ours"
+RGB = f"{EVAL} --frames test --modality rgb --model models/posedesc-rgb.onnx"
+RGBD = f"{EVAL} --frames test --modality rgbd --model models/posedesc-rgbd.onnx"
+DEPTH = f"{EVAL} --frames 808-969 --modality depth --model models/posedesc-depth.onnx"
+
+# The service protocol on the test frames (LM-O scene 2, frames 808-969): k = 1, percent of instances.
+# The headline rows are the shipped models' `posedesc evaluate` runs; point a row at a newer file to update.
+ACCURACY = Table(
+    name="accuracy",
+    columns=(
+        Column("set-up"),
+        Column("queries", "int", "n_samples"),
+        Column("right object", "pct", "methods.{method}.k1.180"),
+        Column("3-D < 5°", "pct", "methods.{method}.k1.5"),
+        Column("3-D < 20°", "pct", "methods.{method}.k1.20"),
+        Column("3-D < 40°", "pct", "methods.{method}.k1.40"),
+        Column("view < 20°", "pct", "view_direction.{method}.k1.20"),
+    ),
+    rows=(
+        Row(
+            "**rgb** (colour), real frames",
+            "test-rgb.json",
+            f"{RGB} --json docs/results/test-rgb.json",
+            {"method": "ours"},
+        ),
+        Row(
+            "rgb, the same frames at 5 camera rolls",
+            "test-rgb-rolls5.json",
+            f"{RGB} {ROLLS} --json docs/results/test-rgb-rolls5.json",
+            {"method": "ours"},
+        ),
+        Row(
+            "HOG, same patches and templates",
+            "test-rgb.json",
+            f"{RGB} --json docs/results/test-rgb.json",
+            {"method": "hog"},
+        ),
+        Row(
+            "LineMOD, same patches and templates",
+            "test-rgb.json",
+            f"{RGB} --json docs/results/test-rgb.json",
+            {"method": "linemod"},
+        ),
+        Row(
+            "**rgbd** (colour + depth), real colour, rendered depth",
+            "test-rgbd.json",
+            f"{RGBD} --json docs/results/test-rgbd.json",
+            {"method": "ours"},
+        ),
+        Row(
+            "rgbd, the same frames at 5 camera rolls",
+            "test-rgbd-rolls5.json",
+            f"{RGBD} {ROLLS} --json docs/results/test-rgbd-rolls5.json",
+            {"method": "ours"},
+        ),
+        Row("HOG, rgbd", "test-rgbd.json", f"{RGBD} --json docs/results/test-rgbd.json", {"method": "hog"}),
+        Row(
+            "LineMOD, rgbd",
+            "test-rgbd.json",
+            f"{RGBD} --json docs/results/test-rgbd.json",
+            {"method": "linemod"},
+        ),
+        Row(
+            "rgbd, **real Kinect depth**: the one frame of `lmo-depth` (a smoke test)",
+            "real-depth-rgbd.json",
+            ".venv/bin/posedesc evaluate --dataset ../shared/data/lmo-depth --modality rgbd "
+            "--model models/posedesc-rgbd.onnx --methods ours --json docs/results/real-depth-rgbd.json",
+            {"method": "ours"},
+        ),
+        Row(
+            "**depth**, rendered depth",
+            "test-depth.json",
+            f"{DEPTH} --json docs/results/test-depth.json",
+            {"method": "ours"},
+        ),
+    ),
+)
+
+BENCH = "bench-roll-relief.json"
+BENCH_COMMAND = (
+    ".venv/bin/posedesc bench --only roll --roll-models shipped --json docs/results/bench-roll-relief.json"
+)
+
+# The shipped models, 100 objects (361,200 rgb templates), one query at a time, 2-core machine.
+SPEED = Table(
+    name="speed",
+    columns=(
+        Column("what (100 objects, rgb model)"),
+        Column("p50", "{unit}", "summary.{key}_p50{suffix}"),
+        Column("p90", "{unit}", "summary.{key}_p90{suffix}"),
+        Column("target", "target:{unit}", "targets.{key}_p50{suffix}.target"),
+        Column("target met", "met", "targets.{key}_p50{suffix}.met"),
+    ),
+    rows=(
+        Row(
+            "from a decoded patch to the answer (1 query turn)",
+            BENCH,
+            BENCH_COMMAND,
+            {"key": "decoded_to_answer", "suffix": "_ms_100_q1", "unit": "ms"},
+        ),
+        Row(
+            "the same, 3 query turns (`QUERY_TURNS` 3)",
+            BENCH,
+            BENCH_COMMAND,
+            {"key": "decoded_to_answer", "suffix": "_ms_100_q3", "unit": "ms"},
+        ),
+        Row(
+            "baseline, same run: exact k-NN instead of IVF",
+            BENCH,
+            BENCH_COMMAND,
+            {"key": "decoded_to_answer_exact", "suffix": "_ms_100_q1", "unit": "ms"},
+            {"target": "", "target met": ""},
+        ),
+        Row(
+            "baseline, same run: upright templates only (no roll)",
+            BENCH,
+            BENCH_COMMAND,
+            {"key": "decoded_to_answer_upright", "suffix": "_ms_100_q1", "unit": "ms"},
+            {"target": "", "target met": ""},
+        ),
+        Row(
+            "`POST /recognize`, 640×480 PNG frame over HTTP, 1 client",
+            BENCH,
+            BENCH_COMMAND,
+            {"key": "roll_http_frame", "suffix": "_ms", "unit": "ms"},
+        ),
+        Row(
+            "`POST /recognize`, 64 px patch over HTTP, 1 client",
+            BENCH,
+            BENCH_COMMAND,
+            {"key": "roll_http_patch", "suffix": "_ms", "unit": "ms"},
+            {"target": "", "target met": ""},
+        ),
+        Row(
+            "`POST /objects`, 21,848-face mesh, 3 models (median of 3)",
+            BENCH,
+            BENCH_COMMAND,
+            {"unit": "s"},
+            {
+                "p50": "summary.roll_register_20k_faces_s",
+                "p90": "",
+                "target": "targets.roll_register_20k_faces_s.target",
+                "target met": "targets.roll_register_20k_faces_s.met",
+            },
+        ),
+    ),
+)
+
+TABLES = (ACCURACY, SPEED)
+
+
+class TableError(ValueError):
+    """A row whose JSON file or key path is missing, or a README without the table's markers."""
+
+
+def lookup(data: Any, path: str, file: str) -> Any:
+    """`data` at the dot-separated `path` (keys of objects; numbers index lists)."""
+    here = data
+    for key in path.split("."):
+        if isinstance(here, list) and key.isdigit() and int(key) < len(here):
+            here = here[int(key)]
+        elif isinstance(here, dict) and key in here:
+            here = here[key]
+        else:
+            raise TableError(f"{file}: no {path!r} (stopped at {key!r})")
+    return here
+
+
+def render(table: Table, results: Path = RESULTS) -> str:
+    """The table in Markdown, a row per spec, and the commands that made its files as footnotes."""
+    cache: dict[str, Any] = {}
+    commands: list[str] = []
+    lines = [
+        "| " + " | ".join(c.header for c in table.columns) + " | source |",
+        "|" + "---|" * (len(table.columns) + 1),
+    ]
+    for row in table.rows:
+        if row.file not in cache:
+            path = results / row.file
+            if not path.is_file():
+                raise TableError(f"{row.label}: no result file {path}")
+            cache[row.file] = json.loads(path.read_text())
+        cells = [row.label]
+        for col in table.columns[1:]:
+            key = row.cells.get(col.header, col.path).format_map(row.vars)
+            name, _, unit = col.fmt.format_map(row.vars).partition(":")
+            cells.append(FORMATS[name](lookup(cache[row.file], key, row.file), unit) if key else "")
+        source = f"[`{row.file}`](docs/results/{row.file})"
+        if row.command:
+            if row.command not in commands:
+                commands.append(row.command)
+            source += f" ({commands.index(row.command) + 1})"
+        lines.append("| " + " | ".join(cells + [source]) + " |")
+    out = "\n".join(lines) + "\n"
+    if table.note:
+        out += f"\n{table.note}\n"
+    if commands:
+        out += "\n" + "".join(f"- ({i}) `{c}`\n" for i, c in enumerate(commands, 1))
+    return out
+
+
+def markers(name: str) -> re.Pattern[str]:
+    return re.compile(rf"(<!-- table:{name} -->\n)(.*?)(<!-- /table:{name} -->)", re.S)
+
+
+def update(text: str, tables: tuple[Table, ...] = TABLES, results: Path = RESULTS) -> str:
+    """`text` (the README) with every table rewritten between its markers."""
+    for table in tables:
+        found = markers(table.name).findall(text)
+        if len(found) != 1:
+            raise TableError(f"README: want one <!-- table:{table.name} --> ... <!-- /table:{table.name} -->")
+        body = render(table, results)
+        text = markers(table.name).sub(lambda m, body=body: m.group(1) + body + m.group(3), text)
+    return text
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--check", action="store_true", help="exit 1 when the README's tables are stale")
+    ap.add_argument("--readme", type=Path, default=README)
+    args = ap.parse_args()
+    try:
+        text = args.readme.read_text()
+        new = update(text)
+    except (TableError, OSError, json.JSONDecodeError) as e:
+        sys.exit(f"readme_tables.py: error: {e}")
+    if args.check:
+        if new != text:
+            sys.exit(f"{args.readme}: tables differ from docs/results; run scripts/readme_tables.py")
+        print(f"{args.readme}: tables match docs/results")
+    elif new != text:
+        args.readme.write_text(new)
+        print(f"{args.readme}: tables rewritten")
+    else:
+        print(f"{args.readme}: tables already up to date")
+
+
+if __name__ == "__main__":
+    main()
