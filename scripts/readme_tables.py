@@ -146,6 +146,19 @@ BENCH_COMMAND = (
     ".venv/bin/posedesc bench --only roll --roll-models shipped --json docs/results/bench-roll-relief.json"
 )
 
+
+def timed(label: str, key: str, suffix: str, file: str = BENCH, command: str = BENCH_COMMAND) -> Row:
+    """A bench row in milliseconds whose `summary` has `{key}_p50{suffix}` and `targets` its target."""
+    return Row(label, file, command, {"key": key, "suffix": suffix, "unit": "ms"})
+
+
+def baseline(label: str, key: str, suffix: str, file: str = BENCH, command: str = BENCH_COMMAND) -> Row:
+    """A bench row without a target of its own: the baseline measured beside a targeted one."""
+    return Row(
+        label, file, command, {"key": key, "suffix": suffix, "unit": "ms"}, {"target": "", "target met": ""}
+    )
+
+
 # The shipped models, 100 objects (361,200 rgb templates), one query at a time, 2-core machine.
 SPEED = Table(
     name="speed",
@@ -157,45 +170,14 @@ SPEED = Table(
         Column("target met", "met", "targets.{key}_p50{suffix}.met"),
     ),
     rows=(
-        Row(
-            "from a decoded patch to the answer (1 query turn)",
-            BENCH,
-            BENCH_COMMAND,
-            {"key": "decoded_to_answer", "suffix": "_ms_100_q1", "unit": "ms"},
+        timed("from a decoded patch to the answer (1 query turn)", "decoded_to_answer", "_ms_100_q1"),
+        timed("the same, 3 query turns (`QUERY_TURNS` 3)", "decoded_to_answer", "_ms_100_q3"),
+        baseline("baseline, same run: exact k-NN instead of IVF", "decoded_to_answer_exact", "_ms_100_q1"),
+        baseline(
+            "baseline, same run: upright templates only (no roll)", "decoded_to_answer_upright", "_ms_100_q1"
         ),
-        Row(
-            "the same, 3 query turns (`QUERY_TURNS` 3)",
-            BENCH,
-            BENCH_COMMAND,
-            {"key": "decoded_to_answer", "suffix": "_ms_100_q3", "unit": "ms"},
-        ),
-        Row(
-            "baseline, same run: exact k-NN instead of IVF",
-            BENCH,
-            BENCH_COMMAND,
-            {"key": "decoded_to_answer_exact", "suffix": "_ms_100_q1", "unit": "ms"},
-            {"target": "", "target met": ""},
-        ),
-        Row(
-            "baseline, same run: upright templates only (no roll)",
-            BENCH,
-            BENCH_COMMAND,
-            {"key": "decoded_to_answer_upright", "suffix": "_ms_100_q1", "unit": "ms"},
-            {"target": "", "target met": ""},
-        ),
-        Row(
-            "`POST /recognize`, 640×480 PNG frame over HTTP, 1 client",
-            BENCH,
-            BENCH_COMMAND,
-            {"key": "roll_http_frame", "suffix": "_ms", "unit": "ms"},
-        ),
-        Row(
-            "`POST /recognize`, 64 px patch over HTTP, 1 client",
-            BENCH,
-            BENCH_COMMAND,
-            {"key": "roll_http_patch", "suffix": "_ms", "unit": "ms"},
-            {"target": "", "target met": ""},
-        ),
+        timed("`POST /recognize`, 640×480 PNG frame over HTTP, 1 client", "roll_http_frame", "_ms"),
+        baseline("`POST /recognize`, 64 px patch over HTTP, 1 client", "roll_http_patch", "_ms"),
         Row(
             "`POST /objects`, 21,848-face mesh, 3 models (median of 3)",
             BENCH,
