@@ -162,17 +162,17 @@ class LocalScore:
 
         masks = [m for x in query if (m := x.mask) is not None]  # all or none: one model, one query
         query_mask = rows(cell_weights(np.stack(masks), self.grid)) if masks else None
-        # the pairs weigh the silhouettes as stored (float16) and the table as float32, as each did before
-        # they shared this: the totals differ by up to 3e-5 between the two
-        silhouettes = stored.silhouettes if pairs else _f32(stored.silhouettes)
-        score = masked_distance(cos, templates(silhouettes), query_mask, c.coverage)
+        # as float32: a float16 sum of a silhouette's cells is rounded where it needs more than 11 bits
+        sil = templates(_f32(stored.silhouettes))
+        score = masked_distance(cos, sil, query_mask, c.coverage)
         reliefs = [x.relief for x in query]
         if not c.relief or stored.relief is None or any(x is None for x in reliefs):
             return score
         values, shares = (np.stack(v) for v in zip(*reliefs, strict=True))  # none is None here
         clip = c.relief_clip_mm / self.window_mm
-        shape, sil = templates(_f32(stored.relief)), templates(_f32(stored.silhouettes))
-        return score + c.relief * relief_distance(rows(values), rows(shares), shape, sil, clip)
+        return score + c.relief * relief_distance(
+            rows(values), rows(shares), templates(_f32(stored.relief)), sil, clip
+        )
 
 
 def _f32(x: np.ndarray) -> np.ndarray:
