@@ -267,7 +267,7 @@ def _upright(sets: list[TemplateSet]) -> list[TemplateSet]:
 
 
 def _query(objects: ObjectSet, modality: str, k: int):
-    from service.recognition import Query
+    from service.pipeline.query import Query
 
     req = over_http.patch_request(objects, modality)
     return Query(
@@ -281,7 +281,7 @@ def _in_process(
     data: Path, m: Model, inplane: dict[str, float | None], q, cfg: RollConfig, level: int
 ) -> dict:
     """`recognise_decoded` on the state `posedesc serve` would load from `data`, per query-turn count."""
-    from service.recognition import decode
+    from service.pipeline.query import decode
     from service.settings import Settings
     from service.state import close_state, load_state
 
@@ -315,7 +315,8 @@ def _in_process(
 
 
 def _time_calls(state, q, d, cfg: RollConfig) -> dict:
-    from service.recognition import Result, recognise_decoded
+    from service.pipeline.answer import Result
+    from service.recognition import recognise_decoded
 
     results: list[Result] = []
 

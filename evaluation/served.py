@@ -54,7 +54,8 @@ from index.register import register, template_views
 from index.render import Renderer
 from index.symmetry import Symmetry, rotation_errors, view_errors
 from service.errors import ApiError
-from service.recognition import Query, cut, decode, recognise
+from service.pipeline.query import Query, cut, decode
+from service.recognition import recognise
 from service.settings import Settings
 from service.state import AppState, close_state, load_state
 
@@ -337,7 +338,17 @@ def _ask(
                     if depth_errors is not None and q.distance_mm is None and obj[i, 0] == inst.obj_id:
                         true = float(np.linalg.norm(inst.t))
                         depth_errors.append((result.distance_mm - true, result.origins_mm[0] - true))
-                    p = cut(q, decoded.rgb, decoded.depth, spec) if decoded is not None else None
+                    p = (
+                        cut(
+                            q,
+                            decoded.rgb,
+                            decoded.depth,
+                            spec,
+                            patch_distance_mm=state.settings.patch_distance_mm,
+                        )
+                        if decoded is not None
+                        else None
+                    )
                 except ApiError as e:
                     refused.append(e.detail)
                     p = None

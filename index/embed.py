@@ -5,7 +5,6 @@ service, the evaluation and training can never disagree about it."""
 from __future__ import annotations
 
 import hashlib
-import os
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -91,8 +90,8 @@ class Embedder:
         self.path = Path(path)
         opts = ort.SessionOptions()
         # Two cores here: one intra-op thread per call by default, so concurrent requests each get a
-        # core instead of fighting over both; set POSEDESC_ORT_THREADS (or `threads`) to change it.
-        opts.intra_op_num_threads = threads or int(os.environ.get("POSEDESC_ORT_THREADS", "1"))
+        # core instead of fighting over both; `threads` changes it (the service: its setting `threads`).
+        opts.intra_op_num_threads = threads or 1
         opts.inter_op_num_threads = 1
         try:
             model = onnx.load(str(self.path))

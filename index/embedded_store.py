@@ -39,6 +39,7 @@ import numpy as np
 from index.records import Match, NameTaken, ObjectRecord, StoreError, TemplateSet, check_set, local_key
 from index.search import FaissSnapshot, ModelIndex
 from index.snapshot_files import (
+    AUTO_IVF_MIN,
     INDEX_KINDS,
     build_index,
     grown,
@@ -126,6 +127,7 @@ class EmbeddedStore:
         kind: str = "auto",
         nlist: int = 256,
         nprobe: int = 16,
+        ivf_min: int = AUTO_IVF_MIN,
     ):
         if kind not in INDEX_KINDS:
             raise StoreError(f"unknown index kind {kind!r}; use one of {INDEX_KINDS}")
@@ -135,6 +137,7 @@ class EmbeddedStore:
         self.dir.mkdir(parents=True, exist_ok=True)
         self.dims = {m: int(d) for m, (d, _) in models.items()}
         self.kind, self.nlist, self.nprobe = kind, nlist, nprobe
+        self.ivf_min = ivf_min  # "auto": IVF from this many templates (`index.snapshot_files.ivf_from`)
         self._write = threading.Lock()
         self._tags: dict[str, dict] = {}  # the snapshot files' tags, as last written
         path = self.dir / "store.sqlite"
@@ -338,7 +341,7 @@ class EmbeddedStore:
             mi = old.models[m]
             index = faiss.clone_index(mi.index)
             index.add_with_ids(np.ascontiguousarray(ts.descriptors, np.float32), ids)
-            index = grown(index, self.kind, self.nlist, self.nprobe)
+            index = grown(index, self.kind, self.nlist, self.nprobe, self.ivf_min)
             local = dict(mi.local)
             if ts.local_rows is not None and ts.local is not None:
                 for r, f in zip(ts.local_rows, np.asarray(ts.local, np.float16), strict=True):
@@ -466,7 +469,7 @@ class EmbeddedStore:
         rows = self._db.execute("SELECT descriptor FROM templates WHERE model = ? ORDER BY id", (model,))
         for i, (blob,) in enumerate(rows):
             desc[i] = np.frombuffer(blob, np.float32)
-        return build_index(desc, ids, self.kind, self.nlist, self.nprobe)
+        return build_index(desc, ids, self.kind, self.nlist, self.nprobe, self.ivf_min)
 
     def _save_index(self, model: str, mi: ModelIndex, generation: int) -> None:
         self._tags[model] = save_snapshot(self.dir, model, mi.index, generation, self.kind)

@@ -19,6 +19,8 @@ the RGB-D model within 20 deg 76.6 -> 91.4 %.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import cv2
 import numpy as np
 
@@ -86,12 +88,14 @@ def cell_weights(mask: np.ndarray, grid: int) -> np.ndarray:
 
 def masked_cosine(cosines: np.ndarray, weights: np.ndarray) -> np.ndarray:
     """Distance in [0, 2]: 1 - cosine per cell (`cell_cosines`) averaged with the cells' weights; a query
-    whose weights are all zero (an empty mask) weighs every cell alike. Shape: (N, G * G) x 2 -> (N,)."""
-    total = weights.sum(axis=1)
+    whose weights are all zero (an empty mask) weighs every cell alike. Shape: (..., G * G) and weights
+    that broadcast to it -> (...): pairs (N, G * G) x 2 -> (N,), or every template against every query
+    row (`cell_cosines_across`, (N, R, G * G)) with weights (N, 1, G * G) or (1, R, G * G) -> (N, R)."""
+    total = weights.sum(axis=-1)
     # sum((1 - c) w) / sum(w) = 1 - (c . w) / sum(w): one product per row, no (N, G * G) temporaries
-    dots = np.einsum("ng,ng->n", cosines, weights)
+    dots = np.einsum("...g,...g->...", cosines, weights)
     if (empty := total <= 0).any():
-        dots, total = np.where(empty, cosines.sum(axis=1), dots), np.where(empty, cosines.shape[1], total)
+        dots, total = np.where(empty, cosines.sum(axis=-1), dots), np.where(empty, cosines.shape[-1], total)
     return 1.0 - dots / total
 
 
@@ -102,7 +106,8 @@ def masked_distance(
     over the query's mask when there is one (where the template's object is, the query must look like
     it; where the query's object is, the template must); plus `coverage` times the share of the query's
     mask the template's silhouette leaves uncovered (`uncovered`: the object seen must lie inside the
-    template's outline, whatever hides part of it). Shape: (N, G * G) x 2 or 3 -> (N,)."""
+    template's outline, whatever hides part of it). Shapes as `masked_cosine`'s: (N, G * G) x 2 or 3
+    -> (N,), or (N, R, G * G), (N, 1, G * G), (1, R, G * G) -> (N, R)."""
     score = masked_cosine(cosines, silhouettes)
     if query_mask is None:
         return score
@@ -110,36 +115,11 @@ def masked_distance(
     return score + coverage * uncovered(query_mask, silhouettes) if coverage else score
 
 
-def masked_distance_across(
-    cosines: np.ndarray, silhouettes: np.ndarray, query_mask: np.ndarray | None = None, coverage: float = 0.0
-) -> np.ndarray:
-    """`masked_distance` of every template against every query row (`cell_cosines_across`), without
-    repeating the masks for each pair. Shape: (N, R, G * G), (N, G * G), (R, G * G) -> (N, R)."""
-    g2 = cosines.shape[2]
-    every = cosines.sum(axis=2)  # an empty mask weighs every cell alike
-
-    def weighed(dots: np.ndarray, total: np.ndarray) -> np.ndarray:
-        empty = total <= 0
-        return 1.0 - np.where(empty, every, dots) / np.where(empty, g2, total)
-
-    score = weighed(np.einsum("nrg,ng->nr", cosines, silhouettes), silhouettes.sum(axis=1)[:, None])
-    if query_mask is None:
-        return score
-    score = 0.5 * (
-        score + weighed(np.einsum("nrg,rg->nr", cosines, query_mask), query_mask.sum(axis=1)[None])
-    )
-    if not coverage:
-        return score
-    area = query_mask.sum(axis=1)[None]
-    inside = silhouettes @ query_mask.T
-    return score + coverage * np.where(area > 0, 1.0 - inside / np.maximum(area, 1e-12), 0.0)
-
-
 def uncovered(query_mask: np.ndarray, silhouettes: np.ndarray) -> np.ndarray:
     """The share of the query's mask outside the template's silhouette, in [0, 1] (cells' shares of
-    both, `cell_weights`; an empty query mask: 0). Shape: (N, G * G) x 2 -> (N,)."""
-    area = query_mask.sum(axis=1)
-    inside = (query_mask * silhouettes).sum(axis=1)
+    both, `cell_weights`; an empty query mask: 0). Shape: (..., G * G) x 2, broadcast -> (...)."""
+    area = query_mask.sum(axis=-1)
+    inside = (query_mask * silhouettes).sum(axis=-1)
     return np.where(area > 0, 1.0 - inside / np.maximum(area, 1e-12), 0.0)
 
 
@@ -160,19 +140,32 @@ def with_relief(
     return np.concatenate([np.asarray(stored, np.float32), values], axis=1)
 
 
-def split_stored(
-    stored: np.ndarray, features: int, grid: int
-) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
-    """A stored row undone by its width: local features (`features` values), then the silhouette's cell
-    weights (`with_silhouettes`) and the relief (`with_relief`) where stored. Shape: (N, F [+ G * G
-    [+ G * G]]) -> (N, F), (N, G * G) or None, (N, G * G) or None."""
-    g2, width = grid * grid, stored.shape[1]
-    if width not in (features, features + g2, features + 2 * g2):
-        raise ValueError(
-            f"stored local rows of {width} values fit neither {features} features nor their masks"
-        )
-    cells = [stored[:, features + i * g2 : features + (i + 1) * g2] for i in range((width - features) // g2)]
-    return stored[:, :features], *(cells + [None, None])[:2]  # type: ignore[return-value]
+@dataclass(frozen=True)
+class StoredLocal:
+    """Stored local rows in their parts: `features` (N, F), the silhouettes' cell weights
+    (`with_silhouettes`, (N, G * G)) and the relief (`with_relief`, (N, G * G)) where stored, else None.
+
+    Which parts a row holds is read from its width (`of`), the only place it is written: registration
+    stores all three (`with_relief`), but rows registered before silhouettes (F values) or before the
+    relief (F + G * G) stay valid in the stores kept from then, and a store records no layout beside
+    them. F (the model's channels times G * G) and G come from the model, so the three widths differ."""
+
+    features: np.ndarray
+    silhouettes: np.ndarray | None
+    relief: np.ndarray | None
+
+    @classmethod
+    def of(cls, stored: np.ndarray, features: int, grid: int) -> StoredLocal:
+        """Rows (N, F [+ G * G [+ G * G]]) of `features` values each, then the parts their width says."""
+        g2, width = grid * grid, stored.shape[1]
+        if width not in (features, features + g2, features + 2 * g2):
+            raise ValueError(
+                f"stored local rows of {width} values fit neither {features} features nor their masks"
+            )
+        parts = (width - features) // g2
+        cells = [stored[:, features + i * g2 : features + (i + 1) * g2] for i in range(parts)]
+        silhouettes, relief = (cells + [None, None])[:2]
+        return cls(stored[:, :features], silhouettes, relief)
 
 
 def relief(
@@ -204,8 +197,9 @@ def relief_distance(
     half: the root mean square of their difference once its mean (the two distances' offset: the query's is
     measured at the surface, the template's at the object's origin) is taken out, each cell's residual
     clipped to +- `clip` (windows) so that a cell of an occluder or a depth hole costs at most that. 0 where
-    they share fewer than `RELIEF_MIN_CELLS` cells. Shape: query, shares (N, G * G) or (R, 1, G * G)
-    against templates, silhouettes (N, G * G) -> (N,) or (R, N)."""
+    they share fewer than `RELIEF_MIN_CELLS` cells. Shape: query, shares against templates, silhouettes,
+    (..., G * G) each, broadcast: pairs (N, G * G) -> (N,), or every template against every query row
+    (1, R, G * G) against (N, 1, G * G) -> (N, R)."""
     both = (shares > 0.5) & (silhouettes > 0.5)
     n = both.sum(axis=-1)
     diff = np.where(both, query - templates, 0.0)
@@ -213,14 +207,6 @@ def relief_distance(
     residual = np.where(both, np.clip(diff - offset[..., None], -clip, clip), 0.0)
     rms = np.sqrt((residual * residual).sum(axis=-1) / np.maximum(n, 1))
     return np.where(n >= RELIEF_MIN_CELLS, rms, 0.0).astype(np.float32)
-
-
-def relief_distance_across(
-    query: np.ndarray, shares: np.ndarray, templates: np.ndarray, silhouettes: np.ndarray, clip: float
-) -> np.ndarray:
-    """`relief_distance` of every template against every query row. Shape: (R, G * G) x 2, (N, G * G) x 2
-    -> (N, R)."""
-    return relief_distance(query[:, None], shares[:, None], templates[None], silhouettes[None], clip).T
 
 
 def l2(query: np.ndarray, templates: np.ndarray) -> np.ndarray:

@@ -19,10 +19,8 @@ log = logging.getLogger("index.store")
 
 INDEX_KINDS = ("auto", "flat", "ivf")
 
-#: "auto": exact below this many templates, IVF from it. Measured at 100 objects (README, Store and
-#: Benchmarks): the search stage over 357,648 32-d templates 5.28 ms exact, 1.72 ms IVF (256 lists, 16
-#: probed), the same accuracy on the validation frames. The threshold itself is a choice, not a measurement:
-#: the exact search's cost grows with the templates, so a seventh of those is a few tenths of a ms to win.
+#: "auto": exact below this many templates, IVF from it, unless the caller says otherwise (`ivf_min`; the
+#: service passes its setting `ivf_min_templates`, where the measurement behind the number is kept)
 AUTO_IVF_MIN = 50_000
 
 
@@ -56,21 +54,23 @@ def read_snapshot(
     return index, tag
 
 
-def ivf_from(kind: str, n: int, nlist: int) -> bool:
+def ivf_from(kind: str, n: int, nlist: int, ivf_min: int = AUTO_IVF_MIN) -> bool:
     """Whether a `kind` index of n templates is IVF: "ivf" once there are enough to train it (39 per
-    list), "auto" from `AUTO_IVF_MIN` (and enough to train), "flat" never."""
+    list), "auto" from `ivf_min` (and enough to train), "flat" never."""
     enough = n >= 39 * nlist
     if kind == "ivf":
         return enough
-    return kind == "auto" and enough and n >= AUTO_IVF_MIN
+    return kind == "auto" and enough and n >= ivf_min
 
 
-def build_index(desc: np.ndarray, ids: np.ndarray, kind: str, nlist: int, nprobe: int) -> faiss.Index:
+def build_index(
+    desc: np.ndarray, ids: np.ndarray, kind: str, nlist: int, nprobe: int, ivf_min: int = AUTO_IVF_MIN
+) -> faiss.Index:
     """ "flat": exact, `IndexIDMap2(IndexFlatL2)`; "ivf": `IndexIVFFlat`, trained on these descriptors,
     exact (flat) until there are enough to train it (`ivf_from`); "auto": exact for a small collection,
     IVF for a large one. HNSW is not offered: it cannot remove ids."""
     dim = desc.shape[1]
-    if ivf_from(kind, len(ids), nlist):
+    if ivf_from(kind, len(ids), nlist, ivf_min):
         index: faiss.Index = faiss.IndexIVFFlat(faiss.IndexFlatL2(dim), dim, nlist)
         index.train(desc)
     else:
@@ -81,15 +81,15 @@ def build_index(desc: np.ndarray, ids: np.ndarray, kind: str, nlist: int, nprobe
     return index
 
 
-def grown(index: faiss.Index, kind: str, nlist: int, nprobe: int) -> faiss.Index:
+def grown(index: faiss.Index, kind: str, nlist: int, nprobe: int, ivf_min: int = AUTO_IVF_MIN) -> faiss.Index:
     """`index` after a write: an exact one that has grown to where `kind` wants IVF is built again as
     IVF from its own vectors and ids (once: IVF stays IVF, its lists trained on what it held then);
     otherwise `index` itself."""
-    if faiss.try_extract_index_ivf(index) is not None or not ivf_from(kind, index.ntotal, nlist):
+    if faiss.try_extract_index_ivf(index) is not None or not ivf_from(kind, index.ntotal, nlist, ivf_min):
         return index
     ids = faiss.vector_to_array(index.id_map).astype(np.int64)  # type: ignore[attr-defined]  # IndexIDMap2
     desc = faiss.downcast_index(index.index).reconstruct_n(0, index.ntotal)  # type: ignore[attr-defined]
-    return build_index(np.ascontiguousarray(desc, np.float32), ids, kind, nlist, nprobe)
+    return build_index(np.ascontiguousarray(desc, np.float32), ids, kind, nlist, nprobe, ivf_min)
 
 
 def tune(index: faiss.Index, nprobe: int) -> None:

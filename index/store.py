@@ -32,7 +32,7 @@ from index.records import (
     local_key,
 )
 from index.search import FaissSnapshot, ModelIndex, Snapshot
-from index.snapshot_files import INDEX_KINDS
+from index.snapshot_files import AUTO_IVF_MIN, INDEX_KINDS
 
 __all__ = [
     "INDEX_KINDS",
@@ -114,11 +114,13 @@ def open_store(
     kind: str = "auto",
     sweep_seconds: float = 600.0,
     prefix: str = "posedesc",
+    ivf_min: int = AUTO_IVF_MIN,
 ) -> TemplateStore:
     """`location`: "embedded", or a Milvus URI (`http://host:19530`; `data_dir` then is the directory
-    the replicas share for meshes, local features and job states)."""
+    the replicas share for meshes, local features and job states). `kind` and `ivf_min` (the embedded
+    store's index: `index.snapshot_files.ivf_from`)."""
     if location == EMBEDDED:
-        return EmbeddedStore(data_dir, models, kind=kind)
+        return EmbeddedStore(data_dir, models, kind=kind, ivf_min=ivf_min)
     if "://" not in location:
         raise StoreError(
             f"POSEDESC_STORE={location!r}: use 'embedded' or a Milvus URI such as http://host:19530"

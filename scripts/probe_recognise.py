@@ -56,7 +56,8 @@ from index.bop import BopDataset  # noqa: E402
 from index.embed import Embedder  # noqa: E402
 from index.render import Renderer  # noqa: E402
 from posedesc.commands.evaluate import split_frames  # noqa: E402
-from service.recognition import cut, recognise  # noqa: E402
+from service.pipeline.query import cut  # noqa: E402
+from service.recognition import recognise  # noqa: E402
 from service.settings import Settings  # noqa: E402
 from service.state import close_state, load_state  # noqa: E402
 
@@ -122,7 +123,7 @@ def main(argv: list[str] | None = None) -> int:
 
 
 class TrueMask:
-    """An embedder whose mask of the query's first cut (`service.recognition.foreground`: one patch) is
+    """An embedder whose mask of the query's first cut (`service.pipeline.mask.foreground`: one patch) is
     the true visible mask (`true`, set before each query) in whole or in part (`how`: --true-mask); the
     re-ranking turns that mask to its rolls, as it turns the model's. Everything else is the embedder's."""
 
@@ -224,7 +225,9 @@ def probe(args: argparse.Namespace, overrides: dict, data_dir: Path) -> dict:
                 if args.true_mask:
                     k = next(j for j, o in enumerate(others) if o.obj_id == inst.obj_id)
                     mask3 = np.repeat(masks[k][..., None].astype(np.uint8) * 255, 3, axis=2)
-                    true = cut(q, mask3, None, embedder.info.spec).rgb
+                    true = cut(
+                        q, mask3, None, embedder.info.spec, patch_distance_mm=settings.patch_distance_mm
+                    ).rgb
                     assert true is not None
                     for e in state.embedders.values():
                         e.true = true[0][..., 0] > 127  # type: ignore[attr-defined]

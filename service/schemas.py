@@ -70,7 +70,19 @@ class RecognizeOut(BaseModel):
                     "best": MATCH_EXAMPLE,
                     "reason": None,
                     "score": "local",
-                    "timings_ms": {"decode": 2.1, "patch": 0.8, "embed": 1.9, "search": 0.1, "total": 4.9},
+                    "timings_ms": {
+                        "decode": 2.1,
+                        "cut": 0.6,
+                        "mask": 1.2,
+                        "embed": 0.5,
+                        "search": 2.4,
+                        "local": 9.8,
+                        "sweep": 5.3,
+                        "refine": 4.1,
+                        "patch": 1.8,
+                        "rerank": 19.2,
+                        "total": 26.0,
+                    },
                     "model": "posedesc-rgb",
                 }
             ]
@@ -90,7 +102,13 @@ class RecognizeOut(BaseModel):
         "descriptor",
         description="what the matches' distances are: 'local' (re-ranked) or 'descriptor'",
     )
-    timings_ms: dict[str, float]
+    timings_ms: dict[str, float] = Field(
+        description="milliseconds of each stage that ran (`service.pipeline`): decode (the images), cut (the "
+        "patch at each query turn), mask (models with a mask), embed (the descriptors), search (the store), "
+        "local (the re-ranking by local features), sweep (the roll sweep), refine (viewpoints and rolls "
+        "around the best); then sums kept for older readers: patch = cut + mask, rerank = local + sweep + "
+        "refine (present when the re-ranking ran); total (all of it)"
+    )
     model: str = Field(description="the model that matched the modality sent")
 
 

@@ -87,12 +87,39 @@ class Settings(BaseSettings):
         0.3, ge=0, le=10, description="re-ranking with a query mask: add this times the share of the mask "
         "that a template's silhouette leaves uncovered (0: off)",
     )  # fmt: skip
-    # 5 (residuals clipped at 20 mm, `service.recognition.RELIEF_CLIP_MM`): chosen on the RGB-D validation
+    # 5 (residuals clipped at 20 mm, `relief_clip_mm`): chosen on the RGB-D validation
     # frames sent at five camera rolls among 1, 3, 6, 10 unclipped, 3, 5, 8 clipped at 10 mm, 8, 12 at 6 mm
     # (README, Evaluation: +14.8 points within 20 deg; 8 at 10 mm tied, the wider clip kept for real depth)
     relief_weight: float = Field(
         5.0, ge=0, le=100, description="re-ranking with depth: add this times the distance between the "
         "query's relief and a template's (rms of their cells' depth difference, in windows; 0: off)",
+    )  # fmt: skip
+    # 20: chosen with the weight on validation frames (README, Evaluation; 10 mm tied), kept wide for real
+    # depth: a real Kinect frame differs from its render by a median absolute 4.2 mm on object pixels
+    # (README, Data)
+    relief_clip_mm: float = Field(
+        20.0, gt=0, le=1000, description="re-ranking with depth: a cell's residual depth counts up to this "
+        "in the relief distance (mm), so an occluder's cell or a depth hole costs at most that",
+    )  # fmt: skip
+    # 6: an icosphere viewpoint's ring of neighbours (5 or 6 at one step; "around": within 1.5 steps,
+    # `service.pipeline.refine.Viewpoints.near`); not tuned on its own, `roll_refine` was chosen with it
+    near_views: int = Field(
+        6, ge=0, le=50, description="re-ranking refinement: the nearest other viewpoints of an answer's "
+        "object compared (within 1.5 neighbour steps)",
+    )  # fmt: skip
+    # 3: an answer's roll is off by up to half the templates' in-plane step; its roll and +- a third of the
+    # step put a candidate within a sixth of the step of any roll there (chosen with `roll_refine`)
+    refine_roll_divisor: int = Field(
+        3, ge=1, le=24, description="re-ranking refinement: an answer's roll is also tried turned by the "
+        "templates' in-plane step divided by this, either way (halved again each further round)",
+    )  # fmt: skip
+    # A choice, not a measurement (README, Poses): a patch has no camera, its answers are in the patch camera
+    # on the optical axis, and a colour patch's object and rotation do not depend on this (the network reads
+    # no distance from colour; the patch camera spans the window at any distance): only the answers' t does.
+    # A depth patch without depth at its centre is also read against it (`index.patches.batch_inputs`)
+    patch_distance_mm: float = Field(
+        400.0, gt=0, le=100_000, description="a colour patch sent without distance_mm (and a depth patch "
+        "without depth at its centre) is taken to be this far away, mm",
     )  # fmt: skip
     # A number replaces every model's calibrated threshold (`service.rejection`); "off": never reject.
     reject_above: Annotated[float, Field(ge=0, allow_inf_nan=False)] | Literal["off"] | None = Field(
@@ -101,7 +128,14 @@ class Settings(BaseSettings):
     )  # fmt: skip
     level: int = Field(3, ge=0, le=4, description="template viewpoints: icosphere level (3 = 301)")
     index_kind: Literal["auto", "flat", "ivf"] = Field(
-        "auto", description="auto = exact below 50,000 templates, IVF from there; flat = always exact; ivf"
+        "auto", description="auto = exact below `ivf_min_templates`, IVF from there; flat = always exact; ivf"
+    )
+    # 50,000: measured at 100 objects (README, Store and Benchmarks): the search stage over 357,648 32-d
+    # templates 5.28 ms exact, 1.72 ms IVF (256 lists, 16 probed), the same accuracy on the validation
+    # frames. The threshold itself is a choice, not a measurement: the exact search's cost grows with the
+    # templates, so a seventh of those is a few tenths of a ms to win
+    ivf_min_templates: int = Field(
+        50_000, ge=1, description="embedded store, index_kind auto: an IVF index from this many templates"
     )
 
     sync_seconds: float = Field(2.0, ge=0, description="POST /objects answers 201 within this, else 202")
@@ -111,3 +145,15 @@ class Settings(BaseSettings):
     @classmethod
     def _empty_key_is_none(cls, v: object) -> object:
         return None if v is None or (isinstance(v, str) and not v.strip()) else v
+
+
+class _StoreOnly(BaseSettings):
+    model_config = SettingsConfigDict(env_prefix="POSEDESC_", env_file=None, extra="ignore")
+
+    store: str = Settings.model_fields["store"].default
+
+
+def default_store() -> str:
+    """The `store` setting (POSEDESC_STORE) alone, for a tool that opens a store without serving
+    (`posedesc build-index`): another setting's bad value is no reason for it to fail."""
+    return _StoreOnly().store

@@ -16,6 +16,7 @@ from index.shared_files import SharedFiles
 from index.store import EMBEDDED, TemplateStore, open_store
 from service.jobs import Jobs
 from service.metrics import Metrics
+from service.pipeline import Pipeline
 from service.settings import Settings
 from service.threads import limit_threads, worker_pool
 
@@ -48,6 +49,10 @@ class AppState:
     stopping: threading.Event = field(default_factory=threading.Event)
     started: float = field(default_factory=time.time)
     startup_error: str | None = None
+    #: `pipelines` and the settings and models they were built from
+    _pipelines: tuple[Settings, dict[str, Embedder], dict[str, Pipeline]] | None = field(
+        default=None, init=False, repr=False
+    )
 
     def __post_init__(self) -> None:
         n = self.settings.threads
@@ -55,6 +60,20 @@ class AppState:
         self.embed_pool = worker_pool(2, "embed", n)
         self.mesh_loader = worker_pool(1, "mesh", n)
         self.recognizer = worker_pool(2, "recognise", n)
+
+    @property
+    def pipelines(self) -> dict[str, Pipeline]:
+        """Each model's recognition pipeline (`service.pipeline`), built once from the settings and the
+        models and kept while both stay the same objects: the service never changes them, an evaluation
+        swaps the settings between queries (`evaluation.openset`: with and without the re-ranking). A
+        pipeline reads the store's snapshot per query, so registrations need no rebuild."""
+        built = self._pipelines
+        if built is None or built[0] is not self.settings or built[1] is not self.embedders:
+            pipelines = {
+                m: Pipeline.build(self.settings, e, self.templates) for m, e in self.embedders.items()
+            }
+            self._pipelines = built = (self.settings, self.embedders, pipelines)
+        return built[2]
 
     @property
     def model_names(self) -> dict[str, str]:
@@ -77,6 +96,7 @@ def load_state(settings: Settings, embedders: dict[str, Embedder] | None = None)
         kind=settings.index_kind,
         sweep_seconds=settings.store_sweep_seconds,
         prefix=settings.store_prefix,
+        ivf_min=settings.ivf_min_templates,
     )
     worker = RenderWorker(size=sizes.pop(), window_mm=min(windows))
     cfg = TemplateConfig(settings.level, settings.inplane_step, settings.inplane_max)

@@ -6,7 +6,6 @@ The same code path as POST /objects; a service already serving that data dir see
 from __future__ import annotations
 
 import argparse
-import os
 import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
@@ -17,11 +16,12 @@ from posedesc.cli import UserError
 def add_arguments(p: argparse.ArgumentParser) -> None:
     from index.mesh import FORMATS_TEXT
     from index.units import UNITS
+    from service.settings import default_store
 
     p.add_argument("--meshes", type=Path, required=True, help=f"folder of meshes: {FORMATS_TEXT}")
     p.add_argument("--data-dir", type=Path, required=True,
                    help="the store to add them to (made if missing); for a Milvus store, the directory its replicas share")  # fmt: skip
-    p.add_argument("--store", default=os.environ.get("POSEDESC_STORE", "embedded"),
+    p.add_argument("--store", default=default_store(),
                    help="'embedded' or a Milvus URI, http://host:19530; POSEDESC_STORE sets the default")  # fmt: skip
     p.add_argument("--models", type=Path, default=Path("models"), help="folder of posedesc-*.onnx models")
     p.add_argument("--units", choices=UNITS, default="mm", help="units of the mesh files")

@@ -9,8 +9,9 @@ from fastapi import APIRouter, File, Form, UploadFile
 
 from service.deps import StateDep
 from service.errors import responses
+from service.pipeline.query import MAX_DISTANCE_MM, MAX_PX, MIN_DISTANCE_MM, Query
 from service.poses import pose_fields
-from service.recognition import MAX_DISTANCE_MM, MAX_PX, MIN_DISTANCE_MM, Query, recognise
+from service.recognition import recognise
 from service.schemas import MatchOut, RecognizeOut
 
 router = APIRouter(tags=["recognition"])

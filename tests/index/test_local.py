@@ -10,7 +10,6 @@ from index.local import (
     l2,
     masked_cosine,
     masked_distance,
-    masked_distance_across,
 )
 
 
@@ -96,8 +95,9 @@ def test_cosines_across_rolls_are_the_pairwise_ones():
 
 
 def test_distances_across_rolls_are_the_pairwise_ones():
-    """`masked_distance_across` equals `masked_distance` of each (template, query row) pair, with the
-    coverage term, an empty silhouette and an empty query mask included."""
+    """`masked_distance` of every template against every query row (broadcast: silhouettes (N, 1, G * G),
+    query masks (1, R, G * G)) equals that of each (template, query row) pair, with the coverage term, an
+    empty silhouette and an empty query mask included."""
     rng = np.random.default_rng(6)
     n, r, g2 = 4, 3, 16
     cos = rng.uniform(-1, 1, size=(n, r, g2)).astype(np.float32)
@@ -106,7 +106,8 @@ def test_distances_across_rolls_are_the_pairwise_ones():
     qm = (rng.random((r, g2)) > 0.4).astype(np.float32)
     qm[2] = 0.0
     for mask in (qm, None):
-        across = masked_distance_across(cos, sil, mask, coverage=0.3)
+        across = masked_distance(cos, sil[:, None], None if mask is None else mask[None], coverage=0.3)
+        assert across.shape == (n, r)
         for j in range(r):
             pairwise = masked_distance(
                 cos[:, j], sil, None if mask is None else np.repeat(mask[j][None], n, 0), 0.3
@@ -134,7 +135,7 @@ def test_relief_is_each_cells_depth_from_the_distance_over_the_pixels_with_depth
 def test_relief_distance_ignores_the_offset_and_clips_an_occluded_cell():
     """Two reliefs of one shape at different distances are 0 apart; a cell 30 mm off (an occluder) adds at
     most the clip; a shape tilted the other way is far; fewer than `RELIEF_MIN_CELLS` shared cells: 0."""
-    from index.local import RELIEF_MIN_CELLS, relief_distance, relief_distance_across
+    from index.local import RELIEF_MIN_CELLS, relief_distance
 
     g2 = 16
     shape = np.linspace(-0.1, 0.1, g2, dtype=np.float32)  # a slope, in windows
@@ -150,9 +151,11 @@ def test_relief_distance_ignores_the_offset_and_clips_an_occluded_cell():
     few = np.zeros(g2, np.float32)
     few[: RELIEF_MIN_CELLS - 1] = 1.0
     assert relief_distance(queries[2:], few[None], shape[None], sil[None], 0.1)[0] == 0.0
-    # every template against every query row: the pairwise distances
+    # every template against every query row (broadcast): the pairwise distances
     templates = np.stack([shape, -shape])
-    across = relief_distance_across(queries, np.stack([shares] * 3), templates, np.stack([sil, sil]), 0.1)
+    across = relief_distance(
+        queries[None], np.stack([shares] * 3)[None], templates[:, None], np.stack([sil, sil])[:, None], 0.1
+    )
     assert across.shape == (2, 3)
     for j in range(3):
         pairwise = relief_distance(
@@ -162,17 +165,18 @@ def test_relief_distance_ignores_the_offset_and_clips_an_occluded_cell():
 
 
 def test_a_stored_row_splits_by_its_width():
-    """`split_stored`: features alone, with silhouettes, with silhouettes and relief; any other width is
+    """`StoredLocal.of`: features alone, with silhouettes, with silhouettes and relief; any other width is
     refused."""
-    from index.local import split_stored
+    from index.local import StoredLocal
 
     f, g = 6, 2
     row = np.arange(f + 2 * g * g, dtype=np.float32)[None]
-    feats, sil, rel = split_stored(row, f, g)
-    assert feats.shape == (1, f) and sil is not None and rel is not None
-    assert sil[0, 0] == f and rel[0, 0] == f + g * g
-    feats, sil, rel = split_stored(row[:, : f + g * g], f, g)
-    assert sil is not None and rel is None
-    assert split_stored(row[:, :f], f, g)[1:] == (None, None)
+    full = StoredLocal.of(row, f, g)
+    assert full.features.shape == (1, f) and full.silhouettes is not None and full.relief is not None
+    assert full.silhouettes[0, 0] == f and full.relief[0, 0] == f + g * g
+    older = StoredLocal.of(row[:, : f + g * g], f, g)
+    assert older.silhouettes is not None and older.relief is None
+    oldest = StoredLocal.of(row[:, :f], f, g)
+    assert (oldest.silhouettes, oldest.relief) == (None, None)
     with pytest.raises(ValueError, match="fit neither"):
-        split_stored(row[:, : f + 1], f, g)
+        StoredLocal.of(row[:, : f + 1], f, g)

@@ -14,7 +14,6 @@ import faiss
 import numpy as np
 import pytest
 
-import index.snapshot_files
 from index.store import Store, StoreError, TemplateSet
 
 MODELS = {"rgb": (4, "fp-rgb"), "depth": (4, "fp-depth")}
@@ -168,11 +167,8 @@ def test_ivf_kind(tmp_path):
     assert "o7" not in {m.name for m in matches}
 
 
-def test_auto_kind_is_exact_while_small_and_turns_ivf_at_the_write_that_makes_it_large(
-    tmp_path, monkeypatch, caplog
-):
-    monkeypatch.setattr(index.snapshot_files, "AUTO_IVF_MIN", 150)
-    store = Store(tmp_path, {"rgb": (4, "fp")}, nlist=2, nprobe=2)  # "auto", the default
+def test_auto_kind_is_exact_while_small_and_turns_ivf_at_the_write_that_makes_it_large(tmp_path, caplog):
+    store = Store(tmp_path, {"rgb": (4, "fp")}, nlist=2, nprobe=2, ivf_min=150)  # "auto", the default
     rng = np.random.default_rng(0)
     ids = []
     for i in range(20):

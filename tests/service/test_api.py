@@ -68,7 +68,7 @@ def test_recognise_a_full_colour_frame(client, l_frame):
         for m in body["matches"]
     ]
     assert min(errors) <= 20.0, errors
-    assert set(body["timings_ms"]) == {"decode", "patch", "embed", "search", "total"}
+    assert set(body["timings_ms"]) == {"decode", "cut", "patch", "embed", "search", "total"}
 
 
 @pytest.mark.parametrize("sent", ["rgbd", "depth"])

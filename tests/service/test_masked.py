@@ -12,7 +12,8 @@ from service_helpers import depth_png, png
 
 from index.pose import View
 from index.register import register
-from service.recognition import Query, recognise
+from service.pipeline.query import Query
+from service.recognition import recognise
 from service.settings import Settings
 from service.state import close_state, load_state
 

@@ -66,9 +66,9 @@ def client(frame, tmp_path_factory):
 @pytest.fixture
 def cut_distances(monkeypatch):
     """The distance (mm) the service cuts each patch at: the answer does not carry it."""
-    import service.recognition as recognition
+    import service.pipeline.query as query
 
-    real_crop = recognition.crops
+    real_crop = query.crops
     signature = inspect.signature(real_crop)
     seen: list[float] = []
 
@@ -76,7 +76,7 @@ def cut_distances(monkeypatch):
         seen.append(float(signature.bind(*args, **kwargs).arguments["distance_mm"]))
         return real_crop(*args, **kwargs)
 
-    monkeypatch.setattr(recognition, "crops", spy)
+    monkeypatch.setattr(query, "crops", spy)
     return seen
 
 

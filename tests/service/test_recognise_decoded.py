@@ -7,7 +7,8 @@ from service_helpers import depth_png, png
 
 from index.pose import View
 from index.register import register
-from service.recognition import Query, decode, recognise, recognise_decoded
+from service.pipeline.query import Query, decode
+from service.recognition import recognise, recognise_decoded
 from service.settings import Settings
 from service.state import close_state, load_state
 
@@ -43,8 +44,10 @@ def test_recognise_is_decode_then_recognise_decoded(tmp_path, posedesc_models, l
             part = recognise_decoded(state, q, d)
             assert part.model == full.model and len(full.matches) == 7
             assert part.matches == full.matches
-            assert list(full.timings_ms) == ["decode", "patch", "embed", "search", "total"]
-            assert list(part.timings_ms) == ["patch", "embed", "search", "total"]
+            # each stage by its name (these models have no mask and no local features), then the sums
+            assert list(full.timings_ms) == ["decode", "cut", "embed", "search", "patch", "total"]
+            assert list(part.timings_ms) == ["cut", "embed", "search", "patch", "total"]
             assert full.timings_ms["total"] >= full.timings_ms["decode"]
+            assert part.timings_ms["patch"] == part.timings_ms["cut"]  # cut + mask, without a mask
     finally:
         close_state(state)

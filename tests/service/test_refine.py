@@ -7,7 +7,7 @@ import numpy as np
 from index.pose import camera_centre
 from index.store import local_key
 from index.viewpoints import hemisphere
-from service.refine import Viewpoints, ViewpointTable
+from service.pipeline.refine import Viewpoints, ViewpointTable
 
 
 def _keys(oid: int, level: int = 3) -> list:

@@ -13,10 +13,11 @@ import numpy as np
 import pytest
 from service_helpers import ROOT, depth_png, png
 
-from index.local import split_stored
+from index.local import StoredLocal
 from index.pose import View
 from index.register import register
-from service.recognition import Query, Scoring, decode, local_scores
+from service.pipeline.query import Query, decode
+from service.pipeline.score import LocalScore, QueryCuts, ScoreConfig
 from service.settings import Settings
 from service.state import close_state, load_state
 
@@ -39,6 +40,16 @@ def rgbd_state(tmp_path_factory, l_shape):
     close_state(state)
 
 
+def _scores(state, q, d, local, poses, coverage: float, relief: float) -> np.ndarray:
+    """The re-ranking's score of `poses` against the query, as the pipeline's scorer gives it."""
+    e, s = d.embedder, state.settings
+    cuts = QueryCuts(q, d, None, s.patch_distance_mm)
+    scorer = LocalScore(
+        ScoreConfig(coverage, relief, s.relief_clip_mm), cuts, local, e.local_grid, e.info.window_mm
+    )
+    return scorer.pairs(poses)
+
+
 def _query(state, mesh, view: View):
     t = state.worker.submit(lambda r: r.render(mesh, [view])).result()
     return Query(png(t.rgb[0]), depth_png(t.depth[0]), k=3)
@@ -52,16 +63,13 @@ def test_the_querys_relief_matches_its_own_viewpoints_template(rgbd_state, l_sha
     e = state.embedders["rgbd"]
     true = keys[7]
     # registration stores each template's silhouette and relief after its features
-    feats, silhouettes, shape = split_stored(
-        np.asarray(local[true])[None], e.probe()[1].shape[1], e.local_grid
-    )
-    assert silhouettes is not None and shape is not None and np.abs(shape).max() > 0.02
+    stored = StoredLocal.of(np.asarray(local[true])[None], e.probe()[1].shape[1], e.local_grid)
+    assert stored.silhouettes is not None and stored.relief is not None and np.abs(stored.relief).max() > 0.02
     q = _query(state, l_shape, View(true[1], true[2], roll, 400.0))
     d = decode(state, q)
-    refs = [local[k] for k in keys]
-    rolls = [roll] * len(keys)
-    plain = local_scores(q, d, refs, rolls, Scoring(coverage=0.3))
-    weighed = local_scores(q, d, refs, rolls, Scoring(coverage=0.3, relief=1.0))
+    poses = [(k, roll) for k in keys]
+    plain = _scores(state, q, d, local, poses, coverage=0.3, relief=0.0)
+    weighed = _scores(state, q, d, local, poses, coverage=0.3, relief=1.0)
     added = weighed - plain  # the relief distance, in windows (200 mm)
     i = keys.index(true)
     # measured (shipped model of a6258e9): 0.003 at the true viewpoint upright, 0.008 turned by 60 deg (the
@@ -69,7 +77,6 @@ def test_the_querys_relief_matches_its_own_viewpoints_template(rgbd_state, l_sha
     assert added[i] < 0.015, added[i]
     assert np.delete(added, i).min() > 2 * added[i], added
     cells = e.local_grid**2
-    without = local_scores(
-        q, d, [np.asarray(r)[:-cells] for r in refs], rolls, Scoring(coverage=0.3, relief=1.0)
-    )
+    older = {k: np.asarray(local[k])[:-cells] for k in keys}  # rows stored before the relief
+    without = _scores(state, q, d, older, poses, coverage=0.3, relief=1.0)
     np.testing.assert_allclose(without, plain, atol=1e-6)

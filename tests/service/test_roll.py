@@ -156,21 +156,21 @@ def test_refinement_scores_each_pose_once(whole_turn, renderer, l_shape, monkeyp
     """The roll sweep compares the best answers at every template roll, the refinement their neighbouring
     viewpoints and turned rolls: a pose the re-ranking or the sweep scored already, or a neighbour two
     answers share, is not scored again (same template, same cut of the query: the same score)."""
-    import service.recognition as recognition
+    from service.pipeline.score import LocalScore
 
-    calls: list[list[tuple[int, float]]] = []
-    scored, across = recognition.local_scores, recognition.scores_across_rolls
+    calls: list[list[tuple[tuple[int, float, float], float]]] = []
+    pairs, table = LocalScore.pairs, LocalScore.table
 
-    def counting(q, d, refs, rolls, *args, **kwargs):
-        calls.append([(id(t), r) for t, r in zip(refs, rolls, strict=True)])
-        return scored(q, d, refs, rolls, *args, **kwargs)
+    def counting(self, poses):
+        calls.append(list(poses))
+        return pairs(self, poses)
 
-    def counting_across(q, d, refs, rolls, *args, **kwargs):
-        calls.append([(id(t), r) for t in refs for r in rolls])
-        return across(q, d, refs, rolls, *args, **kwargs)
+    def counting_table(self, keys, rolls):
+        calls.append([(k, r) for k in keys for r in rolls])
+        return table(self, keys, rolls)
 
-    monkeypatch.setattr(recognition, "local_scores", counting)
-    monkeypatch.setattr(recognition, "scores_across_rolls", counting_across)
+    monkeypatch.setattr(LocalScore, "pairs", counting)
+    monkeypatch.setattr(LocalScore, "table", counting_table)
     answer = ask(whole_turn, renderer, l_shape, View(AZ, EL, 40.0, 600.0))
     assert (
         answer["matches"] and len(calls) == 3

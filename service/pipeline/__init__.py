@@ -1,0 +1,93 @@
+"""The recognition pipeline: decoded images -> the model's patch (and its turns) -> descriptors -> the
+store's nearest distinct answers -> their local re-ranking, roll sweep and refinement -> k answers.
+
+One `Pipeline` per model, built once from the settings when the state is (`service.state.AppState`); a
+query runs it in a worker thread (never on the event loop) and never waits on a registration: it reads
+the store's snapshot as it found it and runs the model's own onnxruntime session. The stages, in order
+(`STAGES`), each a module of this package with one call and one frozen config built from the settings:
+
+- `cut` (`query.Cut`): the query cut once per turn (`query_turns`) from a frame or a patch;
+- `mask` (`mask.Mask`, models with a mask): what is not the object made black and empty;
+- `embed`, `search` (`search.Embed`, `search.Search`): the descriptors, the store's nearest answers;
+- `local` (`rerank.Rerank`), `sweep` (`sweep.Sweep`), `refine` (`refine.Refine`), for models with
+  local features: the re-ranking by the local score (`score.LocalScore`), the roll sweep and the
+  refinement;
+
+then the answers' assembly (`answer`: the order, the open-set verdict, the origins). Each stage gets the
+query's frozen `context.Context` and hands on a new one (or None: nothing to do for this query). A stage
+that a model or the settings leave out is not in its pipeline (`build` returns None). Adding a stage is a
+new module and one line in `STAGES`.
+
+Roll: a template's in-plane angle is a roll the service can answer, so with templates over the whole
+turn (a model trained with roll, or the settings) every answer's in-plane is an estimate. With
+`query_turns` n > 1 the query is also cut turned by j * s / n (j < n, s the templates' in-plane step, or
+the whole turn when they are upright only): the n patches are embedded in one batch and searched, and a
+match of template in-plane θ on the turn by o says the object is rolled θ + o (`crop` undoes o).
+
+`timings_ms` (milliseconds): `decode` (when timed: `service.recognition.recognise`), then each stage that
+ran by its name (`cut`, `mask`, `embed`, `search`, `local`, `sweep`, `refine`), then the sums older
+readers know: `patch` = cut + mask, `rerank` = local + sweep + refine (when the re-ranking ran), and
+`total` (everything above, decode included)."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Mapping
+
+from index.embed import Embedder
+from index.register import TemplateConfig
+from index.store import Snapshot
+from service.pipeline.answer import Result, answer, ranked_matches
+from service.pipeline.context import Context, Stage
+from service.pipeline.mask import Mask
+from service.pipeline.query import Cut, Decoded, Query
+from service.pipeline.refine import Refine
+from service.pipeline.rerank import Rerank
+from service.pipeline.search import Embed, Search
+from service.pipeline.sweep import Sweep
+from service.settings import Settings
+
+#: every stage in its order; each class's `build(settings, embedder, templates)` makes it for a model, or
+#: None when the model or the settings leave it out
+STAGES = (Cut, Mask, Embed, Search, Rerank, Sweep, Refine)
+
+#: timing keys kept as the sums of stages, for readers of the times before the stages were split
+SUMS: Mapping[str, tuple[str, ...]] = {"patch": ("cut", "mask"), "rerank": ("local", "sweep", "refine")}
+
+
+class Pipeline:
+    """One model's stages (`stages`), run in order on a query."""
+
+    def __init__(self, stages: tuple[Stage, ...], settings: Settings):
+        self.stages, self.settings = stages, settings
+
+    @classmethod
+    def build(cls, settings: Settings, embedder: Embedder, templates: TemplateConfig) -> Pipeline:
+        made = (stage.build(settings, embedder, templates) for stage in STAGES)
+        return cls(tuple(s for s in made if s is not None), settings)
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return tuple(s.name for s in self.stages)
+
+    def __call__(self, q: Query, d: Decoded, snapshot: Snapshot, decode_s: float | None = None) -> Result:
+        """The k best distinct (object, viewpoint) answers to a decoded query, nearest first.
+        `decode_s`: the seconds decoding took, reported as `decode` and counted in `total`."""
+        t0 = time.perf_counter()
+        ctx, spent = Context(q, d, snapshot), {}
+        for stage in self.stages:
+            t = time.perf_counter()
+            if (out := stage(ctx)) is not None:
+                ctx, spent[stage.name] = out, time.perf_counter() - t
+        matches = ranked_matches(ctx)
+        return answer(ctx, matches, timings(spent, time.perf_counter() - t0, decode_s), self.settings)
+
+
+def timings(spent: Mapping[str, float], total: float, decode: float | None) -> dict[str, float]:
+    """`timings_ms` from the stages' seconds (see the module's docstring)."""
+    ms = {**({} if decode is None else {"decode": decode}), **spent}
+    for name, parts in SUMS.items():
+        if parts[0] in spent:
+            ms[name] = sum(spent.get(p, 0.0) for p in parts)
+    ms["total"] = total + (decode or 0.0)
+    return {k: round(v * 1000, 2) for k, v in ms.items()}

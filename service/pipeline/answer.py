@@ -1,0 +1,111 @@
+"""The answers' assembly: the k distinct answers in the order the stages left them (`ranked_matches`), the
+open-set verdict on the best (`service.rejection`), and where each answer puts the object's origin along
+the ray (`origin_distances`): the distance its `t` is at.
+
+`distance_mm`, sent or not, means one thing: from the camera to the object's origin along the ray through
+the centre (‖t‖). Sent, it is the answer's distance. Measured from depth, it is the surface at the centre
+(the median of the central quarter of the patch, as the templates measure theirs), and each answer adds its
+own template's offset (origin minus surface for that object from that viewpoint, `index.surface`): the
+surface of a mug seen from the side lies its radius in front of its origin, seen from above its half height."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from index.patches import surface_depth
+from index.store import Match, Snapshot
+from index.surface import offset_of
+from service.pipeline.context import Context
+from service.rejection import judge, read_calibrations
+from service.settings import Settings
+
+
+@dataclass
+class Result:
+    """The answers, and where they are: `ray` (3,) the unit ray through the object's centre in the query's
+    camera (the patch camera for a patch: the optical axis), `distance_mm` how far along it the query was
+    cut. With a match's view they give its pose (`service.poses`). `score`: what each match's distance
+    is ("local" when re-ranked, else "descriptor"); `confidences` per match and `reason` (the best answer
+    rejected, or None) from `service.rejection`. `timings_ms`: `service.pipeline`'s docstring."""
+
+    model: str
+    matches: list[Match]
+    timings_ms: dict[str, float]
+    ray: np.ndarray
+    distance_mm: float
+    score: str = "descriptor"
+    confidences: list[float | None] = field(default_factory=list)
+    reason: str | None = None
+    #: per match, how far its object's origin lies along `ray` (mm): `distance_mm` when it was sent, else
+    #: the measured surface plus the match's template offset (`origin_distances`)
+    origins_mm: list[float] = field(default_factory=list)
+
+
+def ranked_matches(ctx: Context) -> list[Match]:
+    """The query's k answers: the search's matches, or once re-ranked those scored in the order of their
+    scores (two refined to one viewpoint: the better one stays), each at the pose it was scored at, then
+    those without local features in the search's order."""
+    k, matches, r = ctx.query.k, list(ctx.matches), ctx.ranked
+    if r is None:
+        return matches[:k]
+    order, seen = np.argsort(r.scores, kind="stable"), set()
+    out: list[Match] = []
+    for j in order:
+        if len(out) >= k:
+            break
+        if r.keys[j] in seen:
+            continue
+        seen.add(r.keys[j])
+        m = replace(matches[r.have[j]], distance=float(r.scores[j]))
+        if (r.keys[j], r.rolls[j]) != r.first[j]:  # the sweep or refinement moved it
+            m = replace(m, azimuth=r.keys[j][1], elevation=r.keys[j][2], inplane=r.rolls[j])
+        out.append(m)
+    scored = set(r.have)
+    return (out + [m for i, m in enumerate(matches) if i not in scored])[:k]
+
+
+def answer(ctx: Context, matches: list[Match], timings_ms: dict[str, float], settings: Settings) -> Result:
+    """The response: `matches` (`ranked_matches`) with the verdict on them and their origins."""
+    d, p = ctx.decoded, ctx.patches
+    assert p is not None  # `Cut` ran
+    calibration = read_calibrations(d.embedder.info.extra, d.embedder.path.name).get(ctx.score)
+    verdict = judge(matches, ctx.score, calibration, settings.reject_above)
+    measured = ctx.query.distance_mm is None and p.depth is not None
+    depth0 = None if p.depth is None else p.depth[0]  # the surface as measured, not as masked
+    origins = origin_distances(ctx.snapshot, matches, p.distance, depth0, d.embedder.info.window_mm, measured)
+    return Result(
+        d.embedder.path.stem,
+        matches,
+        timings_ms,
+        p.ray,
+        p.distance,
+        ctx.score,
+        verdict.confidences,
+        verdict.reason,
+        origins,
+    )
+
+
+def origin_distances(
+    snap: Snapshot,
+    matches: Sequence[Match],
+    cut_mm: float,
+    depth_patch: np.ndarray | None,
+    window_mm: float,
+    measured: bool,
+) -> list[float]:
+    """Each match's distance to the object's origin, mm. `cut_mm`: the distance the query was cut at
+    (given, or the surface measured at the centre); `measured`: it came from depth, so the surface on
+    `depth_patch` (S, S) plus each match's offset is the origin (`cut_mm` for an object without offsets)."""
+    if not measured or depth_patch is None:
+        return [cut_mm] * len(matches)
+    surface = float(surface_depth(depth_patch, cut_mm, window_mm))
+    out = []
+    for m in matches:
+        rec = snap.objects.get(m.object_id)
+        offset = None if rec is None else offset_of(rec.extra, m.azimuth, m.elevation)
+        out.append(cut_mm if offset is None else surface + offset)
+    return out

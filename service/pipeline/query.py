@@ -1,0 +1,245 @@
+"""The query and its cut: what a user sends (`Query`), its checks and decoding (`decode`), and the patches
+the network takes (`cut`: from a full frame and the object's centre, or from a patch already centred on
+it), at any roll (a roll undone: the object upright). The pipeline's first stage (`Cut`) cuts the query
+once per turn (`query_turns`); the re-ranking cuts it again at the rolls its candidates give
+(`service.pipeline.score.QueryCuts`)."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING
+
+import cv2
+import numpy as np
+
+from index.embed import Embedder
+from index.patches import PatchSpec, crops, patch_camera
+from index.register import TemplateConfig
+from service.depth_units import check_frame_distance, check_given_distance, check_patch_distance
+from service.errors import ApiError
+from service.images import read_depth, read_rgb
+from service.pipeline.context import Context
+from service.settings import Settings
+
+if TYPE_CHECKING:
+    from service.state import AppState  # which builds the pipelines of this package
+
+FRAME_FIELDS = ("fx", "fy", "cx", "cy", "u", "v")
+MAX_PX = 1e6  # focal lengths and image coordinates beyond this are no camera's
+MIN_DISTANCE_MM, MAX_DISTANCE_MM = 1.0, 100_000.0  # the object's distance, given or measured
+
+
+@dataclass(frozen=True)
+class Query:
+    """What a user sends. `distance_mm`: from the camera centre to the object's origin along the ray
+    through (u, v) (‖t‖ of a BOP pose); without it, a frame's depth gives the surface's distance there."""
+
+    rgb: bytes | None
+    depth: bytes | None
+    depth_scale: float = 1.0
+    fx: float | None = None
+    fy: float | None = None
+    cx: float | None = None
+    cy: float | None = None
+    u: float | None = None
+    v: float | None = None
+    distance_mm: float | None = None
+    k: int = 5
+
+
+@dataclass(frozen=True)
+class Decoded:
+    """A query's images, decoded, and the model its modality picks."""
+
+    modality: str
+    embedder: Embedder
+    rgb: np.ndarray | None
+    depth: np.ndarray | None
+
+
+@dataclass(frozen=True)
+class Patches:
+    """The query cut as the network takes it, once per turn. rgb (n, S, S, 3) uint8 or None; depth
+    (n, S, S) mm or None; offsets (n,) degrees of roll undone; distance (mm) the window was cut at, along
+    `ray` (3,), the unit ray through the centre in the query's camera (for a patch, the patch camera's)."""
+
+    rgb: np.ndarray | None
+    depth: np.ndarray | None
+    offsets: np.ndarray
+    distance: float
+    ray: np.ndarray
+
+
+def decode(state: AppState, q: Query) -> Decoded:
+    """Checks what was sent, picks the model of its modality and decodes the images."""
+    embedders, settings = state.embedders, state.settings
+    if q.k > settings.max_k:
+        raise ApiError(422, f"k: must be at most {settings.max_k}, got {q.k}")
+    if q.rgb is None and q.depth is None:
+        raise ApiError(422, "send an `rgb` image, a `depth` image, or both")
+    modality = (
+        "rgbd" if q.rgb is not None and q.depth is not None else "rgb" if q.rgb is not None else "depth"
+    )
+    embedder = embedders.get(modality)
+    if embedder is None:
+        loaded = ", ".join(sorted(embedders))
+        raise ApiError(422, f"no {modality} model is loaded (loaded: {loaded}); send what one of them takes")
+    px = settings.max_image_pixels
+    rgb = None if q.rgb is None else read_rgb(q.rgb, px)
+    depth = None if q.depth is None else read_depth(q.depth, q.depth_scale, px)
+    if rgb is not None and depth is not None and rgb.shape[:2] != depth.shape:
+        raise ApiError(
+            422,
+            f"rgb is {rgb.shape[1]} x {rgb.shape[0]} px but depth is {depth.shape[1]} x {depth.shape[0]} px",
+        )
+    return Decoded(modality, embedder, rgb, depth)
+
+
+@dataclass(frozen=True)
+class CutConfig:
+    """`offsets`: the query's turns, degrees (`turn_offsets` of `query_turns` and the templates' in-plane
+    spacing); `patch_distance_mm`: the distance of a patch sent without one (`Settings.patch_distance_mm`)."""
+
+    spec: PatchSpec
+    offsets: tuple[float, ...]
+    patch_distance_mm: float
+
+    @classmethod
+    def from_settings(cls, settings: Settings, embedder: Embedder, templates: TemplateConfig) -> CutConfig:
+        spacing = templates.inplane_spacing(embedder.info.inplane_step)
+        offsets = turn_offsets(settings.query_turns, spacing)
+        return cls(embedder.info.spec, tuple(float(o) for o in offsets), settings.patch_distance_mm)
+
+
+class Cut:
+    """The query cut once per turn (`CutConfig.offsets`): the patches every later stage starts from."""
+
+    name = "cut"
+
+    def __init__(self, config: CutConfig):
+        self.config = config
+
+    @classmethod
+    def build(cls, settings: Settings, embedder: Embedder, templates: TemplateConfig) -> Cut:
+        return cls(CutConfig.from_settings(settings, embedder, templates))
+
+    def __call__(self, ctx: Context) -> Context:
+        c, d = self.config, ctx.decoded
+        p = cut(ctx.query, d.rgb, d.depth, c.spec, c.offsets, patch_distance_mm=c.patch_distance_mm)
+        return replace(ctx, patches=p, described=p)
+
+
+def turn_offsets(turns: int, spacing: float) -> np.ndarray:
+    """The query's turns, degrees: j * spacing / turns (j < turns); the whole turn when spacing is 0."""
+    span = spacing if spacing > 0 else 360.0
+    return np.arange(max(1, turns)) * (span / max(1, turns))
+
+
+def cut(
+    q: Query,
+    rgb: np.ndarray | None,
+    depth: np.ndarray | None,
+    spec: PatchSpec,
+    offsets: Sequence[float] | np.ndarray = (0.0,),
+    *,
+    patch_distance_mm: float,
+) -> Patches:
+    """The patches of a decoded query, one per turn in `offsets` (degrees of roll undone).
+    `patch_distance_mm`: how far a patch sent without a distance (and without depth at its centre) is."""
+    given = [f for f in FRAME_FIELDS if getattr(q, f) is not None]
+    if given and len(given) < len(FRAME_FIELDS):
+        missing = ", ".join(f for f in FRAME_FIELDS if f not in given)
+        raise ApiError(422, f"a full frame needs fx, fy, cx, cy, u and v; missing: {missing}")
+    if given:
+        K, centre, distance = _from_frame(q, rgb, depth, spec)
+    else:
+        rgb, depth, distance = _from_patch(q, rgb, depth, spec, patch_distance_mm)
+        K, centre = patch_camera(spec, distance), ((spec.size - 1) / 2, (spec.size - 1) / 2)
+    offsets = np.asarray(offsets, float)
+    if given or offsets.any():
+        rgbs, depths = crops(rgb, depth, K, centre, distance, spec, offsets)
+    else:  # a patch, unturned (the usual query): no warp at all
+        rgbs = None if rgb is None else np.empty((len(offsets), *rgb.shape), np.uint8)
+        depths = None if depth is None else np.empty((len(offsets), *depth.shape), np.float32)
+    if not given:  # a patch where it is not turned: the patch itself, no resampling
+        unturned = offsets == 0
+        if rgbs is not None and rgb is not None:
+            rgbs[unturned] = rgb
+        if depths is not None and depth is not None:
+            depths[unturned] = depth
+    if depths is not None and not (depths[0] > 0).any():
+        raise ApiError(422, "the depth patch is all zero: no depth was measured around the object")
+    if depths is not None and q.distance_mm is not None:  # a measured distance agrees by construction
+        s = spec.size
+        centre_quarter = depths[0][3 * s // 8 : 5 * s // 8, 3 * s // 8 : 5 * s // 8]
+        check_given_distance(centre_quarter[centre_quarter > 0], distance, spec.window_mm, q.depth_scale)
+    return Patches(
+        rgbs,
+        depths,
+        offsets,
+        distance,
+        _unit(np.linalg.inv(K) @ np.array([centre[0], centre[1], 1.0])),
+    )
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    return v / np.linalg.norm(v)
+
+
+def _from_frame(q: Query, rgb, depth, spec: PatchSpec) -> tuple[np.ndarray, tuple[float, float], float]:
+    h, w = (rgb if rgb is not None else depth).shape[:2]
+    assert q.u is not None and q.v is not None  # a frame query has them all (checked by the caller)
+    u, v = float(q.u), float(q.v)
+    if not (0 <= u < w and 0 <= v < h):
+        raise ApiError(422, f"the centre (u, v) = ({u:g}, {v:g}) is outside the {w} x {h} frame")
+    K = np.array([[q.fx, 0.0, q.cx], [0.0, q.fy, q.cy], [0.0, 0.0, 1.0]], dtype=float)
+    distance = q.distance_mm
+    if distance is None:
+        if depth is None:
+            raise ApiError(
+                422, "a colour-only frame needs distance_mm (from the camera to the object's origin, mm)"
+            )
+        distance = _measured(_depth_at(depth, K, u, v))
+        check_frame_distance(distance, (K[0, 0] + K[1, 1]) / 2, spec.window_mm, spec.size, q.depth_scale)
+    return K, (u, v), distance
+
+
+def _depth_at(depth: np.ndarray, K: np.ndarray, u: float, v: float, r: int = 7) -> float:
+    """Distance (mm, along the ray) of the surface at (u, v): median of the valid depths around it."""
+    iu, iv = int(u), int(v)
+    win = depth[max(0, iv - r) : iv + r + 1, max(0, iu - r) : iu + r + 1]
+    valid = win[win > 0]
+    if valid.size == 0:
+        raise ApiError(422, f"no depth around the centre ({u:g}, {v:g}); send distance_mm")
+    ray = np.linalg.inv(K) @ np.array([u, v, 1.0])
+    return float(np.median(valid) * np.linalg.norm(ray))
+
+
+def _from_patch(q: Query, rgb, depth, spec: PatchSpec, default_mm: float):
+    """A patch already centred on the object, spanning the model's metric window: resized to the input."""
+    size = spec.size
+    h, w = (rgb if rgb is not None else depth).shape[:2]
+    if abs(h - w) > 1:
+        raise ApiError(
+            422, f"a patch must be square ({w} x {h} px); for a full frame send fx, fy, cx, cy, u and v"
+        )
+    rgb_p = None if rgb is None else cv2.resize(rgb, (size, size), interpolation=cv2.INTER_AREA)
+    depth_p = None if depth is None else cv2.resize(depth, (size, size), interpolation=cv2.INTER_NEAREST)
+    distance = q.distance_mm
+    if distance is None and depth_p is not None:
+        c = depth_p[size * 3 // 8 : size * 5 // 8, size * 3 // 8 : size * 5 // 8]
+        distance = _measured(float(np.median(c[c > 0]))) if (c > 0).any() else None
+        if distance is not None:
+            check_patch_distance(distance, spec.window_mm, q.depth_scale)
+    return rgb_p, depth_p, distance or default_mm
+
+
+def _measured(distance: float) -> float:
+    if not MIN_DISTANCE_MM <= distance <= MAX_DISTANCE_MM:
+        raise ApiError(
+            422,
+            f"the depth at the centre says {distance:.3g} mm, outside {MIN_DISTANCE_MM:g} to "
+            f"{MAX_DISTANCE_MM:g} mm: is depth_scale right?",
+        )
+    return distance

@@ -1,0 +1,140 @@
+"""The refinement: each of the best re-ranked candidates is also compared at the viewpoints next to its
+own (the object's other templates within about one viewpoint step: `Viewpoints`) and at its roll turned
+by a fraction of the templates' in-plane step either way (`Settings.refine_roll_divisor`), and keeps the
+pose that fits best.
+
+Templates sit about 8 deg apart on the sphere (level 3; "around": within 1.5 times that) and 30 deg apart
+in-plane (the shipped model), so an answer's pose is off by up to half of those; the local features of
+every upright template are in memory already (`index.store.Snapshot`), so the other viewpoints cost a
+comparison each, and a turned roll one more cut of the query. Measured on validation frames (README,
+Evaluation)."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, replace
+from types import MappingProxyType
+
+import numpy as np
+
+from index.embed import Embedder
+from index.pose import camera_centre, wrap_degrees
+from index.register import TemplateConfig
+from service.pipeline.context import Context, Key, Pose
+from service.pipeline.rerank import reranks
+from service.settings import Settings
+
+
+@dataclass(frozen=True)
+class Viewpoints:
+    """One object's viewpoints that have local features: keys, unit directions (V, 3), and the typical
+    angle between neighbours (deg; the median of each one's nearest other)."""
+
+    keys: list[Key]
+    directions: np.ndarray
+    step_deg: float
+
+    @classmethod
+    def of(cls, keys: list[Key]) -> Viewpoints:
+        directions = np.stack([camera_centre(k[1], k[2]) for k in keys])
+        cos = directions @ directions.T
+        np.fill_diagonal(cos, -1.0)
+        step = (
+            float(np.degrees(np.median(np.arccos(np.clip(cos.max(axis=1), -1.0, 1.0)))))
+            if len(keys) > 1
+            else 0.0
+        )
+        return cls(keys, directions, step)
+
+    def near(self, key: Key, k: int, within: float = 1.5) -> list[Key]:
+        """Up to `k` of the other viewpoints within `within` neighbour steps of `key`'s, nearest first."""
+        cos = self.directions @ camera_centre(key[1], key[2])
+        limit = np.cos(np.radians(within * self.step_deg))
+        return [self.keys[i] for i in np.argsort(-cos)[: k + 1] if cos[i] >= limit and self.keys[i] != key][
+            :k
+        ]
+
+
+class ViewpointTable:
+    """Each object's `Viewpoints`, built once per snapshot's local features (a registration or deletion
+    makes a new mapping, and so a new table) and kept for the last few mappings seen."""
+
+    def __init__(self, keep: int = 4):
+        self._tables: list[tuple[Mapping[Key, np.ndarray], dict[int, Viewpoints]]] = []
+        self._keep = keep
+
+    def of(self, local: Mapping[Key, np.ndarray]) -> dict[int, Viewpoints]:
+        for mapping, table in self._tables:
+            if mapping is local:
+                return table
+        by_object: dict[int, list[Key]] = {}
+        for key in local:
+            by_object.setdefault(key[0], []).append(key)
+        table = {oid: Viewpoints.of(keys) for oid, keys in by_object.items()}
+        self._tables = [(local, table), *self._tables][: self._keep]
+        return table
+
+
+@dataclass(frozen=True)
+class RefineConfig:
+    """`n`: the best candidates refined (`Settings.roll_refine`); `rounds` (`Settings.refine_rounds`),
+    each from where the last left them, the roll's turn halved; `near_views` (`Settings.near_views`);
+    `spacing`: the templates' in-plane step (0: upright only, no turn); the roll's turn in the first round
+    is `spacing` / `roll_divisor` (`Settings.refine_roll_divisor`)."""
+
+    n: int
+    rounds: int
+    near_views: int
+    spacing: float
+    roll_divisor: int
+
+    @classmethod
+    def from_settings(cls, settings: Settings, embedder: Embedder, templates: TemplateConfig) -> RefineConfig:
+        spacing = templates.inplane_spacing(embedder.info.inplane_step)
+        s = settings
+        return cls(s.roll_refine, s.refine_rounds, s.near_views, spacing, s.refine_roll_divisor)
+
+
+class Refine:
+    """The best `n` candidates compared also at the viewpoints around theirs and at their roll turned
+    either way; each keeps the (viewpoint, roll) scoring best. A pose scored by an earlier stage is not
+    scored again (`Context.scored`). Its viewpoint tables are built once per snapshot's local features."""
+
+    name = "refine"
+
+    def __init__(self, config: RefineConfig):
+        self.config = config
+        self.tables = ViewpointTable()
+
+    @classmethod
+    def build(cls, settings: Settings, embedder: Embedder, templates: TemplateConfig) -> Refine | None:
+        on = reranks(settings, embedder) and settings.roll_refine > 0
+        return cls(RefineConfig.from_settings(settings, embedder, templates)) if on else None
+
+    def __call__(self, ctx: Context) -> Context | None:
+        r, scorer = ctx.ranked, ctx.scorer
+        if r is None or scorer is None:  # nothing re-ranked
+            return None
+        c = self.config
+        table = self.tables.of(scorer.local)
+        score, keys, rolls = r.scores.copy(), list(r.keys), list(r.rolls)
+        known = dict[Pose, float](ctx.scored)
+        best = np.argsort(score, kind="stable")[: c.n]
+        for step in range(c.rounds):  # each round from where the last left each candidate, the turn halved
+            turn = c.spacing / (c.roll_divisor * 2**step)
+            turns = (0.0, -turn, turn) if c.spacing > 0 else (0.0,)
+            tried: list[tuple[int, Key, float]] = []
+            for j in best:
+                views = [keys[j], *table[keys[j][0]].near(keys[j], c.near_views)]
+                for o in turns:
+                    roll = round(float(wrap_degrees(rolls[j] + o)), 3)
+                    tried += [(int(j), v, roll) for v in views if (v, roll) != (keys[j], rolls[j])]
+            new = list(dict.fromkeys((v, roll) for _, v, roll in tried if (v, roll) not in known))
+            if new:
+                known |= {pose: float(s) for pose, s in zip(new, scorer.pairs(new), strict=True)}
+            for j, v, roll in tried:
+                if known[(v, roll)] < score[j]:
+                    score[j], keys[j], rolls[j] = known[(v, roll)], v, roll
+        score.flags.writeable = False
+        ranked = replace(r, scores=score, keys=tuple(keys), rolls=tuple(rolls))
+        return replace(ctx, ranked=ranked, scored=MappingProxyType(known))

@@ -1,0 +1,67 @@
+"""The descriptor's stages: the query's patches embedded in one batch (`Embed`), and the store searched
+for the nearest distinct (object, viewpoint) answers over every in-plane variant and query turn
+(`Search`). The search runs on the snapshot the query started with, never waiting on a registration."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+from index.embed import Embedder
+from index.register import TemplateConfig
+from service.pipeline.context import Context
+from service.settings import Settings
+
+
+class Embed:
+    """The descriptors of the query's patches (as masked), one batch for all its turns. Nothing to
+    configure: the model decides."""
+
+    name = "embed"
+
+    @classmethod
+    def build(cls, settings: Settings, embedder: Embedder, templates: TemplateConfig) -> Embed:
+        return cls()
+
+    def __call__(self, ctx: Context) -> Context:
+        p = ctx.described
+        assert p is not None  # `Cut` ran
+        # a masked query's depth was filled before the mask emptied the rest (`service.pipeline.mask`)
+        desc = ctx.decoded.embedder.embed_patches(p.rgb, p.depth, p.distance, fill=ctx.keep is None)
+        return replace(ctx, descriptors=desc)
+
+
+@dataclass(frozen=True)
+class SearchConfig:
+    """`variants`: in-plane templates a viewpoint has (what the answers collapse); `rerank`: the answers
+    the re-ranking takes (`Settings.rerank`, 0 for a model without local features), asked of the store
+    instead of k when more and the store holds local features."""
+
+    variants: int
+    rerank: int
+
+    @classmethod
+    def from_settings(cls, settings: Settings, embedder: Embedder, templates: TemplateConfig) -> SearchConfig:
+        variants = len(templates.inplane(embedder.info.inplane_step))
+        return cls(variants, settings.rerank if embedder.has_local else 0)
+
+
+class Search:
+    """The nearest distinct answers: k, or as many as the re-ranking takes."""
+
+    name = "search"
+
+    def __init__(self, config: SearchConfig):
+        self.config = config
+
+    @classmethod
+    def build(cls, settings: Settings, embedder: Embedder, templates: TemplateConfig) -> Search:
+        return cls(SearchConfig.from_settings(settings, embedder, templates))
+
+    def __call__(self, ctx: Context) -> Context:
+        assert ctx.descriptors is not None and ctx.patches is not None  # `Embed` ran
+        m = ctx.decoded.modality
+        rerank = self.config.rerank if ctx.snapshot.models[m].local else 0
+        found = ctx.snapshot.answers(
+            m, ctx.descriptors, max(ctx.query.k, rerank), ctx.patches.offsets, self.config.variants
+        )
+        return replace(ctx, matches=tuple(found))
