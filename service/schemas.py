@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Literal
+
 from pydantic import BaseModel, ConfigDict, Field
 from pydantic.config import JsonDict
 
@@ -101,6 +103,12 @@ class ObjectOut(BaseModel):
     faces: int
     templates: dict[str, int] = Field(description="templates per model")
     created: float = Field(description="unix time")
+    demo: bool = Field(
+        False,
+        description="a demo object the service registered itself into a new data dir (a generated shape); "
+        "it answers for your frames too: DELETE it (it does not come back), or start a new data dir with "
+        "POSEDESC_DEMO_OBJECTS=false",
+    )
 
 
 class ObjectCreated(BaseModel):
@@ -132,12 +140,34 @@ class JobAccepted(BaseModel):
     status: str = "running"
 
 
+class JobProgress(BaseModel):
+    """How far a registration is. The object is rendered and embedded in chunks of its views, so the
+    stages alternate: render (views rendered), embed (views embedded by every model), then store."""
+
+    model_config = ConfigDict(
+        json_schema_extra={"examples": [{"stage": "embed", "done": 1806, "total": 3612}]}
+    )
+
+    stage: Literal["render", "embed", "store"] = Field(description="what it did last")
+    done: int = Field(
+        description="render, embed: the object's views rendered / embedded so far (a view: a viewpoint at "
+        "one in-plane angle); store: templates stored (0 while storing, then `total`)"
+    )
+    total: int = Field(description="how many of them there are")
+
+
 class JobOut(BaseModel):
     job_id: str
     status: str = Field(description="running | done | failed")
     object_id: int | None = None
     result: ObjectCreated | None = None
     error: str | None = None
+    code: int | None = Field(
+        None, description="a failed job's HTTP status, as POST /objects would have answered"
+    )
+    progress: JobProgress | None = Field(
+        None, description="how far it is (null until the first chunk of views is rendered)"
+    )
 
 
 class ErrorOut(BaseModel):
