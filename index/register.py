@@ -45,8 +45,9 @@ from index.viewpoints import inplane_steps, sphere_views
 
 log = logging.getLogger(__name__)
 
-#: Told (stage, done, total) as a registration goes: "render" and "embed" count the views of the object
-#: rendered and embedded by every model so far (chunks, so they alternate), "store" its templates stored.
+#: Told (stage, done, total) as a registration goes: the stage it is waiting on now ("render": the next
+#: chunk of views to be rendered; "embed": a chunk to be embedded by every model; they alternate), with
+#: the object's views done (rendered and embedded) of all; then "store", its templates stored of all.
 Progress = Callable[[str, int, int], None]
 
 
@@ -210,11 +211,13 @@ def make_templates(
     offsets = []
     total, done_views = sum(len(g) for g in groups), 0
     for fut in renders:
+        if progress:
+            progress("render", done_views, total)
         rendered, render_s = fut.result()
         seconds["render"] += render_s
-        t = rendered[min(rendered)]
         if progress:
-            progress("render", done_views + len(t.views), total)
+            progress("embed", done_views, total)
+        t = rendered[min(rendered)]
         offsets.append(template_offsets(t.depth, t.views, t.window_mm))
         visible = visible or _visible(rendered)
         chunk = next(iter(rendered.values())).views
@@ -239,8 +242,6 @@ def make_templates(
         for m in embedders:
             parts[m].append(sets[m] if m in sets else sets[twins[m]])
         done_views += len(chunk)
-        if progress:
-            progress("embed", done_views, total)
     if not visible:
         raise MeshError(INVISIBLE)
     out = {m: _concatenate(ps) for m, ps in parts.items()}

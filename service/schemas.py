@@ -141,19 +141,21 @@ class JobAccepted(BaseModel):
 
 
 class JobProgress(BaseModel):
-    """How far a registration is. The object is rendered and embedded in chunks of its views, so the
-    stages alternate: render (views rendered), embed (views embedded by every model), then store."""
+    """How far a registration is. The object's views are rendered and embedded in chunks, so the stages
+    alternate (render, embed, render, ...), then its templates are stored at once."""
 
     model_config = ConfigDict(
         json_schema_extra={"examples": [{"stage": "embed", "done": 1806, "total": 3612}]}
     )
 
-    stage: Literal["render", "embed", "store"] = Field(description="what it did last")
-    done: int = Field(
-        description="render, embed: the object's views rendered / embedded so far (a view: a viewpoint at "
-        "one in-plane angle); store: templates stored (0 while storing, then `total`)"
+    stage: Literal["render", "embed", "store"] = Field(
+        description="what it is doing now: rendering the next chunk of views, embedding one, storing"
     )
-    total: int = Field(description="how many of them there are")
+    done: int = Field(
+        description="render, embed: the object's views done (rendered and embedded by every model; a view "
+        "is a viewpoint at one in-plane angle); store: templates stored (0 while storing, then `total`)"
+    )
+    total: int = Field(description="how many views (render, embed) or templates (store) there are")
 
 
 class JobOut(BaseModel):
