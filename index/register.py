@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 
@@ -44,6 +44,11 @@ from index.symmetry import SYMMETRIES
 from index.viewpoints import inplane_steps, sphere_views
 
 log = logging.getLogger(__name__)
+
+#: Told (stage, done, total) as a registration goes: the stage it is waiting on now ("render": the next
+#: chunk of views to be rendered; "embed": a chunk to be embedded by every model; they alternate), with
+#: the object's views done (rendered and embedded) of all; then "store", its templates stored of all.
+Progress = Callable[[str, int, int], None]
 
 
 @dataclass(frozen=True)
@@ -177,6 +182,7 @@ def make_templates(
     views: Mapping[str, list[View]],
     pool: ThreadPoolExecutor | None = None,
     chunks: int = 4,
+    progress: Progress | None = None,
 ) -> tuple[dict[str, TemplateSet], dict[str, float], np.ndarray]:
     """Every model's templates of `mesh` from its `views`, seconds spent rendering and embedding, and
     each viewpoint's surface offset (`index.surface.template_offsets`, rows of azimuth, elevation, mm).
@@ -203,9 +209,14 @@ def make_templates(
     seconds = {"render": 0.0, "embed": 0.0}
     visible = False
     offsets = []
+    total, done_views = sum(len(g) for g in groups), 0
     for fut in renders:
+        if progress:
+            progress("render", done_views, total)
         rendered, render_s = fut.result()
         seconds["render"] += render_s
+        if progress:
+            progress("embed", done_views, total)
         t = rendered[min(rendered)]
         offsets.append(template_offsets(t.depth, t.views, t.window_mm))
         visible = visible or _visible(rendered)
@@ -230,6 +241,7 @@ def make_templates(
         sets = {m: _concatenate([ts for (w, _), ts in zip(work, done, strict=True) if w == m]) for m in own}
         for m in embedders:
             parts[m].append(sets[m] if m in sets else sets[twins[m]])
+        done_views += len(chunk)
     if not visible:
         raise MeshError(INVISIBLE)
     out = {m: _concatenate(ps) for m, ps in parts.items()}
@@ -274,17 +286,24 @@ def register(
     cfg: TemplateConfig = TemplateConfig(),
     pool: ThreadPoolExecutor | None = None,
     extra: Mapping[str, object] | None = None,
+    progress: Progress | None = None,
 ) -> Registration:
-    """Adds `mesh` (mm) under `name` to every model's store; raises MeshError when it cannot be used."""
+    """Adds `mesh` (mm) under `name` to every model's store; raises MeshError when it cannot be used.
+    `progress`, when given, is told how far it is (`Progress`)."""
     t0 = time.perf_counter()
     views = model_views(symmetry, cfg, embedders)
-    sets, timings, offsets = make_templates(worker, embedders, mesh, views, pool)
+    sets, timings, offsets = make_templates(worker, embedders, mesh, views, pool, progress=progress)
     t1 = time.perf_counter()
+    stored = sum(len(ts.poses) for ts in sets.values())
+    if progress:
+        progress("store", 0, stored)
     glb = mesh.export(file_type="glb")  # kept so templates can be made again when a model changes
     assert isinstance(glb, bytes)  # glb is binary
     extra = {**(extra or {}), SURFACE_KEY: np.round(offsets, 2).tolist()}
     record = store.add_object(name, symmetry, sets, faces=len(mesh.faces), mesh=glb, extra=extra)
     t2 = time.perf_counter()
+    if progress:
+        progress("store", stored, stored)
     # render and embed overlap (chunks), so they add up to more than the time until the last descriptor
     timings.update(store=t2 - t1, total=t2 - t0)
     log.info("registered %s: %s", name, {k: round(v, 3) for k, v in timings.items()})

@@ -16,6 +16,7 @@ from service.state import AppState
 log = logging.getLogger("service")
 
 SEEDED = "demo_seeded"
+DEMO_KEY = "demo"  # in a demo object's record (`ObjectRecord.extra`): `GET /objects` marks it
 SEEDING = "demo_seeding"  # set before the first demo object: a seeding cut short goes on at the next start
 
 
@@ -61,7 +62,7 @@ def seed(state: AppState) -> None:
                 store=store,
                 cfg=state.templates,
                 pool=state.embed_pool,
-                extra={"demo": True},
+                extra={DEMO_KEY: True},
             )
         except NameTaken:  # another replica of a shared store seeding at the same time
             continue

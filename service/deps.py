@@ -70,3 +70,23 @@ def require_api_key(
 
 
 ApiKeyDep = Annotated[None, Depends(require_api_key)]
+
+
+async def known_fields(request: Request) -> None:
+    """422 naming any form field the route does not take (`image` for `rgb`): FastAPI would ignore it,
+    and the answer would then be about what is missing, not about what was misnamed. The accepted names
+    are the route's own form parameters, so they cannot drift from the signature."""
+    route = request.scope.get("route")
+    accepted = [f.alias for f in getattr(getattr(route, "dependant", None), "body_params", [])]
+    # FastAPI has parsed the form already (Starlette keeps it on the request): this reads no body again
+    unknown = sorted({k for k in await request.form() if k not in accepted})
+    if unknown:
+        names = ", ".join(f"`{k}`" for k in unknown)
+        raise ApiError(
+            422,
+            f"unexpected form field{'s' if len(unknown) > 1 else ''} {names}; "
+            f"this endpoint takes {', '.join(accepted)}",
+        )
+
+
+KnownFieldsDep = Depends(known_fields)

@@ -7,7 +7,8 @@ the window must cover enough pixels to be recognised (at 10x too far it shrinks 
 object the size of the window is nearer than the window is wide (at 10x too near it would be).
 
 Each check refuses a query (422) naming what looks wrong and the `depth_scale` that would make the depth
-plausible: the sent scale times the smallest power of ten that passes the same check. A user whose
+plausible: the sent scale times the smallest power of ten that passes the same check; or, when that
+scale says the values are whole metres (or decimetres), to store millimetres instead. A user whose
 object really is that near or far can say so with `distance_mm`."""
 
 from __future__ import annotations
@@ -23,6 +24,12 @@ FARTHEST_MM = 10_000.0
 #: Powers of ten a suggestion may correct the scale by, nearest first.
 DECADES = (-1, 1, -2, 2, -3, 3)
 UNITS = {0.1: "0.1 mm", 1.0: "mm", 10.0: "cm", 1000.0: "m"}
+#: A scale from this many mm per unit up means the 16-bit values are whole decimetres or metres: such
+#: depth holds nothing of an object's shape (a 200 mm window spans 0 or 1 step of it), so the answer is
+#: to store millimetres, not to send the scale.
+COARSE_SCALE = 100.0
+#: How depth in metres becomes the 16-bit PNG of millimetres the service reads.
+METRES_TO_MM = "cv2.imwrite('depth.png', np.round(np.nan_to_num(d_m) * 1000).astype(np.uint16))"
 
 
 def check_frame_distance(
@@ -96,4 +103,11 @@ def _message(what: str, depth_scale: float, k: int | None, given: bool = False) 
     scale = suggested_scale(depth_scale, k)
     units = UNITS.get(scale, f"{scale:g} mm")
     escape = "" if given else "; if the object really is there, send distance_mm"
+    if scale >= COARSE_SCALE:
+        return (
+            f"{what}: depth looks like whole {'metres' if scale == 1000.0 else units}, which keep nothing of "
+            f"an object's shape in 16-bit integers: store depth as millimetres in a 16-bit PNG (from depth "
+            f"in metres d_m: {METRES_TO_MM}); if the values are integers of a finer unit, send depth_scale "
+            f"(mm per unit){escape}"
+        )
     return f"{what}: depth looks like {units} units: send depth_scale={scale:g}{escape}"

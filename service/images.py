@@ -16,6 +16,51 @@ from service.errors import ApiError
 
 Image.MAX_IMAGE_PIXELS = None  # our own limit, checked below, replaces Pillow's warning-then-error
 
+#: Formats people hold depth in, told by their first bytes (never parsed: only PNG and JPEG are decoded),
+#: with how NumPy / OpenCV read them.
+OTHER_FORMATS = (
+    (
+        (b"II*\x00", b"MM\x00*", b"II+\x00", b"MM\x00+"),
+        "a TIFF",
+        "cv2.imread('depth.tif', cv2.IMREAD_UNCHANGED)",
+    ),
+    ((b"\x93NUMPY",), "a NumPy .npy array", "np.load('depth.npy')"),
+    (
+        (b"v/1\x01",),
+        "an OpenEXR image (OpenCV reads it with OPENCV_IO_ENABLE_OPENEXR=1 in the environment)",
+        "cv2.imread('depth.exr', cv2.IMREAD_UNCHANGED)",
+    ),
+    ((b"PF\n", b"Pf\n"), "a PFM image", "cv2.imread('depth.pfm', cv2.IMREAD_UNCHANGED)"),
+)
+
+
+def to_mm_png(read: str) -> str:
+    """How to turn depth in metres, read by `read`, into what the service takes: a 16-bit PNG of mm."""
+    return (
+        f"for depth in metres: d = {read}; "
+        "cv2.imwrite('depth.png', np.round(np.nan_to_num(d) * 1000).astype(np.uint16))"
+    )
+
+
+def other_format(data: bytes) -> tuple[str, str] | None:
+    """(what the file is, how to read it) for a format people hold depth in, by its magic bytes."""
+    for magics, name, how in OTHER_FORMATS:
+        if data.startswith(magics):
+            return name, how
+    return None
+
+
+def _not_an_image(data: bytes, what: str) -> str:
+    found = other_format(data)
+    if found is None:
+        return f"{what}: not an image (PNG or JPEG expected)"
+    name, how = found
+    if what == "depth":
+        return (
+            f"depth: {name}, not a 16-bit PNG; send depth as a 16-bit PNG of millimetres ({to_mm_png(how)})"
+        )
+    return f"{what}: {name}, not a PNG or JPEG"
+
 
 def _open(data: bytes, what: str, max_pixels: int) -> Image.Image:
     """The image's header, checked; no pixel decoded yet."""
@@ -28,7 +73,7 @@ def _open(data: bytes, what: str, max_pixels: int) -> Image.Image:
             # JPEG with several pictures comes back as MPO, Pillow's JPEG code too): anything else is refused
             im = Image.open(io.BytesIO(data), formats=("PNG", "JPEG"))
     except (UnidentifiedImageError, OSError, ValueError, SyntaxError):
-        raise ApiError(422, f"{what}: not an image (PNG or JPEG expected)") from None
+        raise ApiError(422, _not_an_image(data, what)) from None
     w, h = im.size
     if w * h > max_pixels:
         raise ApiError(413, f"{what}: {w} x {h} px is over the limit of {max_pixels} pixels")

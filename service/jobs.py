@@ -22,6 +22,7 @@ from typing import Any
 
 from index.shared_files import SharedFiles
 
+FIELDS = ("job_id", "name", "status", "created", "result", "error", "code", "progress")  # shared files
 STALE = 5.0  # seconds without a heartbeat: the replica running a job is gone
 HEARTBEAT = 1.0
 
@@ -37,9 +38,16 @@ class Job:
     #: the HTTP status a failure answers with: 422 bad mesh, 409 name taken, 507 disk full, 500 a bug
     code: int | None = None
     replica: str = ""
+    #: how far a registration is: {"stage": render | embed | store, "done": n, "total": N}
+    #: (`index.register.Progress`); replaced whole, so a reader never sees half an update
+    progress: dict[str, Any] | None = None
 
     def fail(self, code: int, error: str) -> None:
         self.code, self.error, self.status = code, error, "failed"
+
+    def advance(self, stage: str, done: int, total: int) -> None:
+        """An `index.register.Progress`: what `GET /jobs/{id}` shows while the job runs."""
+        self.progress = {"stage": stage, "done": done, "total": total}
 
 
 class Busy(Exception):
@@ -76,9 +84,7 @@ class Jobs:
         """Writes the job's state where every replica reads it (no-op without a shared directory)."""
         if self.files is None:
             return
-        body = {
-            k: getattr(job, k) for k in ("job_id", "name", "status", "created", "result", "error", "code")
-        }
+        body = {k: getattr(job, k) for k in FIELDS}
         self.files.write(f"jobs/{job.job_id}.json", json.dumps({**body, "replica": self.replica}).encode())
 
     def new(self, name: str, limit: int | None = None) -> Job:
@@ -112,9 +118,7 @@ class Jobs:
         if data is None:
             return None
         raw = json.loads(data)
-        job = Job(
-            **{k: raw.get(k) for k in ("job_id", "name", "status", "created", "result", "error", "code")}
-        )
+        job = Job(**{k: raw.get(k) for k in FIELDS})
         beat = self.files.read(f"replicas/{raw.get('replica')}")
         if job.status == "running" and (beat is None or time.time() - float(beat) > STALE):
             job.fail(

@@ -12,8 +12,9 @@ from fastapi import FastAPI, Request
 from fastapi.concurrency import run_in_threadpool
 from fastapi_offline import FastAPIOffline
 
+from index.search import Snapshot
 from service import errors, openapi
-from service.demo import startup
+from service.demo import DEMO_KEY, startup
 from service.deps import host_of, open_writes_refused, public
 from service.limits import BodyLimit
 from service.routes import health, jobs, objects, recognize
@@ -101,19 +102,31 @@ def create_app(settings: Settings | None = None, url: str | None = None) -> Fast
 
 
 async def announce_ready(state: AppState, url: str | None) -> None:
-    """One log line once /readyz answers 200: where, and what is served (the start-up work may take a
-    while after uvicorn's own start-up lines: a changed model's templates, the demo objects)."""
+    """One log line once /readyz answers 200 (the start-up work may take a while after uvicorn's own
+    start-up lines: a changed model's templates, the demo objects): `ready_line`."""
     while not state.ready.is_set():
         await asyncio.sleep(0.05)
-    snap = state.store.snapshot
+    log.info("%s", ready_line(state.store.snapshot, url, state.startup_error))
+
+
+def ready_line(snap: Snapshot, url: str | None, startup_error: str | None = None) -> str:
+    """Where, and what is served: the objects (the demo ones named, with how to be rid of them: they answer
+    for a user's frames too) and the templates each model searches, in-plane variants included."""
+    where = url or ""
+    demo = sorted((r.name, oid) for oid, r in snap.objects.items() if r.extra.get(DEMO_KEY))
+    objects = f"{len(snap.objects)} objects"
+    if demo:
+        named = ", ".join(f"{name} ({oid})" for name, oid in demo)
+        objects += (
+            f" ({len(demo)} of them demo objects, which answer for your frames too: {named}; remove one for "
+            f"good with `curl -X DELETE {where or 'URL'}/objects/ID`, or serve a new data dir with "
+            "`posedesc serve --no-demo` or POSEDESC_DEMO_OBJECTS=false)"
+        )
     templates = ", ".join(f"{m} {mi.size}" for m, mi in sorted(snap.models.items()))
-    failed = f"; {state.startup_error}" if state.startup_error else ""
-    log.info(
-        "ready%s: %d objects; templates %s%s",
-        f" on {url}" if url else "",
-        len(snap.objects),
-        templates,
-        failed,
+    failed = f"; {startup_error}" if startup_error else ""
+    return (
+        f"ready{f' on {where}' if where else ''}: {objects}; templates searched (all objects, viewpoints x "
+        f"in-plane angles): {templates}{failed}"
     )
 
 

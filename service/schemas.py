@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Literal
+
 from pydantic import BaseModel, ConfigDict, Field
 from pydantic.config import JsonDict
 
@@ -119,6 +121,12 @@ class ObjectOut(BaseModel):
     faces: int
     templates: dict[str, int] = Field(description="templates per model")
     created: float = Field(description="unix time")
+    demo: bool = Field(
+        False,
+        description="a demo object the service registered itself into a new data dir (a generated shape); "
+        "it answers for your frames too: DELETE it (it does not come back), or start a new data dir with "
+        "POSEDESC_DEMO_OBJECTS=false",
+    )
 
 
 class ObjectCreated(BaseModel):
@@ -150,12 +158,36 @@ class JobAccepted(BaseModel):
     status: str = "running"
 
 
+class JobProgress(BaseModel):
+    """How far a registration is. The object's views are rendered and embedded in chunks, so the stages
+    alternate (render, embed, render, ...), then its templates are stored at once."""
+
+    model_config = ConfigDict(
+        json_schema_extra={"examples": [{"stage": "embed", "done": 1806, "total": 3612}]}
+    )
+
+    stage: Literal["render", "embed", "store"] = Field(
+        description="what it is doing now: rendering the next chunk of views, embedding one, storing"
+    )
+    done: int = Field(
+        description="render, embed: the object's views done (rendered and embedded by every model; a view "
+        "is a viewpoint at one in-plane angle); store: templates stored (0 while storing, then `total`)"
+    )
+    total: int = Field(description="how many views (render, embed) or templates (store) there are")
+
+
 class JobOut(BaseModel):
     job_id: str
     status: str = Field(description="running | done | failed")
     object_id: int | None = None
     result: ObjectCreated | None = None
     error: str | None = None
+    code: int | None = Field(
+        None, description="a failed job's HTTP status, as POST /objects would have answered"
+    )
+    progress: JobProgress | None = Field(
+        None, description="how far it is (null until the first chunk of views is rendered)"
+    )
 
 
 class ErrorOut(BaseModel):

@@ -1,6 +1,7 @@
 """Serve the recognition API (FastAPI on uvicorn).
 
-Other settings come from POSEDESC_* environment variables.
+Other settings come from POSEDESC_* environment variables. Every log line, the service's and uvicorn's,
+starts with its local time (ISO 8601, ms), level and logger.
 """
 
 from __future__ import annotations
@@ -8,8 +9,12 @@ from __future__ import annotations
 import argparse
 import socket
 from pathlib import Path
+from typing import Any
 
 from posedesc.cli import UserError
+
+LOG_FORMAT = "%(asctime)s.%(msecs)03d %(levelname)s %(name)s: %(message)s"
+LOG_DATE = "%Y-%m-%dT%H:%M:%S"
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -20,10 +25,31 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--log-level", default="info", choices=("debug", "info", "warning", "error"), help="uvicorn's"
     )
+    p.add_argument(
+        "--no-demo",
+        action="store_true",
+        help="register no demo objects into a new data dir (as POSEDESC_DEMO_OBJECTS=false)",
+    )
+
+
+def log_config(level: str) -> dict[str, Any]:
+    """One handler, on the root logger, for every log line: the app's (`service`, `index`, `posedesc`)
+    and uvicorn's, whose own handlers (no time of day) are left out; they propagate to it."""
+    return {
+        "version": 1,
+        "disable_existing_loggers": False,
+        "formatters": {"timed": {"format": LOG_FORMAT, "datefmt": LOG_DATE}},
+        "handlers": {"stderr": {"class": "logging.StreamHandler", "formatter": "timed"}},
+        "root": {"handlers": ["stderr"], "level": level.upper()},
+        "loggers": {
+            name: {"handlers": [], "propagate": True, "level": level.upper()}
+            for name in ("uvicorn", "uvicorn.error", "uvicorn.access")
+        },
+    }
 
 
 def run(args: argparse.Namespace) -> int:
-    import logging
+    import logging.config
 
     import uvicorn
     from pydantic import ValidationError
@@ -34,7 +60,11 @@ def run(args: argparse.Namespace) -> int:
     from service.settings import Settings
 
     try:
-        overrides = {"data_dir": args.data_dir, "models_dir": args.models}
+        overrides = {
+            "data_dir": args.data_dir,
+            "models_dir": args.models,
+            "demo_objects": False if args.no_demo else None,
+        }
         settings = Settings(**{k: v for k, v in overrides.items() if v is not None})
     except ValidationError as e:
         raise UserError(
@@ -58,9 +88,11 @@ def run(args: argparse.Namespace) -> int:
     if not 0 < args.port < 65536:
         raise UserError(f"--port {args.port}: not a port")
     sock = listen(args.host, args.port)  # before the models load: a busy port fails at once
-    logging.getLogger().setLevel(args.log_level.upper())
+    logging.config.dictConfig(log_config(args.log_level))
     logging.getLogger("posedesc").info("listening on %s; loading the models and the store", url(sock))
-    server = uvicorn.Server(uvicorn.Config(create_app(settings, url=url(sock)), log_level=args.log_level))
+    app = create_app(settings, url=url(sock))
+    # log_config=None: uvicorn keeps the configuration above (its loggers propagate to the root's handler)
+    server = uvicorn.Server(uvicorn.Config(app, log_level=args.log_level, log_config=None))
     server.run(sockets=[sock])
     return 0 if server.started else 3  # 3: uvicorn's start-up failure (the lifespan failed)
 

@@ -6,7 +6,7 @@ from fastapi import APIRouter
 
 from service.deps import StateDep
 from service.errors import ApiError, responses
-from service.schemas import JobOut, ObjectCreated
+from service.schemas import JobOut, JobProgress, ObjectCreated
 
 router = APIRouter(tags=["objects"])
 
@@ -14,7 +14,7 @@ router = APIRouter(tags=["objects"])
 @router.get(
     "/jobs/{job_id}",
     response_model=JobOut,
-    summary="A registration's status (running, done, failed) and then its object",
+    summary="A registration's status (running, done, failed), how far it is, and then its object",
     responses=responses(404, 422),
 )
 def get_job(job_id: str, state: StateDep) -> JobOut:
@@ -28,4 +28,6 @@ def get_job(job_id: str, state: StateDep) -> JobOut:
         object_id=result.object_id if result else None,
         result=result,
         error=job.error,
+        code=job.code if job.status == "failed" else None,
+        progress=JobProgress(**job.progress) if job.progress else None,
     )

@@ -16,7 +16,8 @@ from index.mesh import FORMATS_TEXT, MeshError, MeshTooLarge, load_mesh
 from index.register import register
 from index.store import NameTaken, StoreError
 from index.units import LARGEST, SMALLEST, Units
-from service.deps import ApiKeyDep, StateDep
+from service.demo import DEMO_KEY
+from service.deps import ApiKeyDep, KnownFieldsDep, StateDep
 from service.errors import DISK_FULL, ApiError, responses
 from service.jobs import Busy, Job
 from service.schemas import JobAccepted, ObjectCreated, ObjectOut
@@ -39,6 +40,7 @@ def _out(state: AppState, object_id: int) -> ObjectOut:
         faces=rec.faces,
         templates=dict(rec.templates),
         created=rec.created,
+        demo=bool(rec.extra.get(DEMO_KEY)),
     )
 
 
@@ -51,6 +53,7 @@ def _out(state: AppState, object_id: int) -> ObjectOut:
         202: {"model": JobAccepted, "description": "still registering: poll /jobs/{job_id}"},
         **responses(400, 401, 403, 409, 413, 422, 503, 507),
     },
+    dependencies=[KnownFieldsDep],
 )
 async def add_object(
     state: StateDep,
@@ -137,6 +140,10 @@ def _run(state: AppState, job: Job, mesh, name: str, symmetry: str) -> None:
 
 
 def _register(state: AppState, job: Job, mesh, name: str, symmetry: str) -> None:
+    def progress(stage: str, done: int, total: int) -> None:
+        job.advance(stage, done, total)
+        state.jobs.save(job)  # where the other replicas read it, with a shared store
+
     try:
         reg = register(
             mesh,
@@ -147,6 +154,7 @@ def _register(state: AppState, job: Job, mesh, name: str, symmetry: str) -> None
             store=state.store,
             cfg=state.templates,
             pool=state.embed_pool,
+            progress=progress,
         )
     except MeshError as e:
         job.fail(422, f"mesh: {e}")

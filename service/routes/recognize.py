@@ -7,7 +7,7 @@ from typing import Annotated
 
 from fastapi import APIRouter, File, Form, UploadFile
 
-from service.deps import StateDep
+from service.deps import KnownFieldsDep, StateDep
 from service.errors import responses
 from service.pipeline.query import MAX_DISTANCE_MM, MAX_PX, MIN_DISTANCE_MM, Query
 from service.poses import pose_fields
@@ -40,6 +40,7 @@ router = APIRouter(tags=["recognition"])
         "calibrated chance that it is the right object."
     ),
     responses=responses(400, 413, 422),
+    dependencies=[KnownFieldsDep],
 )
 async def recognize(
     state: StateDep,

@@ -204,3 +204,28 @@ def test_a_store_made_before_the_relief_makes_local_templates_again(embedders):
     assert e.has_local
     dim, tag = store_key(e)
     assert dim == e.dim and tag != fingerprint(shipped) and len(tag) == 16
+
+
+def test_registration_reports_its_progress(tmp_path, l_shape, render_worker, embedders):
+    store = Store(tmp_path, store_keys(embedders))
+    told: list[tuple[str, int, int]] = []
+    cfg = TemplateConfig(level=1)
+    reg = register(
+        l_shape,
+        "L",
+        "none",
+        worker=render_worker,
+        embedders=embedders,
+        store=store,
+        cfg=cfg,
+        progress=lambda *a: told.append(a),
+    )
+    views = len(template_views("none", cfg))
+    made = [t for t in told if t[0] != "store"]
+    # chunk by chunk, waiting on its render, then on its embedding, with the views done before it
+    assert [s for s, _, _ in made] == ["render", "embed"] * (len(made) // 2) and len(made) >= 4
+    assert all(total == views for _, _, total in made)
+    render, embed = ([d for s, d, _ in made if s == stage] for stage in ("render", "embed"))
+    assert render == embed and render[0] == 0 and render == sorted(set(render)) and render[-1] < views
+    stored = sum(reg.record.templates.values())
+    assert told[-2:] == [("store", 0, stored), ("store", stored, stored)]

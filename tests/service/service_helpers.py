@@ -10,6 +10,7 @@ import socket
 import subprocess
 import sys
 import time
+from collections.abc import Sequence
 from pathlib import Path
 
 import httpx
@@ -134,15 +135,20 @@ def free_port() -> int:
 
 
 def serve_command(
-    port: int, data_dir: Path, models: Path, host: str = "127.0.0.1", log_level: str = "warning"
+    port: int,
+    data_dir: Path,
+    models: Path,
+    host: str = "127.0.0.1",
+    log_level: str = "warning",
+    args: Sequence[str] = (),
 ) -> list[str]:
     cmd = [sys.executable, "-m", "posedesc.cli", "serve", "--host", host, "--port", str(port)]
-    return cmd + ["--data-dir", str(data_dir), "--models", str(models), "--log-level", log_level]
+    return cmd + ["--data-dir", str(data_dir), "--models", str(models), "--log-level", log_level, *args]
 
 
 class Server:
     """`posedesc serve` in a subprocess on a free port, reached on loopback (listening there unless `host`
-    says otherwise); `env` adds POSEDESC_* settings."""
+    says otherwise); `env` adds POSEDESC_* settings, `args` command-line options."""
 
     def __init__(
         self,
@@ -151,6 +157,7 @@ class Server:
         env: dict[str, str] | None = None,
         host: str = "127.0.0.1",
         log_level: str = "warning",
+        args: Sequence[str] = (),
     ):
         self.models = models
         self.port = free_port()
@@ -162,7 +169,7 @@ class Server:
             "POSEDESC_SYNC_SECONDS": "30",
             **(env or {}),
         }
-        cmd = serve_command(self.port, data_dir, models, host, log_level)
+        cmd = serve_command(self.port, data_dir, models, host, log_level, args)
         self.log = data_dir.parent / f"server-{self.port}.log"
         with open(self.log, "wb") as out:  # the child keeps its own copy of the descriptor
             self.proc = subprocess.Popen(cmd, cwd=ROOT, env=env, stdout=out, stderr=subprocess.STDOUT)

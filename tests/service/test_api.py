@@ -403,4 +403,4 @@ def test_only_png_and_jpeg_are_parsed(client):
     buf = io.BytesIO()
     Image.fromarray(GREY).save(buf, format="TIFF")
     r = client.post("/recognize", files={"rgb": ("a.tiff", buf.getvalue())})
-    assert r.status_code == 422 and r.json() == {"detail": "rgb: not an image (PNG or JPEG expected)"}
+    assert r.status_code == 422 and r.json() == {"detail": "rgb: a TIFF, not a PNG or JPEG"}

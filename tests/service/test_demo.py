@@ -3,10 +3,11 @@ not back after the user removed every object. (A fresh dir gets them once: test_
 
 from __future__ import annotations
 
+import httpx
 from fastapi.testclient import TestClient
-from service_helpers import register, service_settings, wait_ready
+from service_helpers import Server, register, service_settings, wait_ready
 
-from service.main import create_app
+from service.main import create_app, ready_line
 
 
 def names(c: TestClient) -> list[str]:
@@ -32,3 +33,38 @@ def test_no_demo_objects_into_a_dir_its_user_emptied(tmp_path, posedesc_models, 
     with TestClient(create_app(demo)) as c:
         assert wait_ready(c)["objects"] == 0
         assert names(c) == []
+
+
+def test_demo_objects_are_marked_and_the_ready_line_says_how_to_be_rid_of_them(
+    tmp_path, posedesc_models, t_shape
+):
+    demo = service_settings(tmp_path, posedesc_models, level=1, demo_objects=True)
+    with TestClient(create_app(demo)) as c:
+        ready = wait_ready(c)
+        register(c, t_shape, "T")
+        listed = c.get("/objects").json()
+        snap = c.app.state.posedesc.store.snapshot
+        line = ready_line(snap, "http://127.0.0.1:8000")
+    assert {o["name"]: o["demo"] for o in listed} == {
+        "mug": True,
+        "lamp": True,
+        "robot": True,
+        "duck": True,
+        "T": False,
+    }
+    ids = {o["name"]: o["object_id"] for o in listed}
+    assert line.startswith("ready on http://127.0.0.1:8000: 5 objects (4 of them demo objects, ")
+    assert f"duck ({ids['duck']}), lamp ({ids['lamp']}), mug ({ids['mug']}), robot ({ids['robot']})" in line
+    assert "curl -X DELETE http://127.0.0.1:8000/objects/ID" in line
+    assert "posedesc serve --no-demo" in line and "POSEDESC_DEMO_OBJECTS=false" in line
+    # the templates it counts are every template each model searches: in-plane variants included
+    per_model = {m: sum(o["templates"][m] for o in listed) for m in ready["templates"]}
+    shown = ", ".join(f"{m} {n}" for m, n in sorted(per_model.items()))
+    assert line.endswith(f"templates searched (all objects, viewpoints x in-plane angles): {shown}"), line
+
+
+def test_serve_no_demo_registers_none(tmp_path, posedesc_models):
+    env = {"POSEDESC_DEMO_OBJECTS": "true", "POSEDESC_LEVEL": "1"}
+    with Server(tmp_path / "data", posedesc_models, env=env, args=["--no-demo"]) as server:
+        server.wait_ready()
+        assert httpx.get(f"{server.url}/objects", timeout=10).json() == []

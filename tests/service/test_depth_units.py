@@ -67,3 +67,19 @@ def test_a_given_distance_is_checked_against_the_depth_around_it():
 def test_depth_that_is_no_power_of_ten_off_goes_on(surface):
     """An occluder in front, the background through a hole, or no depth: not a units mistake."""
     check_given_distance(surface, 600.0, WINDOW, 1.0)
+
+
+def test_depth_in_whole_metres_is_told_to_store_millimetres():
+    """A 16-bit PNG of metres holds 0, 1 or 2 at a Kinect's range: no depth_scale makes it useful."""
+    for detail in (
+        refusal(check_frame_distance, 1.0, F, WINDOW, SIZE, 1.0),  # 1 m stored as 1
+        refusal(check_patch_distance, 1.0, WINDOW, 1.0),
+        refusal(check_given_distance, np.full(20, 0.6), 600.0, WINDOW, 1.0),
+    ):
+        assert "depth_scale=1000" not in detail and "looks like whole metres" in detail, detail
+        assert "store depth as millimetres in a 16-bit PNG" in detail and "np.uint16" in detail
+        assert "if the values are integers of a finer unit, send depth_scale (mm per unit)" in detail
+    # integers of a finer unit (cm) still get the scale that turns them into mm
+    assert "depth looks like cm units: send depth_scale=10;" in refusal(
+        check_frame_distance, 60.0, F, WINDOW, SIZE, 1.0
+    )

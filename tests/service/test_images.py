@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import io
+import re
 
+import cv2
 import numpy as np
 import pytest
 from PIL import Image
@@ -52,3 +54,53 @@ def test_depth_is_the_16_bit_values_times_the_scale():
     np.testing.assert_allclose(got, d.astype(np.float32) * np.float32(0.1), rtol=1e-6)
     with pytest.raises(ApiError, match="truncated or corrupt"):
         read_depth(_encoded(Image.fromarray(d))[:-30], 1.0, MAX)
+
+
+def _float_tiff(d_m: np.ndarray) -> bytes:
+    ok, data = cv2.imencode(".tiff", d_m)
+    assert ok
+    return data.tobytes()
+
+
+def _npy(d_m: np.ndarray) -> bytes:
+    buf = io.BytesIO()
+    np.save(buf, d_m)
+    return buf.getvalue()
+
+
+@pytest.mark.parametrize(
+    ("encode", "name", "file"),
+    [(_float_tiff, "a TIFF", "depth.tif"), (_npy, "a NumPy .npy array", "depth.npy")],
+)
+def test_depth_as_float_metres_is_told_how_to_convert_and_the_recipe_works(
+    tmp_path, monkeypatch, encode, name, file
+):
+    d_m = np.random.default_rng(2).uniform(0.4, 1.5, (24, 32)).astype(np.float32)
+    d_m[3, 4] = np.nan  # a hole, as float depth often marks one
+    data = encode(d_m)
+    with pytest.raises(ApiError) as e:
+        read_depth(data, 1.0, MAX)
+    detail = e.value.detail
+    assert e.value.status_code == 422 and detail.startswith(f"depth: {name}, not a 16-bit PNG;"), detail
+    # the conversion the message gives, run as a user would paste it, makes depth the service reads in mm
+    (tmp_path / file).write_bytes(data)
+    recipe = re.search(r"for depth in metres: (.*)\)$", detail)
+    assert recipe is not None, detail
+    monkeypatch.chdir(tmp_path)
+    exec(recipe.group(1), {"np": np, "cv2": cv2})  # the message's own one-liner
+    got = read_depth((tmp_path / "depth.png").read_bytes(), 1.0, MAX)
+    expected = np.round(np.nan_to_num(d_m) * 1000)
+    np.testing.assert_array_equal(got, expected)
+    assert got[3, 4] == 0  # the hole: no measurement
+
+
+def test_other_formats_are_named_by_their_first_bytes():
+    exr = b"v/1\x01" + bytes(100)
+    with pytest.raises(
+        ApiError, match="depth: an OpenEXR image .*OPENCV_IO_ENABLE_OPENEXR.*16-bit PNG of mil"
+    ):
+        read_depth(exr, 1.0, MAX)
+    with pytest.raises(ApiError, match="^rgb: a TIFF, not a PNG or JPEG$"):
+        read_rgb(_float_tiff(np.zeros((8, 8), np.float32)), MAX)
+    with pytest.raises(ApiError, match=r"^depth: not an image \(PNG or JPEG expected\)$"):
+        read_depth(b"hello", 1.0, MAX)

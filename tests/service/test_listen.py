@@ -4,6 +4,8 @@ one log line says when it is ready (/readyz 200), where, and what it serves. Rea
 
 from __future__ import annotations
 
+import re
+import signal
 import socket
 import subprocess
 import time
@@ -35,6 +37,10 @@ def test_a_busy_port_stops_serve_at_once_in_one_line(tmp_path, posedesc_models):
     print(f"refused in {seconds:.2f} s")
 
 
+#: every line `posedesc serve` logs: local time (ISO 8601, ms), level, logger, message
+LOG_LINE = re.compile(r"^\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d\.\d{3} (DEBUG|INFO|WARNING|ERROR) [\w.]+: \S")
+
+
 def test_the_ready_line_comes_when_readyz_is_200(tmp_path, posedesc_models):
     with Server(tmp_path / "data", posedesc_models, log_level="info") as server:
         end = time.monotonic() + 120
@@ -43,9 +49,21 @@ def test_the_ready_line_comes_when_readyz_is_200(tmp_path, posedesc_models):
             time.sleep(0.05)
         r = httpx.get(f"{server.url}/readyz", timeout=10)
         assert r.status_code == 200, r.text
-        line = next(x for x in server.log.read_text().splitlines() if "ready on" in x)
+        lines = server.log.read_text().splitlines()
+        line = next(x for x in lines if "ready on" in x)
         sizes = ", ".join(f"{m} {n}" for m, n in sorted(r.json()["templates"].items()))
-        assert line == f"INFO ready on {server.url}: 0 objects; templates {sizes}", line
+        said = line.split(" ", 1)[1]
+        assert said == (
+            f"INFO service: ready on {server.url}: 0 objects; templates searched (all objects, viewpoints x "
+            f"in-plane angles): {sizes}"
+        ), line
+        # the app's lines and uvicorn's (start-up, each request) all carry the time of day
+        assert server.stop() in (0, -signal.SIGTERM)
+    lines = [x for x in server.log.read_text().splitlines() if x.strip()]
+    assert all(LOG_LINE.match(x) for x in lines), "\n".join(x for x in lines if not LOG_LINE.match(x))
+    loggers = {x.split(" ")[2] for x in lines}
+    assert {"posedesc:", "service:", "uvicorn.error:", "uvicorn.access:"} <= loggers, loggers
+    assert any('"GET /readyz HTTP/1.1" 200' in x for x in lines)
 
 
 def test_writes_on_a_public_address_need_a_key_or_an_opt_in(tmp_path, posedesc_models, t_shape):
