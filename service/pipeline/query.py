@@ -25,6 +25,10 @@ from service.settings import Settings
 if TYPE_CHECKING:
     from service.state import AppState  # which builds the pipelines of this package
 
+#: depth stored in whole metres rounds to 0 for anything nearer than half a metre: the empty-depth errors
+#: say what the service reads, the commonest cause of an empty depth where an object is
+UNITS_HINT = " (depth is read as a 16-bit PNG in mm, times depth_scale: whole metres round to 0)"
+
 FRAME_FIELDS = ("fx", "fy", "cx", "cy", "u", "v")
 MAX_PX = 1e6  # focal lengths and image coordinates beyond this are no camera's
 MIN_DISTANCE_MM, MAX_DISTANCE_MM = 1.0, 100_000.0  # the object's distance, given or measured
@@ -169,7 +173,9 @@ def cut(
         if depths is not None and depth is not None:
             depths[unturned] = depth
     if depths is not None and not (depths[0] > 0).any():
-        raise ApiError(422, "the depth patch is all zero: no depth was measured around the object")
+        raise ApiError(
+            422, f"the depth patch is all zero: no depth was measured around the object{UNITS_HINT}"
+        )
     if depths is not None and q.distance_mm is not None:  # a measured distance agrees by construction
         s = spec.size
         centre_quarter = depths[0][3 * s // 8 : 5 * s // 8, 3 * s // 8 : 5 * s // 8]
@@ -211,7 +217,7 @@ def _depth_at(depth: np.ndarray, K: np.ndarray, u: float, v: float, r: int = 7) 
     win = depth[max(0, iv - r) : iv + r + 1, max(0, iu - r) : iu + r + 1]
     valid = win[win > 0]
     if valid.size == 0:
-        raise ApiError(422, f"no depth around the centre ({u:g}, {v:g}); send distance_mm")
+        raise ApiError(422, f"no depth around the centre ({u:g}, {v:g}){UNITS_HINT}; or send distance_mm")
     ray = np.linalg.inv(K) @ np.array([u, v, 1.0])
     return float(np.median(valid) * np.linalg.norm(ray))
 
