@@ -41,7 +41,7 @@ from service.errors import ApiError
 from service.images import read_depth, read_rgb
 from service.origin import origin_distances
 from service.refine import TABLES, Key
-from service.rejection import judge, read_calibrations
+from service.rejection import LISTED, judge, read_calibrations
 from service.state import AppState
 
 FRAME_FIELDS = ("fx", "fy", "cx", "cy", "u", "v")
@@ -135,7 +135,10 @@ def recognise_decoded(state: AppState, q: Query, d: Decoded, decode_s: float | N
     variants = len(state.templates.inplane(step))
     snap = state.store.snapshot
     rerank = state.settings.rerank if d.embedder.has_local and snap.models[d.modality].local else 0
-    matches = snap.answers(d.modality, desc, max(q.k, rerank), p.offsets, variants)
+    score = "local" if rerank else "descriptor"
+    calibration = read_calibrations(d.embedder.info.extra, d.embedder.path.name).get(score)
+    listed = max(q.k, LISTED if calibration and calibration.statistic != "distance" else 0)  # for `judge`
+    matches = snap.answers(d.modality, desc, max(listed, rerank), p.offsets, variants)
     t4 = time.perf_counter()
     if rerank:
         s = state.settings
@@ -143,9 +146,12 @@ def recognise_decoded(state: AppState, q: Query, d: Decoded, decode_s: float | N
         how = Scoring(mask, s.mask_coverage, s.relief_weight)
         spacing = state.templates.inplane_spacing(step)
         sweep = (s.roll_sweep, [float(a) for a in state.templates.inplane(step)])
-        matches = rerank_local(snap, q, d, matches, how, s.roll_refine, spacing, q.k, s.refine_rounds, sweep)
-    matches = matches[: q.k]
+        matches = rerank_local(
+            snap, q, d, matches, how, s.roll_refine, spacing, listed, s.refine_rounds, sweep
+        )
     t5 = time.perf_counter()
+    verdict = judge(matches[:listed], score, calibration, state.settings.reject_above)
+    matches = matches[: q.k]
     before = {} if decode_s is None else {"decode": decode_s}
     ms = {
         **before,
@@ -156,9 +162,6 @@ def recognise_decoded(state: AppState, q: Query, d: Decoded, decode_s: float | N
         "total": t5 - t1 + (decode_s or 0.0),
     }
     timings = {k: round(v * 1000, 2) for k, v in ms.items()}
-    score = "local" if rerank else "descriptor"
-    calibration = read_calibrations(d.embedder.info.extra, d.embedder.path.name).get(score)
-    verdict = judge(matches, score, calibration, state.settings.reject_above)
     measured = q.distance_mm is None and p.depth is not None
     depth0 = None if p.depth is None else p.depth[0]  # the surface as measured, not as masked
     origins = origin_distances(snap, matches, p.distance, depth0, d.embedder.info.window_mm, measured)
@@ -169,7 +172,7 @@ def recognise_decoded(state: AppState, q: Query, d: Decoded, decode_s: float | N
         p.ray,
         p.distance,
         score,
-        verdict.confidences,
+        verdict.confidences[: q.k],
         verdict.reason,
         origins,
     )
