@@ -272,7 +272,9 @@ def picture(report: dict, path: Path) -> None:
             if xs:
                 row[0].hist(xs, bins=30, alpha=0.5, color=colour, density=True, label=f"{name} ({len(xs)})")
         row[0].axvline(t, color="k", ls="--", label=f"threshold {t:.3g}")
-        row[0].set_xlabel(f"best answer's {kind} distance")
+        row[0].set_xlabel(
+            f"best answer's {Calibration(kind, t, 0, 0, statistic=cal['statistic'], weight=cal['weight']).describe()}"
+        )
         row[0].set_title(f"validation frames ({kind}): best answers' scores")
         row[0].legend(fontsize=8)
         for n, by in test.get("by_registered", {}).items():
