@@ -17,6 +17,7 @@ from service import errors, openapi
 from service.demo import DEMO_KEY, startup
 from service.deps import host_of, open_writes_refused, public
 from service.limits import BodyLimit
+from service.rejection import stale
 from service.routes import health, jobs, objects, recognize
 from service.settings import Settings
 from service.state import AppState, close_state, load_state
@@ -47,6 +48,8 @@ def create_app(settings: Settings | None = None, url: str | None = None) -> Fast
                 "writes are open to anyone who can reach %s (POSEDESC_ALLOW_OPEN_WRITES, no API key)", url
             )
         state = await run_in_threadpool(load_state, settings)
+        for problem in stale(settings, state.embedders).values():  # also in GET /readyz
+            log.warning("%s: its rejection and confidences were measured on other scores", problem)
         app.state.posedesc = state
         state.registrar.submit(startup, state)
         announcer = asyncio.create_task(announce_ready(state, url))

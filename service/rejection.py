@@ -1,19 +1,28 @@
-"""Open-set rejection: "none of the registered objects" when the best answer's score is too far.
+"""Open-set rejection: "none of the registered objects" when the best answer's score says it is no match.
 
 A patch of an object that is not registered still has a nearest template; only its score tells that it is
 no match. Each model carries, in its metadata (`reject_above`, written by `scripts/calibrate_reject.py`),
-one calibration per kind of score the service answers with: "local" (the local-feature distance of the
+one calibration per kind of distance the service answers with: "local" (the local-feature distance of the
 re-ranked answers) or "descriptor" (the descriptor distance, without re-ranking). A calibration holds
 
-- `threshold`: above it the best answer is rejected (chosen on the model's validation frames between the
-  right object's scores and those of objects left unregistered, see the script);
-- `slope`, `midpoint`: the confidence of an answer with score s is 1 / (1 + exp(slope * (s - midpoint))),
-  a logistic fit on validation answers of whether the top answer was the right object (half of them
-  with the object registered, half with it left out: a 1 in 2 chance that a patch shows an unknown object).
+- `statistic`: what it thresholds, computed from the answers (`Calibration.values`): "distance", the
+  answer's distance; or "lead", the distance less `weight` times the answer's lead over the nearest answer
+  of another object (a registered object's best answer is far ahead of every other object's; an unknown
+  one's has several objects' answers about as near). Calibrations without it (before "lead") threshold
+  the distance;
+- `threshold`: above it the best answer is rejected (chosen on the model's validation frames with objects
+  left unregistered, see the script);
+- `slope`, `midpoint`: the confidence of an answer with statistic s is 1 / (1 + exp(slope * (s -
+  midpoint))), a logistic fit on validation answers of whether the top answer was the right object (half of
+  them with the object registered, half with it left out: a 1 in 2 chance that a patch shows an unknown);
+- `settings`: the settings its answers were made with (`settings_of`); `stale` tells the running service
+  when they differ from its own, as the scores then differ from those it was calibrated on.
 
-Example (JSON in the metadata): {"local": {"threshold": 1.07, "slope": 9.1, "midpoint": 1.02,
-"frames": "val", ...}, "descriptor": {...}}. The setting `POSEDESC_REJECT_ABOVE` replaces every model's
-threshold by a number, or turns rejection off ("off"); confidences are then still the model's."""
+Example (JSON in the metadata): {"local": {"statistic": "lead", "weight": 1.0, "threshold": 0.6, "slope":
+9.1, "midpoint": 0.5, "frames": "val", "settings": {"rerank": 400, ...}, ...}, "descriptor": {...}}. The
+setting `POSEDESC_REJECT_ABOVE` replaces every model's threshold by a number (on the model's statistic,
+the distance without a calibration), or turns rejection off ("off"); confidences are then still the
+model's."""
 
 from __future__ import annotations
 
@@ -21,16 +30,58 @@ import json
 import logging
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import lru_cache
 
+from index.embed import Embedder
+from index.register import TemplateConfig
 from index.store import Match
+from service.settings import Settings
 
 log = logging.getLogger(__name__)
 
 REJECT_KEY = "reject_above"
 #: the score an answer's `distance` is: local features when re-ranked, else the descriptor distance
 SCORE_KINDS = ("local", "descriptor")
+#: what a calibration may threshold (see the module's docstring)
+STATISTICS = ("distance", "lead")
+#: answers the service ranks to compute a statistic that reads past the best one, whatever k was asked
+#: ("lead": the nearest other object's answer is nearly always among them; 40 is what the calibration's
+#: answers listed, `evaluation.openset.LISTED`)
+LISTED = 40
+
+
+def settings_of(settings: Settings, embedder: Embedder, score: str) -> dict[str, object]:
+    """The settings a `score` kind's answers of this model depend on (`Calibration.settings`): the
+    templates (level, in-plane step and extent, as `index.register.TemplateConfig` makes them for the
+    model), the query's turns, and with "local" the re-ranking's settings; the mask's and the relief's
+    weights only where the model has a mask and depth."""
+    cfg = TemplateConfig(settings.level, settings.inplane_step, settings.inplane_max)
+    step = embedder.info.inplane_step
+    angles = [float(a) for a in cfg.inplane(step)]
+    out: dict[str, object] = {
+        "level": settings.level,
+        "inplane_step": cfg.inplane_spacing(step),
+        "inplane_extent": max(abs(a) for a in angles) if len(angles) > 1 else 0.0,
+        "query_turns": settings.query_turns,
+    }
+    if score == "local":
+        out |= {
+            "rerank": settings.rerank,
+            "roll_sweep": settings.roll_sweep,
+            "roll_refine": settings.roll_refine,
+            "refine_rounds": settings.refine_rounds,
+        }
+        if embedder.has_mask:
+            out["mask_coverage"] = settings.mask_coverage
+        if embedder.modality != "rgb":
+            out["relief_weight"] = settings.relief_weight
+    return out
+
+
+def served_score(settings: Settings, embedder: Embedder) -> str:
+    """The kind of distance the service answers this model's queries with."""
+    return "local" if embedder.has_local and settings.rerank > 0 else "descriptor"
 
 
 @dataclass(frozen=True)
@@ -42,18 +93,42 @@ class Calibration:
     slope: float
     midpoint: float
     frames: str = "val"
+    statistic: str = "distance"
+    weight: float = 0.0
+    settings: Mapping[str, object] | None = field(default=None, hash=False, compare=False)
 
-    def confidence(self, score: float) -> float:
-        """Chance that an answer with this score is the right object (validation frames, logistic)."""
-        z = self.slope * (score - self.midpoint)
+    def values(self, matches: Sequence[Match]) -> list[float]:
+        """Each answer's statistic. "lead": its distance less `weight` times its lead over the nearest
+        answer of another object among `matches` (the last one's distance when none is listed: a lead at
+        least that large)."""
+        if self.statistic == "distance" or not matches:
+            return [m.distance for m in matches]
+        out = []
+        for m in matches:
+            others = [o.distance for o in matches if o.object_id != m.object_id]
+            nearest = others[0] if others else matches[-1].distance
+            out.append(m.distance - self.weight * max(0.0, nearest - m.distance))
+        return out
+
+    def confidence(self, value: float) -> float:
+        """Chance that an answer with this statistic is the right object (validation frames, logistic)."""
+        z = self.slope * (value - self.midpoint)
         return 1.0 / (1.0 + math.exp(min(z, 700.0)))  # exp overflows past ~709
+
+    def describe(self) -> str:
+        if self.statistic == "distance":
+            return f"{self.score} distance"
+        return f"{self.score} distance less {self.weight:g} x its lead over the nearest other object"
 
     def to_json(self) -> dict[str, object]:
         return {
+            "statistic": self.statistic,
+            "weight": self.weight,
             "threshold": self.threshold,
             "slope": self.slope,
             "midpoint": self.midpoint,
             "frames": self.frames,
+            **({} if self.settings is None else {"settings": dict(self.settings)}),
         }
 
 
@@ -69,20 +144,52 @@ def _parse(text: str, model: str) -> dict[str, Calibration]:
         return {}
     try:
         raw = json.loads(text)
-        return {
+        out = {
             kind: Calibration(
                 kind,
                 float(c["threshold"]),
                 float(c["slope"]),
                 float(c["midpoint"]),
                 str(c.get("frames", "val")),
+                str(c.get("statistic", "distance")),  # older calibrations threshold the distance
+                float(c.get("weight", 0.0)),
+                dict(c["settings"]) if c.get("settings") is not None else None,
             )
             for kind, c in raw.items()
             if kind in SCORE_KINDS
         }
+        if bad := sorted({c.statistic for c in out.values()} - set(STATISTICS)):
+            raise ValueError(f"unknown statistic {bad[0]!r}")
+        return out
     except (ValueError, TypeError, KeyError, AttributeError) as e:
         log.warning("%s: unusable %s metadata (%s): no rejection", model, REJECT_KEY, e)
         return {}
+
+
+def stale(settings: Settings, embedders: Mapping[str, Embedder]) -> dict[str, str]:
+    """Modality -> how the model's calibration of the score it is served with was made with other settings
+    than `settings` (its threshold and confidences were measured on other scores); models whose
+    calibration matches, or that have none, are not listed."""
+    out = {}
+    for modality, e in sorted(embedders.items()):
+        score = served_score(settings, e)
+        cal = read_calibrations(e.info.extra, e.path.name).get(score)
+        if cal is None:
+            continue
+        if cal.settings is None:
+            out[modality] = f"{e.path.name}: its {score} calibration does not say which settings made it"
+            continue
+        running = settings_of(settings, e, score)
+        differ = [
+            f"{k} {cal.settings.get(k)} (calibrated) != {v} (running)"
+            for k, v in running.items()
+            if cal.settings.get(k) != v
+        ]
+        if differ:
+            out[modality] = (
+                f"{e.path.name}: its {score} calibration was made with other settings: " + ", ".join(differ)
+            )
+    return out
 
 
 @dataclass(frozen=True)
@@ -100,9 +207,11 @@ def judge(
     calibration: Calibration | None,
     setting: float | str | None = None,
 ) -> Verdict:
-    """Whether the best of `matches` (nearest first, `distance` a `score` kind) is close enough.
-    `setting`: a threshold replacing the calibration's, "off" for no rejection, None for the model's."""
-    confidences = [None if calibration is None else calibration.confidence(m.distance) for m in matches]
+    """Whether the best of `matches` (nearest first, `distance` a `score` kind; `LISTED` of them when the
+    calibration's statistic reads past the best) is close enough. `setting`: a threshold replacing the
+    calibration's, "off" for no rejection, None for the model's."""
+    values = [m.distance for m in matches] if calibration is None else calibration.values(matches)
+    confidences = [None if calibration is None else calibration.confidence(v) for v in values]
     if not matches:
         return Verdict(confidences, "no object is registered")
     if setting == "off":
@@ -113,11 +222,11 @@ def judge(
         threshold, source = calibration.threshold, f"the model's calibration on {calibration.frames} frames"
     else:
         return Verdict(confidences, None)
-    best = matches[0].distance
-    if best <= threshold:
+    if values[0] <= threshold:
         return Verdict(confidences, None)
+    what = f"{score} distance" if calibration is None else calibration.describe()
     return Verdict(
         confidences,
-        f"no registered object is close enough: the nearest answer's {score} distance {best:.4g} is above "
+        f"no registered object is close enough: the nearest answer's {what} {values[0]:.4g} is above "
         f"{threshold:.4g} ({source})",
     )

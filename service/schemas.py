@@ -208,3 +208,8 @@ class Ready(BaseModel):
     objects: int
     templates: dict[str, int]
     detail: str | None = None
+    calibration: dict[str, str] = Field(
+        default_factory=dict,
+        description="modality -> how its model's open-set calibration (threshold, confidences) was made "
+        "with other settings than the running ones; empty when every one matches",
+    )

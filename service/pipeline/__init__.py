@@ -37,7 +37,7 @@ from collections.abc import Mapping
 from index.embed import Embedder
 from index.register import TemplateConfig
 from index.store import Snapshot
-from service.pipeline.answer import Result, answer, ranked_matches
+from service.pipeline.answer import Result, answer, judged, ranked_matches
 from service.pipeline.context import Context, Stage
 from service.pipeline.mask import Mask
 from service.pipeline.query import Cut, Decoded, Query
@@ -58,13 +58,13 @@ SUMS: Mapping[str, tuple[str, ...]] = {"patch": ("cut", "mask"), "rerank": ("loc
 class Pipeline:
     """One model's stages (`stages`), run in order on a query."""
 
-    def __init__(self, stages: tuple[Stage, ...], settings: Settings):
-        self.stages, self.settings = stages, settings
+    def __init__(self, stages: tuple[Stage, ...], settings: Settings, judged: int = 0):
+        self.stages, self.settings, self.judged = stages, settings, judged
 
     @classmethod
     def build(cls, settings: Settings, embedder: Embedder, templates: TemplateConfig) -> Pipeline:
         made = (stage.build(settings, embedder, templates) for stage in STAGES)
-        return cls(tuple(s for s in made if s is not None), settings)
+        return cls(tuple(s for s in made if s is not None), settings, judged(settings, embedder))
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -74,7 +74,7 @@ class Pipeline:
         """The k best distinct (object, viewpoint) answers to a decoded query, nearest first.
         `decode_s`: the seconds decoding took, reported as `decode` and counted in `total`."""
         t0 = time.perf_counter()
-        ctx, spent = Context(q, d, snapshot), {}
+        ctx, spent = Context(q, d, snapshot, wanted=max(q.k, self.judged)), {}
         for stage in self.stages:
             t = time.perf_counter()
             if (out := stage(ctx)) is not None:

@@ -15,11 +15,12 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from index.embed import Embedder
 from index.patches import surface_depth
 from index.store import Match, Snapshot
 from index.surface import offset_of
 from service.pipeline.context import Context
-from service.rejection import judge, read_calibrations
+from service.rejection import LISTED, judge, read_calibrations, served_score
 from service.settings import Settings
 
 
@@ -45,10 +46,10 @@ class Result:
 
 
 def ranked_matches(ctx: Context) -> list[Match]:
-    """The query's k answers: the search's matches, or once re-ranked those scored in the order of their
+    """The query's answers (`Context.wanted` of them: k, or what the verdict reads): the search's matches, or once re-ranked those scored in the order of their
     scores (two refined to one viewpoint: the better one stays), each at the pose it was scored at, then
     those without local features in the search's order."""
-    k, matches, r = ctx.query.k, list(ctx.matches), ctx.ranked
+    k, matches, r = ctx.wanted, list(ctx.matches), ctx.ranked
     if r is None:
         return matches[:k]
     order, seen = np.argsort(r.scores, kind="stable"), set()
@@ -68,11 +69,13 @@ def ranked_matches(ctx: Context) -> list[Match]:
 
 
 def answer(ctx: Context, matches: list[Match], timings_ms: dict[str, float], settings: Settings) -> Result:
-    """The response: `matches` (`ranked_matches`) with the verdict on them and their origins."""
+    """The response: the first k of `matches` (`ranked_matches`) with the verdict, read on all of them,
+    and their origins."""
     d, p = ctx.decoded, ctx.patches
     assert p is not None  # `Cut` ran
     calibration = read_calibrations(d.embedder.info.extra, d.embedder.path.name).get(ctx.score)
     verdict = judge(matches, ctx.score, calibration, settings.reject_above)
+    matches = matches[: ctx.query.k]
     measured = ctx.query.distance_mm is None and p.depth is not None
     depth0 = None if p.depth is None else p.depth[0]  # the surface as measured, not as masked
     origins = origin_distances(ctx.snapshot, matches, p.distance, depth0, d.embedder.info.window_mm, measured)
@@ -83,10 +86,19 @@ def answer(ctx: Context, matches: list[Match], timings_ms: dict[str, float], set
         p.ray,
         p.distance,
         ctx.score,
-        verdict.confidences,
+        verdict.confidences[: ctx.query.k],
         verdict.reason,
         origins,
     )
+
+
+def judged(settings: Settings, embedder: Embedder) -> int:
+    """How many answers the open-set verdict reads for this model at these settings: `LISTED` when its
+    calibration's statistic reads past the best answer (the lead over the nearest other object), else 0."""
+    calibration = read_calibrations(embedder.info.extra, embedder.path.name).get(
+        served_score(settings, embedder)
+    )
+    return LISTED if calibration is not None and calibration.statistic != "distance" else 0
 
 
 def origin_distances(

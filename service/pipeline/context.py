@@ -41,7 +41,8 @@ class Context:
     `matches`: the search's candidates; `ranked`: the local scores, once re-ranked; `scored`: every pose
     scored so far (the same template against the same cut of the query scores the same, so none is scored
     twice); `scorer`: the re-ranking's score of this query (holding the query's cuts, made once per
-    roll); `score`: what the answers' distances are ("local" once re-ranked)."""
+    roll); `score`: what the answers' distances are ("local" once re-ranked); `wanted`: how many answers
+    are ranked, k or more when the open-set verdict reads past the best (`service.rejection.LISTED`)."""
 
     query: Query
     decoded: Decoded
@@ -55,6 +56,7 @@ class Context:
     scored: Mapping[Pose, float] = field(default_factory=lambda: MappingProxyType({}))
     scorer: LocalScore | None = None
     score: str = "descriptor"
+    wanted: int = 0
 
 
 class Stage(Protocol):

@@ -46,7 +46,7 @@ class SearchConfig:
 
 
 class Search:
-    """The nearest distinct answers: k, or as many as the re-ranking takes."""
+    """The nearest distinct answers: as many as are wanted (`Context.wanted`), or as the re-ranking takes."""
 
     name = "search"
 
@@ -62,6 +62,6 @@ class Search:
         m = ctx.decoded.modality
         rerank = self.config.rerank if ctx.snapshot.models[m].local else 0
         found = ctx.snapshot.answers(
-            m, ctx.descriptors, max(ctx.query.k, rerank), ctx.patches.offsets, self.config.variants
+            m, ctx.descriptors, max(ctx.wanted, rerank), ctx.patches.offsets, self.config.variants
         )
         return replace(ctx, matches=tuple(found))

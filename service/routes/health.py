@@ -7,6 +7,7 @@ from fastapi.responses import JSONResponse
 from prometheus_client import CONTENT_TYPE_LATEST
 
 from service.deps import StateDep
+from service.rejection import stale
 from service.schemas import Health, Ready
 
 PROMETHEUS = {"content": {"text/plain": {"schema": {"type": "string"}}}, "description": "Prometheus text"}
@@ -36,6 +37,7 @@ def readyz(state: StateDep) -> Response:
         templates={m: mi.size for m, mi in snap.models.items()},
         detail=problem
         or (state.startup_error if ready else "making templates of demo objects or changed models"),
+        calibration=stale(state.settings, state.embedders),
     )
     return JSONResponse(body.model_dump(), status_code=200 if ready and not problem else 503)
 

@@ -95,7 +95,10 @@ def test_recognise_objects_in_a_real_depth_frame(client, frame, cut_distances, m
         assert r.status_code == 200, r.text
         body = r.json()
         assert body["model"] == f"posedesc-{modality}"
-        assert len(body["matches"]) == 5 and body["best"] == body["matches"][0]
+        assert len(body["matches"]) == 5
+        # the models are calibrated (rendered depth): the best answer, or none with the reason
+        assert body["best"] == (None if body["reason"] else body["matches"][0]), body
+        assert all(0.0 <= m["confidence"] <= 1.0 for m in body["matches"])
         assert {m["object_id"] for m in body["matches"]} <= set(client.ids)
         assert body["timings_ms"]["total"] > 0
         # each answer's pose: a rotation, the origin along the ray through (u, v), near the surface
@@ -111,7 +114,7 @@ def test_recognise_objects_in_a_real_depth_frame(client, frame, cut_distances, m
         true = float(np.linalg.norm(inst.t))
         assert cut_distances and len(set(cut_distances)) == 1
         assert abs(cut_distances[0] - true) < 0.10 * true, (inst.obj_id, cut_distances[0], true)
-        best = body["best"]
+        best = body["matches"][0]
         right = [m for m in body["matches"] if client.ids[m["object_id"]] == inst.obj_id]
         for m in right:  # the right object's answers put its origin nearer ‖t‖ than the surface is
             errors[modality].append((abs(np.linalg.norm(m["t"]) - true), abs(cut_distances[0] - true)))
@@ -119,7 +122,8 @@ def test_recognise_objects_in_a_real_depth_frame(client, frame, cut_distances, m
             f"{modality} obj {inst.obj_id}: best obj {client.ids[best['object_id']]} "
             f"az {best['azimuth']:.0f} el {best['elevation']:.0f} (true {inst.view.azimuth:.0f} "
             f"{inst.view.elevation:.0f}), cut at {cut_distances[0]:.0f} mm, origin at "
-            f"{np.linalg.norm(best['t']):.0f} (‖t‖ {true:.0f})"
+            f"{np.linalg.norm(best['t']):.0f} (‖t‖ {true:.0f}), confidence {best['confidence']:.2f}"
+            f"{'' if body['best'] else ', rejected'}"
         )
     answer_error, surface_error = np.median(errors[modality], axis=0)
     print(
@@ -127,6 +131,32 @@ def test_recognise_objects_in_a_real_depth_frame(client, frame, cut_distances, m
         f"(the surface's: {surface_error:.1f} mm)"
     )
     assert answer_error < surface_error
+
+
+@pytest.mark.parametrize("modality", ["depth", "rgbd"])
+def test_the_frames_unregistered_objects_are_answered_unknown_or_named(client, frame, modality):
+    """The frame's other objects (the heavily occluded ape among them) are not registered: what each gets is
+    printed (rejected, or the object it is taken for), not asserted: one frame is no accuracy figure."""
+    for inst in [i for i in frame["all"] if i.obj_id not in OBJECTS]:
+        (fx, _, cx), (_, fy, cy) = inst.K[:2]
+        u, v = inst.centre_uv
+        files = {"depth": ("000003.png", frame["depth"])}
+        if modality == "rgbd":
+            files["rgb"] = ("000003-rgb.png", frame["rgb"])
+        fields = {"fx": fx, "fy": fy, "cx": cx, "cy": cy, "u": u, "v": v, "k": 3}
+        r = client.post("/recognize", files=files, data={k: str(x) for k, x in fields.items()})
+        if r.status_code == 422:  # no depth measured at its centre: refused, with the reason
+            print(f"{modality} unregistered obj {inst.obj_id}: refused, {r.json()['detail']}")
+            continue
+        assert r.status_code == 200, r.text
+        body = r.json()
+        assert (body["best"] is None) == (body["reason"] is not None)
+        top = body["matches"][0]
+        said = "unknown" if body["best"] is None else f"named obj {client.ids[top['object_id']]}"
+        print(
+            f"{modality} unregistered obj {inst.obj_id} (visible {inst.visib_fract:.2f}): {said}, "
+            f"confidence {top['confidence']:.2f}; {body['reason']}"
+        )
 
 
 def png16(depth: np.ndarray) -> bytes:

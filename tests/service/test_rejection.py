@@ -4,10 +4,16 @@ the test does not depend on any model's calibration)."""
 
 from __future__ import annotations
 
-import httpx
-from service_helpers import Server, png, register
+import importlib.util
+import shutil
 
+import httpx
+from service_helpers import ROOT, Server, png, register
+
+from index.embed import Embedder
 from index.pose import View
+from service.rejection import Calibration, settings_of, stale
+from service.settings import Settings
 
 # A template view of the tests' level (2): the registered object's patch is one of its own templates.
 VIEW = View(azimuth=0.0, elevation=90.0, inplane=0.0, distance=400.0)
@@ -36,3 +42,39 @@ def test_unregistered_object_is_answered_unknown(tmp_path, posedesc_models, rend
             assert "no registered object is close enough" in unknown["reason"]
             assert "POSEDESC_REJECT_ABOVE" in unknown["reason"]
     assert server.stop() in (0, -9)
+
+
+def calibrated_models(folder, models, settings: dict[str, object]):
+    """A copy of the test models, the rgb one with a descriptor calibration made with `settings` (written as
+    `scripts/calibrate_reject.py` writes it)."""
+    spec = importlib.util.spec_from_file_location(
+        "calibrate_reject", ROOT / "scripts" / "calibrate_reject.py"
+    )
+    assert spec is not None and spec.loader is not None
+    script = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(script)
+    shutil.copytree(models, folder)
+    cal = Calibration("descriptor", 0.5, 10.0, 0.4, settings=settings)
+    model = folder / "posedesc-rgb.onnx"
+    script.write_metadata(model, model, {"descriptor": cal.to_json()})
+    return folder
+
+
+def test_calibration_settings_that_differ_from_the_running_ones_are_said(tmp_path, posedesc_models):
+    running = Settings(level=2)  # the test server's
+    rgb = Embedder(posedesc_models / "posedesc-rgb.onnx")
+    made = settings_of(running, rgb, "descriptor")
+    assert made == {"level": 2, "inplane_step": 0.0, "inplane_extent": 0.0, "query_turns": 1}
+    same = calibrated_models(tmp_path / "same", posedesc_models, made)
+    assert stale(running, {"rgb": Embedder(same / "posedesc-rgb.onnx")}) == {}
+    models = calibrated_models(tmp_path / "other", posedesc_models, {**made, "level": 3, "query_turns": 2})
+    with Server(tmp_path / "data", models) as server:
+        server.wait_ready()
+        ready = httpx.get(f"{server.url}/readyz", timeout=30).json()
+    server.stop()
+    said = "level 3 (calibrated) != 2 (running), query_turns 2 (calibrated) != 1 (running)"
+    assert (
+        list(ready["calibration"]) == ["rgb"] and said in ready["calibration"]["rgb"]
+    )  # the others have none
+    log = server.log.read_text()
+    assert said in log and "its rejection and confidences were measured on other scores" in log

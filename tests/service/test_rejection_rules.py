@@ -47,3 +47,34 @@ def test_metadata_round_trip_and_a_bad_one_is_ignored():
     assert read_calibrations({REJECT_KEY: "{not json"}) == {}
     assert read_calibrations({REJECT_KEY: json.dumps({"local": {"slope": 1}})}) == {}
     assert read_calibrations({}) == {}
+
+
+def test_an_older_calibration_thresholds_the_distance_and_records_no_settings():
+    old = {"local": {"threshold": 1.0, "slope": 10.0, "midpoint": 0.9, "frames": "val", "rerank": 200}}
+    cal = read_calibrations({REJECT_KEY: json.dumps(old)})["local"]
+    assert cal.statistic == "distance" and cal.weight == 0.0 and cal.settings is None
+    assert cal.values([match(0.7), match(0.8)]) == [0.7, 0.8]
+
+
+def other(distance: float, object_id: int = 2) -> Match:
+    return Match(object_id, "b", 0.0, 0.0, 0.0, distance)
+
+
+LEAD = Calibration("local", threshold=0.3, slope=10.0, midpoint=0.2, statistic="lead", weight=1.0)
+
+
+def test_lead_is_the_distance_less_the_lead_over_the_nearest_other_object():
+    values = LEAD.values([match(0.5), match(0.6), other(0.9)])
+    assert values == pytest.approx([0.5 - 0.4, 0.6 - 0.3, 0.9])  # the other object's lead is none
+    # one object listed: its lead is at least the last answer's distance
+    assert LEAD.values([match(0.5), match(0.7)]) == pytest.approx([0.3, 0.7])
+
+
+def test_lead_rejects_a_near_answer_that_another_object_answers_about_as_well():
+    assert judge([match(0.5), other(0.9)], "local", LEAD).reason is None  # 0.1: far ahead
+    reason = judge([match(0.5), other(0.55)], "local", LEAD).reason  # 0.45: a toss-up
+    assert reason is not None and "lead over the nearest other object 0.45 is above 0.3" in reason
+    meta = {REJECT_KEY: json.dumps({"local": LEAD.to_json()})}
+    assert read_calibrations(meta) == {"local": LEAD}
+    bad = {REJECT_KEY: json.dumps({"local": {**LEAD.to_json(), "statistic": "vibes"}})}
+    assert read_calibrations(bad) == {}

@@ -1,0 +1,68 @@
+"""scripts/calibrate_reject.py on hand-made answers: the statistics it thresholds are the service's, the
+filtered stand-in for left-out runs is compared with them, and the metadata it writes leaves the graph as
+it was."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from evaluation.openset import Answers, best_values
+from index.embed import Embedder
+from service.rejection import Calibration, read_calibrations
+
+
+def answers() -> Answers:
+    """Objects 1 and 3; run 0 both registered, run 1 without 3. Lists of 3 answers, -1 / nan past them."""
+    rows = [  # run, obj, listed ids, distances
+        (0, 1, [1, 1, 3], [0.1, 0.2, 0.5]),
+        (0, 3, [3, 3, 1], [0.1, 0.15, 0.3]),
+        (1, 1, [1, 1, -1], [0.1, 0.2, np.nan]),
+        (1, 3, [1, 1, 1], [0.3, 0.32, 0.4]),  # unregistered: another object, as near as it gets
+    ]
+    return Answers(
+        obj=[r[1] for r in rows],
+        registered=[r[0] == 0 or r[1] != 3 for r in rows],
+        run=[r[0] for r in rows],
+        frame=[7] * len(rows),
+        objects={"local": [r[2] for r in rows]},
+        distances={"local": [r[3] for r in rows]},
+        settings={"local": {"rerank": 400}},
+        data="real",
+    )
+
+
+LEAD = Calibration("local", 0.0, 0.0, 0.0, statistic="lead", weight=1.0)
+
+
+def test_the_best_answers_statistic_is_the_services(script):
+    a = answers()
+    ids, dist = a.lists("local")
+    assert best_values(ids, dist, LEAD) == pytest.approx([0.1 - 0.4, 0.1 - 0.2, 0.1 - 0.1, 0.3 - 0.1])
+    s, right, reg, obj = a.arrays("local", LEAD)
+    assert list(right) == [True, True, True, False] and list(reg) == [True, True, True, False]
+    # the stand-in for run 1 (object 3 filtered out of run 0's lists) answers the same object as the run
+    cmp = script("calibrate_reject").compare_filtered(a, "local", LEAD)
+    assert cmp["n"] == 2 and cmp["same_object"] == 1.0
+    # object 1's patch: [1, 1] left of [1, 1, 3], as the run listed it; object 3's: [1] left, lead 0 (one
+    # answer listed) where the run listed two more of object 1, lead 0.1: the stand-in is not exact here
+    assert cmp["statistic_difference"]["median_abs"] == pytest.approx(0.05)
+
+
+def test_statistics_are_parsed_per_score_kind(script):
+    parse = script("calibrate_reject").statistics
+    assert parse(["lead:2", "descriptor=distance"]) == {"": ("lead", 2.0), "descriptor": ("distance", 0.0)}
+    for bad in (["lead"], ["distance:1"], ["mystery=lead:1"], ["vibes"]):
+        with pytest.raises(ValueError):
+            parse(bad)
+
+
+def test_the_calibration_goes_into_the_metadata_only(script, posedesc_models, tmp_path):
+    import onnx
+
+    model, out = posedesc_models / "posedesc-rgb.onnx", tmp_path / "posedesc-rgb.onnx"
+    cal = Calibration("descriptor", 0.3, 9.0, 0.2, statistic="lead", weight=2.0, settings={"level": 3})
+    script("calibrate_reject").write_metadata(model, out, {"descriptor": cal.to_json()})
+    assert onnx.load(str(out)).graph.SerializeToString() == onnx.load(str(model)).graph.SerializeToString()
+    written = read_calibrations(Embedder(out).info.extra)["descriptor"]
+    assert written == cal and written.settings == {"level": 3}
