@@ -8,12 +8,12 @@ flattened: C channels on a G x G grid of cells. Two ways to compare a query with
   with weights: the share of each cell the object covers, in the template (its silhouette, stored beside
   its features at registration: `with_silhouettes`) and, for a model with a mask (`index.embed.MASK_NAME`:
   a head on the trunk, or an RGB-D model's depth), in the query. Clutter drops out of the score.
-  Measured on validation frames (README, Evaluation): within 20 deg 32 -> 44 %, right object 56 -> 76 %,
+  Measured on validation frames (docs/experiments.md): within 20 deg 32 -> 44 %, right object 56 -> 76 %,
   against `l2` on the same candidates.
 
 With depth, the shape too: `relief` is each cell's mean depth from the patch's distance, stored for every
 template after its silhouette (`with_relief`) and taken from an RGB-D query's depth inside its mask;
-`relief_distance` compares the two up to their offset. Measured on validation frames (README, Evaluation):
+`relief_distance` compares the two up to their offset. Measured on validation frames (docs/experiments.md):
 the RGB-D model within 20 deg 76.6 -> 91.4 %.
 """
 

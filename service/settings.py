@@ -61,19 +61,19 @@ class Settings(BaseSettings):
         "in-plane step (of the whole turn when upright only), and keep the best: finer roll, n embeddings",
     )  # fmt: skip
     # 400: chosen on the validation frames sent at five camera rolls (560 queries) among 200, 400, 600,
-    # 1000 (README, Evaluation: +2.9 points within 20 deg against 200; 600 and 1000 no better than 400)
+    # 1000 (docs/experiments.md: +2.9 points within 20 deg against 200; 600 and 1000 no better than 400)
     rerank: int = Field(
         400, ge=0, le=1000, description="with a model that has local features: re-rank this many nearest "
         "distinct answers by the local similarity of the query turned to each one's roll (0: off)",
     )  # fmt: skip
-    # 10: chosen on validation frames among 0, 5, 10, 20, 40 (README, Evaluation)
+    # 10: chosen on validation frames among 0, 5, 10, 20, 40 (docs/experiments.md)
     roll_refine: int = Field(
         10, ge=0, le=100, description="re-ranking: compare this many best answers also at the viewpoints "
         "around theirs and at their roll +- a third of the templates' in-plane step, and keep the pose that "
         "fits best (0: off)",
     )  # fmt: skip
-    # 150: chosen on the validation frames sent at five camera rolls among 0, 20, 60, 150, 400 (README,
-    # Evaluation: +4.5 points within 20 deg; 400 +4.6 at twice the work)
+    # 150: chosen on the validation frames sent at five camera rolls among 0, 20, 60, 150, 400 (docs/experiments.md:
+    # +4.5 points within 20 deg; 400 +4.6 at twice the work)
     roll_sweep: int = Field(
         150, ge=0, le=1000, description="re-ranking: compare this many best answers also at every other "
         "in-plane angle of the templates, and keep the roll that fits best (0: off)",
@@ -82,21 +82,21 @@ class Settings(BaseSettings):
         1, ge=1, le=4, description="re-ranking refinement: rounds, each from where the last left the answers "
         "with the roll's turn halved (a sixth of the in-plane step, a twelfth, ...)",
     )  # fmt: skip
-    # 0.3: chosen on validation frames among 0, 0.15, 0.3, 0.5, 0.6, 1 (README, Evaluation)
+    # 0.3: chosen on validation frames among 0, 0.15, 0.3, 0.5, 0.6, 1 (docs/experiments.md)
     mask_coverage: float = Field(
         0.3, ge=0, le=10, description="re-ranking with a query mask: add this times the share of the mask "
         "that a template's silhouette leaves uncovered (0: off)",
     )  # fmt: skip
     # 5 (residuals clipped at 20 mm, `relief_clip_mm`): chosen on the RGB-D validation
     # frames sent at five camera rolls among 1, 3, 6, 10 unclipped, 3, 5, 8 clipped at 10 mm, 8, 12 at 6 mm
-    # (README, Evaluation: +14.8 points within 20 deg; 8 at 10 mm tied, the wider clip kept for real depth)
+    # (docs/experiments.md: +14.8 points within 20 deg; 8 at 10 mm tied, the wider clip kept for real depth)
     relief_weight: float = Field(
         5.0, ge=0, le=100, description="re-ranking with depth: add this times the distance between the "
         "query's relief and a template's (rms of their cells' depth difference, in windows; 0: off)",
     )  # fmt: skip
-    # 20: chosen with the weight on validation frames (README, Evaluation; 10 mm tied), kept wide for real
+    # 20: chosen with the weight on validation frames (docs/experiments.md; 10 mm tied), kept wide for real
     # depth: a real Kinect frame differs from its render by a median absolute 4.2 mm on object pixels
-    # (README, Data)
+    # (docs/templates.md)
     relief_clip_mm: float = Field(
         20.0, gt=0, le=1000, description="re-ranking with depth: a cell's residual depth counts up to this "
         "in the relief distance (mm), so an occluder's cell or a depth hole costs at most that",
@@ -113,7 +113,7 @@ class Settings(BaseSettings):
         3, ge=1, le=24, description="re-ranking refinement: an answer's roll is also tried turned by the "
         "templates' in-plane step divided by this, either way (halved again each further round)",
     )  # fmt: skip
-    # A choice, not a measurement (README, Poses): a patch has no camera, its answers are in the patch camera
+    # A choice, not a measurement (docs/conventions.md): a patch has no camera, its answers are in the patch camera
     # on the optical axis, and a colour patch's object and rotation do not depend on this (the network reads
     # no distance from colour; the patch camera spans the window at any distance): only the answers' t does.
     # A depth patch without depth at its centre is also read against it (`index.patches.batch_inputs`)
@@ -130,7 +130,7 @@ class Settings(BaseSettings):
     index_kind: Literal["auto", "flat", "ivf"] = Field(
         "auto", description="auto = exact below `ivf_min_templates`, IVF from there; flat = always exact; ivf"
     )
-    # 50,000: measured at 100 objects (README, Store and Benchmarks): the search stage over 357,648 32-d
+    # 50,000: measured at 100 objects (docs/experiments.md): the search stage over 357,648 32-d
     # templates 5.28 ms exact, 1.72 ms IVF (256 lists, 16 probed), the same accuracy on the validation
     # frames. The threshold itself is a choice, not a measurement: the exact search's cost grows with the
     # templates, so a seventh of those is a few tenths of a ms to win

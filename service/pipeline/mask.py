@@ -36,7 +36,7 @@ def foreground(d: Decoded, p: Patches) -> tuple[Patches, np.ndarray]:
     """The query's patches with what the model's mask (`index.embed.MASK_NAME`) says is not the centred
     object black (colour) and empty (depth), as a template's background is, and that mask (N, S, S)
     bool. The descriptor and the local features then see the object, not what stands around it:
-    measured on validation frames (README, Evaluation), the rgb network within 20 deg 44 -> 50 % with its
+    measured on validation frames (docs/experiments.md), the rgb network within 20 deg 44 -> 50 % with its
     mask head against the same network re-ranked over template silhouettes only. The mask reads the depth
     as measured: a pixel without depth is not known to lie in an RGB-D model's band, so it is not the
     object's (filling first flooded a patch cut out on an empty background with the object's depth, and

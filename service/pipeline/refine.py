@@ -6,8 +6,7 @@ pose that fits best.
 Templates sit about 8 deg apart on the sphere (level 3; "around": within 1.5 times that) and 30 deg apart
 in-plane (the shipped model), so an answer's pose is off by up to half of those; the local features of
 every upright template are in memory already (`index.store.Snapshot`), so the other viewpoints cost a
-comparison each, and a turned roll one more cut of the query. Measured on validation frames (README,
-Evaluation)."""
+comparison each, and a turned roll one more cut of the query. Measured on validation frames (docs/experiments.md)."""
 
 from __future__ import annotations
 

@@ -36,7 +36,7 @@ class Rerank:
     """The candidates re-ranked by local similarity: the query is cut once per roll the candidates give
     (turned upright for each), and each candidate's upright template compared with it (`LocalScore`).
     A candidate whose viewpoint has no local features keeps its place after those that have (the
-    answers' assembly, `service.pipeline.answer`). Measured on validation frames (README, Evaluation)."""
+    answers' assembly, `service.pipeline.answer`). Measured on validation frames (docs/experiments.md)."""
 
     name = "local"
 

@@ -1,7 +1,7 @@
 """The roll sweep: the best re-ranked candidates compared also at every other in-plane angle of the
 templates, each keeping the roll that scores best. The descriptor gives each viewpoint one roll, its
 nearest variant's, and for an occluded object that roll is often wrong where the viewpoint is right
-(README, Evaluation)."""
+(docs/experiments.md)."""
 
 from __future__ import annotations
 
