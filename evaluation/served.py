@@ -12,7 +12,7 @@ ground truth (`evaluation.masks.rendered_depth`, 16-bit PNG in mm), unless synth
 
 Each of the k = 22 distinct answers gives a pose: view_to_pose(View(azimuth, elevation, in-plane)) along
 the ray through (u, v). It is scored by the 3-D rotation error against the annotated R (symmetry-aware,
-in-plane included) and by the viewing-direction error (`index.symmetry`); a wrong object counts 180°.
+in-plane included) and by the viewing-direction error (`index.pose_error`); a wrong object counts 180°.
 
 HOG and LineMOD see what the service sees: the patch the service's own `cut` makes (the unturned query)
 and the very template views it registered for the model (in-plane variants included), rendered again;
@@ -50,9 +50,10 @@ from evaluation.templates import render_template_set, service_symmetry
 from index.bop import BopDataset, Instance
 from index.embed import Embedder
 from index.pose import View, view_to_pose
+from index.pose_error import rotation_errors, view_errors
 from index.register import register, template_views
 from index.render import Renderer
-from index.symmetry import Symmetry, rotation_errors, view_errors
+from index.symmetry import Symmetry
 from service.errors import ApiError
 from service.recognition import Query, cut, decode, recognise
 from service.settings import Settings
