@@ -62,7 +62,7 @@ def rank(
     for obj in np.unique(t.obj_ids):
         idx = t.of(int(obj))
         rendered = {t.window_mm: t.object_templates(int(obj))}
-        t_desc[idx] = embed_templates(embedder, rendered, local=False).descriptors
+        t_desc[idx] = embed_templates(embedder, rendered, local_features=False).descriptors
         if progress:
             progress(len(idx))
     s_desc = embed(embedder, s.rgb, s.depth, s.distances, True)
