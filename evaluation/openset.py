@@ -5,7 +5,7 @@ Every object is registered once by the service's own registration (`evaluation.s
 in a temporary folder; each registered set of a run is a copy of that store with the other objects removed
 by the store's own removal (what `DELETE /objects/{id}` does), so "not registered" is exactly what a user
 who never registered the object gets. Every instance of the frames is then sent to `recognise` as a user
-sends it (`evaluation.served.query`), with re-ranking on (the local-feature distance, when the model has
+sends it (`evaluation.queries.query`), with re-ranking on (the local-feature distance, when the model has
 local features) and off (the descriptor distance)."""
 
 from __future__ import annotations
@@ -18,9 +18,10 @@ from pathlib import Path
 
 import numpy as np
 
-from evaluation.run import bar
+from evaluation.progress import bar
+from evaluation.queries import frame_files, query
 from evaluation.samples import REAL, SYNTHETIC, needs_synthetic, select_instances
-from evaluation.served import _frames, _register, query
+from evaluation.served import register_objects
 from index.bop import BopDataset
 from index.embed import Embedder
 from service.errors import ApiError
@@ -83,13 +84,13 @@ def collect(
         kinds = score_kinds(embedder)
         state = load_state(settings, {embedder.modality: embedder})
         try:
-            _, dataset_ids = _register(state, dataset, obj_ids)
+            _, dataset_ids = register_objects(state, dataset, obj_ids)
         finally:
             close_state(state)
         store_id = {o: s for s, o in dataset_ids.items()}
         synthetic = needs_synthetic(embedder.modality, instances)
         kind = SYNTHETIC if synthetic else REAL  # as before rendered depth came: scenes, or the frames
-        sent = list(_frames(dataset, instances, embedder.modality, kind, seed))
+        sent = list(frame_files(dataset, instances, embedder.modality, kind, seed))
         out = Answers(answered={k: [] for k in kinds}, scores={k: [] for k in kinds})
         with bar(len(registered_sets) * len(instances), "recognise (open set)") as b:
             for run, subset in enumerate(registered_sets):

@@ -11,7 +11,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from evaluation.run import Evaluation  # noqa: E402
+from evaluation.results import Evaluation  # noqa: E402
 from index.pose_error import within  # noqa: E402
 from index.sheet import depth_to_colour  # noqa: E402
 
