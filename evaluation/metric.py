@@ -1,8 +1,8 @@
 """The paper's metric: for k = 1…22, the fraction of test patches whose best pose among the k nearest
-answers is within 5°, 20°, 40° of the truth (strictly below, as BOP: `index.symmetry.within`); a wrong
+answers is within 5°, 20°, 40° of the truth (strictly below, as BOP: `index.pose_error.within`); a wrong
 object counts as 180°, so the 180° column is the recognition rate (the right object is among the k).
 
-Pose errors are `index.symmetry`'s, symmetry-aware, vectorised over answers:
+Pose errors are `index.pose_error`'s, symmetry-aware, vectorised over answers:
 - `--protocol paper`: the angle between viewing directions (`view_errors`);
 - `--protocol full` and `service`: the 3-D rotation angle (`rotation_errors`), in-plane included (the
   service protocol reports the viewing-direction error beside it).
@@ -16,7 +16,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from index.pose import View, view_to_pose
-from index.symmetry import Symmetry, rotation_errors, view_errors, within
+from index.pose_error import rotation_errors, view_errors, within
+from index.symmetry import Symmetry
 
 THRESHOLDS = (5, 20, 40, 180)  # degrees; 180 = the right object, whatever the pose
 K_MAX = 22

@@ -7,7 +7,7 @@ by the store's own removal (what `DELETE /objects/{id}` does), so "not registere
 who never registered the object gets: the re-ranking's candidates, its roll sweep and its refinement all
 run without the object, which filtering one collection's answers afterwards would not reproduce (measured:
 `scripts/calibrate_reject.py --compare-filtered`). Every instance of the frames is then sent to `recognise`
-as a user sends it (`evaluation.served.query`) with the service's settings, with re-ranking on (the
+as a user sends it (`evaluation.queries.query`) with the service's settings, with re-ranking on (the
 local-feature distance, when the model has local features) and off (the descriptor distance). A dataset
 without depth (LM-O) is sent with its real colour and depth rendered from the ground truth, as `posedesc
 evaluate --protocol service` sends it (`evaluation.samples.served_data`)."""
@@ -24,9 +24,10 @@ from pathlib import Path
 
 import numpy as np
 
-from evaluation.run import bar
+from evaluation.progress import bar
+from evaluation.queries import frame_files, query
 from evaluation.samples import RENDERED, select_instances, served_data
-from evaluation.served import _frames, _register, query
+from evaluation.served import register_objects
 from index.bop import BopDataset
 from index.embed import Embedder
 from index.render import Renderer
@@ -137,7 +138,7 @@ def collect(
         kinds = score_kinds(embedder)
         state = load_state(settings, {embedder.modality: embedder})
         try:
-            meshes, dataset_ids = _register(state, dataset, obj_ids)
+            meshes, dataset_ids = register_objects(state, dataset, obj_ids)
             made = {k: settings_of(settings, embedder, k) for k in kinds}
         finally:
             close_state(state)
@@ -145,7 +146,9 @@ def collect(
         kind = served_data(embedder.modality, instances, None)
         renderer = Renderer() if kind in RENDERED else None  # this thread's (EGL: a context a thread)
         with closing(renderer) if renderer else nullcontext():
-            sent = list(_frames(dataset, instances, embedder.modality, kind, seed, renderer, dict(meshes)))
+            sent = list(
+                frame_files(dataset, instances, embedder.modality, kind, seed, renderer, dict(meshes))
+            )
         out = Answers(
             objects={k: [] for k in kinds}, distances={k: [] for k in kinds}, settings=made, data=kind
         )

@@ -3,7 +3,8 @@
   `answers` turns its distinct answers into arrays;
 - the paper and full protocols: `rank` embeds the templates with the service's own
   `index.register.embed_templates` and the test patches with the same embedder (sensor holes filled), and
-  finds the exact nearest templates in Euclidean distance."""
+  finds the exact nearest templates in Euclidean distance: the paper's nearest neighbour by descriptor,
+  so the templates' local features (the service's re-ranking) are not made."""
 
 from __future__ import annotations
 
@@ -60,7 +61,8 @@ def rank(
     t_desc = np.zeros((len(t), embedder.dim), np.float32)
     for obj in np.unique(t.obj_ids):
         idx = t.of(int(obj))
-        t_desc[idx] = embed_templates(embedder, {t.window_mm: t.object_templates(int(obj))}).descriptors
+        rendered = {t.window_mm: t.object_templates(int(obj))}
+        t_desc[idx] = embed_templates(embedder, rendered, local_features=False).descriptors
         if progress:
             progress(len(idx))
     s_desc = embed(embedder, s.rgb, s.depth, s.distances, True)

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from evaluation import pictures
-from evaluation.run import Evaluation
+from evaluation.results import Evaluation
 
 NAMES = {"ours": "ours", "hog": "HOG", "linemod": "LineMOD"}
 
@@ -38,6 +38,31 @@ def table(summary: dict, ks: tuple[int, ...] = (1, 22), key: str = "methods") ->
             cells = " | ".join(_pct(row[t]) for t in ("5", "20", "40", "180"))
             lines.append(f"| {NAMES.get(name, name)} | {k} | {cells} |")
     return "\n".join(lines)
+
+
+def rejected_text(summary: dict) -> str:
+    """How many queries the service answered "no known object", per method that has an open set."""
+    n = summary["n_samples"]
+    return "; ".join(
+        f"{NAMES.get(name, name)}: {r['n']} of {n} queries rejected ({_pct(r['share'])} %), "
+        f"{r['right_object_first']} of them with the right object first"
+        for name, r in summary.get("rejected", {}).items()
+    )
+
+
+def tables_text(summary: dict) -> str:
+    """The tables as `posedesc evaluate` prints them: the protocol's error, the viewing-direction error
+    where there is one, and, with the open set (the service protocol), the same answers as ranked."""
+    parts = [table(summary)]
+    if "view_direction" in summary:
+        parts += ["viewing-direction error:", table(summary, key="view_direction")]
+    if "open_set_off" in summary:
+        off = summary["open_set_off"]
+        parts += ["open set off (rejected answers scored as ranked):", table(off)]
+        if "view_direction" in off:
+            parts += ["open set off, viewing-direction error:", table(off, key="view_direction")]
+        parts.append(f"open set on: {rejected_text(summary)}, counted as misses above")
+    return "\n".join(parts)
 
 
 def per_object_table(summary: dict, k: int = 1) -> str:
@@ -129,6 +154,19 @@ def write_report(ev: Evaluation, folder: Path, command: str, model_3d: Path | No
                 "",
             ]
             if "view_direction" in summary
+            else []
+        ),
+        *(
+            [
+                f"The open set was on: {rejected_text(summary)}; each counts as a miss above. The same "
+                "answers as ranked, with nothing rejected (3-D rotation error, then viewing direction):",
+                "",
+                table(summary["open_set_off"]),
+                "",
+                table(summary["open_set_off"], key="view_direction"),
+                "",
+            ]
+            if "open_set_off" in summary
             else []
         ),
         "Per object, k = 1:",

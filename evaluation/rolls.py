@@ -75,7 +75,7 @@ def inside(inst: Instance, w: int, h: int) -> bool:
 
 @dataclass
 class RolledFrames:
-    """`frames` (as `evaluation.served._frames` yields them: instances, rgb file, depth file, depth
+    """`frames` (as `evaluation.queries.frame_files` yields them: instances, rgb file, depth file, depth
     scale) again at every roll of `rolls`; roll 0 sends the frame's own files and instances unchanged.
     A frame is decoded once, and only when a roll other than 0 needs it; the rolled files are PNG
     (lossless: only the warp changes the pixels)."""

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 import trimesh
@@ -19,6 +20,9 @@ from index.bop import BopDataset, Instance, instance_patch, table_depth
 from index.patches import PatchSpec
 from index.pose import View
 from index.render import Renderer
+
+if TYPE_CHECKING:
+    from evaluation.config import Config
 
 
 @dataclass
@@ -57,6 +61,17 @@ def select_instances(
     ]
 
 
+def instances_of(cfg: Config, dataset: BopDataset, obj_ids: Sequence[int]) -> list[Instance]:
+    """The instances `cfg` asks for (`select_instances`); none is an error."""
+    instances = select_instances(dataset, cfg.scene, cfg.min_visib, cfg.frames, obj_ids)
+    if not instances:
+        raise ValueError(
+            f"{cfg.dataset}: no instance of scene {cfg.scene} with visible fraction ≥ {cfg.min_visib} "
+            "in the frames and objects asked for"
+        )
+    return instances
+
+
 def needs_synthetic(modality: str, instances: Sequence[Instance]) -> bool:
     """True when some instance lacks an image the modality needs."""
     need_depth = modality in ("depth", "rgbd")
@@ -69,6 +84,11 @@ def needs_synthetic(modality: str, instances: Sequence[Instance]) -> bool:
 #: (`rendered_depth_frames`; "rendered depth" when no colour is used)
 REAL, SYNTHETIC = "real", "synthetic"
 REAL_COLOUR_RENDERED_DEPTH, RENDERED_DEPTH = "real colour, rendered depth", "rendered depth"
+#: what a report says of synthetic test frames
+SYNTHETIC_NOTE = (
+    "test frames are synthetic: the annotated objects rendered at their annotated poses with the frame's "
+    "camera, on random backgrounds, through the sensor model (in-distribution for our model only)"
+)
 RENDERED = (REAL_COLOUR_RENDERED_DEPTH, RENDERED_DEPTH)
 
 

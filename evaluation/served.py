@@ -3,16 +3,19 @@
 Every object of the dataset (or of `--objects`) is registered by the service's own registration
 (`index.register.register` into a real store in a temporary folder, with the service's settings:
 `POSEDESC_*` variables, overridden by the command's options). Every test instance is then sent to
-`service.recognition.recognise`, the function `POST /recognize` runs, as a user sends it: the frame as
-image bytes (the dataset's own PNG/JPEG file; a synthetic frame encoded as PNG), the camera's fx, fy, cx,
-cy, the centre (u, v) where the object's origin projects, and for colour the distance to the origin
-along that ray (‖t‖); with depth, the frame's depth image and no distance (the service measures it).
+`service.recognition.recognise`, the function `POST /recognize` runs, as a user sends it
+(`evaluation.queries`): the frame as image bytes, the camera, the centre (u, v) where the object's origin
+projects, and for colour the distance to the origin along that ray (‖t‖); with depth, the frame's depth
+image and no distance (the service measures it).
 A dataset with colour but no depth (LM-O) sends its real colour with depth rendered from the frame's
 ground truth (`evaluation.masks.rendered_depth`, 16-bit PNG in mm), unless synthetic scenes are asked for.
 
 Each of the k = 22 distinct answers gives a pose: view_to_pose(View(azimuth, elevation, in-plane)) along
 the ray through (u, v). It is scored by the 3-D rotation error against the annotated R (symmetry-aware,
-in-plane included) and by the viewing-direction error (`index.symmetry`); a wrong object counts 180°.
+in-plane included) and by the viewing-direction error (`index.pose_error`); a wrong object counts 180°.
+The open set is on, as for a user: a query the service answers "no known object" (best: null, the
+rejection of `service.rejection`) is a miss at every k (`evaluation.results.open_set`); the figures as
+ranked, with nothing rejected, are kept beside them ("open_set_off" in the JSON).
 
 HOG and LineMOD see what the service sees: the patch the service's own `cut` makes (the unturned query)
 and the very template views it registered for the model (in-plane variants included), rendered again;
@@ -22,7 +25,7 @@ from __future__ import annotations
 
 import tempfile
 import time
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from contextlib import closing, nullcontext
 from pathlib import Path
 from typing import TypedDict
@@ -32,35 +35,30 @@ import numpy as np
 import trimesh
 
 from evaluation import ours
+from evaluation.config import Config
 from evaluation.masks import black_outside, visible_masks
+from evaluation.methods import rank
 from evaluation.metric import K_MAX, WRONG_OBJECT
 from evaluation.neighbours import distinct_rows
+from evaluation.progress import bar
+from evaluation.queries import frame_files, png, query
+from evaluation.results import Evaluation, MethodResult, open_set
 from evaluation.rolls import RolledFrames
-from evaluation.run import SYNTHETIC_NOTE, Config, Evaluation, MethodResult, bar, instances_of, rank
-from evaluation.samples import (
-    RENDERED,
-    SYNTHETIC,
-    Samples,
-    by_frame,
-    rendered_depth_frames,
-    served_data,
-    synthetic_frames,
-)
+from evaluation.samples import RENDERED, SYNTHETIC, SYNTHETIC_NOTE, Samples, instances_of, served_data
 from evaluation.templates import render_template_set, service_symmetry
 from index.bop import BopDataset, Instance
 from index.embed import Embedder
 from index.pose import View, view_to_pose
+from index.pose_error import rotation_errors, view_errors
 from index.register import register, template_views
 from index.render import Renderer
-from index.symmetry import Symmetry, rotation_errors, view_errors
+from index.symmetry import Symmetry
 from service.errors import ApiError
 from service.pipeline.query import Query, cut, decode
 from service.recognition import recognise
+from service.rejection import read_calibrations
 from service.settings import Settings
 from service.state import AppState, close_state, load_state
-
-#: what a user may send as an image file; anything else is encoded as PNG first
-SENDABLE = (".png", ".jpg", ".jpeg")
 
 
 def rendered_note(kind: str) -> str:
@@ -101,7 +99,7 @@ def evaluate_served(cfg: Config) -> Evaluation:
         state = load_state(settings, {cfg.modality: embedder})
         try:
             t0 = time.perf_counter()
-            meshes, dataset_ids = _register(state, dataset, obj_ids)
+            meshes, dataset_ids = register_objects(state, dataset, obj_ids)
             seconds["register"] = time.perf_counter() - t0
             t0 = time.perf_counter()
             depth_errors: list[tuple[float, float]] = []
@@ -136,6 +134,9 @@ def evaluate_served(cfg: Config) -> Evaluation:
             "templates_per_viewpoint": variants,
             "query_turns": settings.query_turns,
             "level": settings.level,
+            # None: each score kind's threshold from the model's metadata (`calibrations`)
+            "reject_above": settings.reject_above,
+            "calibrations": sorted(read_calibrations(embedder.info.extra, cfg.model.name)),
         },
         **({"rolls": list(cfg.rolls), "rolls_dropped": dropped} if cfg.rolls else {}),
         "timing_ms": {
@@ -146,10 +147,13 @@ def evaluate_served(cfg: Config) -> Evaluation:
     }
     if depth_errors:  # measured from depth: where the answers put the origin, against ‖t‖
         ev.extra["origin_distance_mm"] = origin_errors(np.array(depth_errors))
-    obj, views = answers
+    obj, views, rejected = answers
     rot, view, same = score(obj, views, instances, symmetries)
-    ev.results["ours"] = MethodResult(
-        rot, same, seconds["ours"], view_errors=view, call_ms=np.asarray(call_ms)
+    ranked = MethodResult(rot, same, seconds["ours"], view_errors=view, call_ms=np.asarray(call_ms))
+    ev.results["ours"] = open_set(ranked, rejected)
+    ev.notes.append(
+        f"open set on: {int(rejected.sum())} of {len(rejected)} queries answered 'no known object' (best: "
+        "null, service.rejection) count as misses at every k; open_set_off: the same answers as ranked"
     )
 
     baselines = [m for m in cfg.methods if m != "ours"]
@@ -168,7 +172,7 @@ def evaluate_served(cfg: Config) -> Evaluation:
         t_views = np.array([(v.azimuth, v.elevation, v.inplane) for v in t.views]).reshape(-1, 3)
         for name in baselines:
             t0 = time.perf_counter()
-            r = rank(name, cfg, embedder, ev, min(len(t), K_MAX * variants))
+            r = rank(name, embedder, t, ev.samples, min(len(t), K_MAX * variants), cfg.linemod_threshold)
             ev.notes += r.notes
             idx, scores = distinct_rows(r.neighbours, r.scores, keys, K_MAX)
             obj = np.where(idx >= 0, t.obj_ids[np.maximum(idx, 0)], -1)
@@ -186,8 +190,11 @@ def evaluate_served(cfg: Config) -> Evaluation:
     return ev
 
 
-def _register(state: AppState, dataset: BopDataset, obj_ids: Sequence[int]):
-    """Every object through the service's registration; its meshes and the dataset id of each store id."""
+def register_objects(
+    state: AppState, dataset: BopDataset, obj_ids: Sequence[int]
+) -> tuple[dict[int, trimesh.Trimesh], dict[int, int]]:
+    """Every object of `obj_ids` (dataset ids) through the service's registration, as `POST /objects`
+    registers it, into `state`'s store: each object's mesh, and the dataset id of each store id."""
     meshes, dataset_ids = {}, {}
     with bar(len(obj_ids), "register", "object") as b:
         for o in obj_ids:
@@ -207,81 +214,6 @@ def _register(state: AppState, dataset: BopDataset, obj_ids: Sequence[int]):
     return meshes, dataset_ids
 
 
-def _frames(
-    dataset: BopDataset,
-    instances: Sequence[Instance],
-    modality: str,
-    kind: str,
-    seed: int,
-    renderer: Renderer | None = None,
-    meshes: dict[int, trimesh.Trimesh] | None = None,
-    max_faces: int = 200_000,
-) -> Iterator[tuple[list[Instance], bytes | None, bytes | None, float]]:
-    """Per frame: its instances, and the rgb and depth files a user would send, with the depth scale.
-    `kind`: `evaluation.samples.served_data`; the rendered-depth kinds need `renderer` (of this thread)
-    and `meshes` (dataset object id -> mesh; objects it lacks are added, with at most `max_faces`)."""
-    colour, ranged = modality in ("rgb", "rgbd"), modality in ("depth", "rgbd")
-    if kind == SYNTHETIC:
-        for group, rgb, depth in synthetic_frames(dataset, instances, seed):
-            yield group, _png(rgb[..., ::-1]) if colour else None, _png(_mm16(depth)) if ranged else None, 1.0
-        return
-    if kind in RENDERED:
-        if renderer is None or meshes is None:
-            raise ValueError(f"{kind} frames need a renderer and the meshes")
-        for group, depth in rendered_depth_frames(dataset, instances, renderer, meshes, max_faces, seed):
-            yield group, _rgb_file(group[0]) if colour else None, _png(_mm16(depth)), 1.0
-        return
-    for group in by_frame(instances).values():
-        first = group[0]
-        rgb_file = _rgb_file(first) if colour else None
-        depth_file = (_sendable(first.depth_path) or _png(_depth16(first))) if ranged else None
-        yield group, rgb_file, depth_file, first.depth_scale
-
-
-def _rgb_file(inst: Instance) -> bytes:
-    return _sendable(inst.rgb_path) or _png(inst.load_rgb()[..., ::-1])  # type: ignore[index]
-
-
-def _sendable(path: Path | None) -> bytes | None:
-    """The file itself when it is what a user may send (PNG, JPEG)."""
-    return path.read_bytes() if path is not None and path.suffix.lower() in SENDABLE else None
-
-
-def _depth16(inst: Instance) -> np.ndarray:
-    """The instance's depth file as 16-bit in its own unit (sent with its depth_scale)."""
-    return _mm16(inst.load_depth() / inst.depth_scale)  # type: ignore[operator,arg-type]
-
-
-def _mm16(depth: np.ndarray) -> np.ndarray:
-    return np.clip(np.round(depth), 0, 65535).astype(np.uint16)
-
-
-def _png(image: np.ndarray) -> bytes:
-    ok, buf = cv2.imencode(".png", image)
-    if not ok:
-        raise ValueError("could not encode a frame as PNG")
-    return buf.tobytes()
-
-
-def query(inst: Instance, rgb: bytes | None, depth: bytes | None, depth_scale: float) -> Query:
-    """What a user sends about one instance: the frame, the camera, where the object's origin projects,
-    and, without depth, its distance along that ray (‖t‖)."""
-    K, (u, v) = inst.K, inst.centre_uv
-    return Query(
-        rgb=rgb,
-        depth=depth,
-        depth_scale=depth_scale,
-        fx=K[0, 0],
-        fy=K[1, 1],
-        cx=K[0, 2],
-        cy=K[1, 2],
-        u=u,
-        v=v,
-        distance_mm=float(np.linalg.norm(inst.t)) if depth is None else None,
-        k=K_MAX,
-    )
-
-
 def _ask(
     state,
     dataset,
@@ -293,7 +225,8 @@ def _ask(
     depth_errors: list[tuple[float, float]] | None = None,
 ):
     """Every instance through `recognise`; the unturned patches the service cut (for the baselines),
-    its answers, each call's milliseconds, and the reasons of the queries it refused. With
+    its answers (objects, views, and whether the service rejected the best one: "no known object"),
+    each call's milliseconds, and the reasons of the queries it refused. With
     `cfg.oracle_mask`, each instance's frame is sent black outside its true visible mask. `depth_errors`
     gets, for each query sent without a distance whose best answer is the right object, the errors (mm)
     of the distance it was cut at (the surface) and of where the answer puts the origin, against ‖t‖.
@@ -303,7 +236,7 @@ def _ask(
     # one renderer for the oracle masks and the rendered depth, on this thread (EGL: a context a thread)
     renderer = Renderer() if cfg.oracle_mask or kind in RENDERED else None
     cache = dict(meshes)  # the frames' other annotated objects join it; `meshes` stays the registered ones
-    frames = _frames(
+    frames = frame_files(
         dataset, instances, cfg.modality, kind, cfg.seed, renderer, cache, state.settings.max_faces
     )
     rolled = RolledFrames(frames, cfg.rolls or (0.0,))
@@ -314,13 +247,14 @@ def _ask(
     n = len(instances) * len(rolled.rolls)  # at most: a rolled centre may leave the frame
     obj = np.full((n, K_MAX), -1, int)
     answer_views = np.zeros((n, K_MAX, 3))
+    rejected = np.zeros(n, bool)  # answered "no known object" (best: null)
     with bar(n, "recognise") as b, closing(renderer) if renderer else nullcontext():
         for group, rgb, depth, scale, _ in rolled:
             sent = [rgb] * len(group)
             if cfg.oracle_mask and renderer is not None and rgb is not None:
                 frame: np.ndarray = cv2.imdecode(np.frombuffer(rgb, np.uint8), cv2.IMREAD_COLOR)  # type: ignore[assignment]  # a file the dataset holds
                 masks = visible_masks(renderer, group, meshes, frame.shape[1], frame.shape[0])
-                sent = [_png(black_outside(frame, m)) for m in masks]
+                sent = [png(black_outside(frame, m)) for m in masks]
             decoded, decoded_of = None, None
             for inst, rgb in zip(group, sent, strict=True):
                 if rgb is not decoded_of or decoded_of is None:  # once a frame, once a mask
@@ -335,6 +269,7 @@ def _ask(
                     result = recognise(state, q)
                     call_ms.append(1000 * (time.perf_counter() - t0))
                     obj[i], answer_views[i], _ = ours.answers(result.matches, dataset_ids, K_MAX)
+                    rejected[i] = result.reason is not None
                     if depth_errors is not None and q.distance_mm is None and obj[i, 0] == inst.obj_id:
                         true = float(np.linalg.norm(inst.t))
                         depth_errors.append((result.distance_mm - true, result.origins_mm[0] - true))
@@ -369,7 +304,7 @@ def _ask(
         source=kind,
         cut_mm=np.nan_to_num(np.array(cut_mm), nan=400.0),
     )
-    answers = (obj[: len(ordered)], answer_views[: len(ordered)])
+    answers = (obj[: len(ordered)], answer_views[: len(ordered)], rejected[: len(ordered)])
     return samples, answers, call_ms, refused, ordered, rolled.dropped
 
 

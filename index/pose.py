@@ -109,12 +109,6 @@ def opengl_camera_pose(R_m2c: np.ndarray, t_m2c: np.ndarray) -> np.ndarray:
     return pose
 
 
-def rotation_angle(R_a: np.ndarray, R_b: np.ndarray) -> float:
-    """Angle of the rotation R_a^T R_b, degrees (clipped before arccos)."""
-    cos = (np.trace(R_a.T @ R_b) - 1.0) / 2.0
-    return float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
-
-
 def wrap_degrees(angle: float | np.ndarray) -> float | np.ndarray:
     """Wraps angles to (-180, 180] (0 comes out as +0)."""
     return -((-np.asarray(angle, dtype=float) + 180.0) % 360.0 - 180.0) + 0.0

@@ -137,9 +137,17 @@ def render_templates(
 
 
 def embed_templates(
-    embedder: Embedder, rendered: Mapping[float, Templates], keep: Sequence[int] | None = None
+    embedder: Embedder,
+    rendered: Mapping[float, Templates],
+    keep: Sequence[int] | None = None,
+    *,
+    local_features: bool = True,
 ) -> TemplateSet:
-    """Descriptors of rendered templates (those at `keep`, default all) with one model."""
+    """Descriptors of rendered templates (those at `keep`, default all) with one model.
+    `local_features`: also the local features of a model that has them, with each template's silhouette
+    and relief from its depth (what the service's re-ranking compares); False: the descriptors alone
+    (what a ranking by descriptor distance needs: the paper's protocols, whose templates may carry no
+    depth)."""
     t = rendered[embedder.info.window_mm]
     idx = np.arange(len(t.views)) if keep is None else np.asarray(keep, int)
     rgb = t.rgb[idx] if embedder.modality in ("rgb", "rgbd") else None
@@ -148,7 +156,7 @@ def embed_templates(
     nominal = np.array([v.distance for v in views])
     desc = embedder.embed_patches(rgb, depth, nominal, fill=False)  # a render's zeros are background
     poses = np.array([(v.azimuth, v.elevation, v.inplane) for v in views], np.float32).reshape(-1, 3)
-    if not embedder.has_local:
+    if not (local_features and embedder.has_local):
         return TemplateSet(poses, desc)
     # local features of the upright templates only: the service turns the query to a candidate's roll
     up = np.flatnonzero(np.abs(poses[:, 2]) < 1e-3)

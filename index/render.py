@@ -128,15 +128,6 @@ class Renderer:
                 progress(len(idx))
         return Templates(list(views), rgb, depth, self.window_mm)
 
-    def render_view(
-        self, mesh: trimesh.Trimesh, view: View, lighting: Lighting | None = None
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """One full (uncropped, big x big) render at in-plane 0: for pictures and training data."""
-        self._check_thread()
-        lighting = lighting or self.lighting
-        scene = self._scene(mesh, lighting)
-        return self._render_one(scene, view, self._rig(scene, lighting))
-
     def render_frame(
         self,
         meshes: Sequence[tuple[trimesh.Trimesh, np.ndarray, np.ndarray]],

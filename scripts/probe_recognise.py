@@ -9,7 +9,7 @@ The dataset's objects are registered through the service's registration (`evalua
 model's in-plane templates: `benchmarks.objects.inplane_template_sets`) are added to the same store, so
 the search runs over as many templates as a user's collection of that size. Each real instance of the
 frames (the model's `split_frames`: "val", "test"; or "all") is then sent to `service.recognition.
-recognise` as a user sends it (`evaluation.served.query`: the frame as its file, the camera, the centre and
+recognise` as a user sends it (`evaluation.queries.query`: the frame as its file, the camera, the centre and
 the distance), one at a time on one thread. Printed and written: the share within 5 / 20 / 40 deg (3-D),
 right object and viewing direction within 20 deg at k = 1 (as `posedesc evaluate --protocol service`),
 the median milliseconds of each stage the service reports, and each query's best answer and errors (so
@@ -46,12 +46,13 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from evaluation import ours  # noqa: E402
+from evaluation.config import Config  # noqa: E402
 from evaluation.masks import visible_masks  # noqa: E402
 from evaluation.metric import K_MAX  # noqa: E402
+from evaluation.queries import frame_files, query  # noqa: E402
 from evaluation.rolls import RolledFrames, parse_rolls, roll_instance  # noqa: E402
-from evaluation.run import Config, instances_of  # noqa: E402
-from evaluation.samples import RENDERED, by_frame, select_instances, served_data  # noqa: E402
-from evaluation.served import _frames, _register, query, score  # noqa: E402
+from evaluation.samples import RENDERED, by_frame, instances_of, select_instances, served_data  # noqa: E402
+from evaluation.served import register_objects, score  # noqa: E402
 from index.bop import BopDataset  # noqa: E402
 from index.embed import Embedder  # noqa: E402
 from index.render import Renderer  # noqa: E402
@@ -171,7 +172,7 @@ def probe(args: argparse.Namespace, overrides: dict, data_dir: Path) -> dict:
     if not ids_file.is_file():
         state = load_state(settings, {modality: embedder})
         try:
-            _, dataset_ids = _register(state, dataset, dataset.obj_ids)
+            _, dataset_ids = register_objects(state, dataset, dataset.obj_ids)
             if args.distractors:
                 from benchmarks.objects import inplane_template_sets
 
@@ -212,7 +213,8 @@ def probe(args: argparse.Namespace, overrides: dict, data_dir: Path) -> dict:
                 state, embedders={m: TrueMask(e, args.true_mask) for m, e in state.embedders.items()}
             )
         frames_sent = RolledFrames(
-            _frames(dataset, instances, modality, kind, 0, renderer, meshes, settings.max_faces), args.rolls
+            frame_files(dataset, instances, modality, kind, 0, renderer, meshes, settings.max_faces),
+            args.rolls,
         )
         for group, rgb, depth, scale, roll in frames_sent:
             if args.true_mask and renderer is not None and rgb is not None:

@@ -87,10 +87,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="service: what POST /recognize answers, called in process with the "
                    "frame, camera, centre and distance (colour) or depth, as a user sends them; templates "
                    "from the service's registration and settings; 3-D rotation error (in-plane included) "
-                   "and viewing-direction error of the top answers. paper: patch cut at the true centre "
-                   "and rectified by the true in-plane angle, viewing-direction error. full: true centre "
-                   "and distance, templates with in-plane variants over the whole turn, 3-D rotation "
-                   "error")  # fmt: skip
+                   "and viewing-direction error of the top answers, the open set on (a query answered 'no "
+                   "known object', by POSEDESC_REJECT_ABOVE or the model's calibration, is a miss; the "
+                   "figures with it off beside them). paper: patch cut at the true centre and rectified by "
+                   "the true in-plane angle, viewing-direction error. full: true centre and distance, "
+                   "templates with in-plane variants over the whole turn, 3-D rotation error")  # fmt: skip
     p.add_argument("--methods", default=",".join(METHODS), help="comma-separated: ours,hog,linemod")
     p.add_argument("--unseen", default="", help="ids of objects the model never saw (reported apart)")
     p.add_argument("--frames", default=None,
@@ -136,9 +137,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from pydantic import ValidationError
 
-    from evaluation.report import table, write_json, write_report
+    from evaluation.config import Config
+    from evaluation.report import tables_text, write_json, write_report
     from evaluation.rolls import parse_rolls
-    from evaluation.run import Config, evaluate
+    from evaluation.run import evaluate
     from index.embed import Embedder
 
     methods = tuple(m.strip() for m in args.methods.split(",") if m.strip())
@@ -198,10 +200,7 @@ def run(args: argparse.Namespace) -> int:
     command = "posedesc evaluate " + shlex.join(sys.argv[2:] if sys.argv[1:2] == ["evaluate"] else [])
     if args.report:
         write_report(ev, args.report, command.strip(), args.model_3d)
-    print(table(summary))
-    if "view_direction" in summary:
-        print("viewing-direction error:")
-        print(table(summary, key="view_direction"))
+    print(tables_text(summary))
     where = f"{args.json}" + (f" and {args.report}/report.md" if args.report else "")
     timing = summary.get("timing_ms")
     calls = f", recognise median {timing['recognise_median']} ms" if timing else ""

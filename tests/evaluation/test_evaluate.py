@@ -7,9 +7,10 @@ from pathlib import Path
 
 import numpy as np
 
+from evaluation.config import Config
 from evaluation.hog import HOG_DIM_PER_CHANNEL, hog_descriptors
 from evaluation.metric import THRESHOLDS
-from evaluation.run import Config, evaluate
+from evaluation.run import evaluate
 from posedesc.cli import main
 from tests.evaluation.conftest import N_FRAMES
 
@@ -159,8 +160,13 @@ def test_service_protocol_plumbing(tiny_bop, untrained_models, tmp_path):
         assert set(summary[key]) == {"ours", "hog", "linemod"}
         for table in summary[key].values():
             check_table(table)
+    for key in ("methods", "view_direction"):  # the open set is ours alone: the baselines reject nothing
+        assert set(summary["open_set_off"][key]) == {"ours"}
+        check_table(summary["open_set_off"][key]["ours"])
+    assert set(summary["rejected"]["ours"]) == {"n", "share", "right_object_first"}
+    per_keys = {"ours", "hog", "linemod", "view_direction", "open_set_off", "rejected", "n_samples"}
     for per in (*summary["per_object"].values(), summary["seen_objects"], summary["unseen_objects"]):
-        assert set(per) == {"ours", "hog", "linemod", "view_direction", "n_samples"}
+        assert set(per) == per_keys
     assert summary["unseen_objects"]["n_samples"] == 4
     assert "| ours | 1 |" in (tmp_path / "report" / "report.md").read_text()
 

@@ -6,7 +6,7 @@ import pytest
 
 from evaluation.metric import K_MAX, Poses, accuracy, neighbour_errors, pose_errors, same_object
 from index.pose import View, view_to_pose
-from index.symmetry import rotation_error, view_error
+from index.pose_error import rotation_error, view_error
 
 
 def errors_of(template_views, sample_view, symmetry, protocol):
@@ -39,7 +39,7 @@ def test_full_protocol_counts_in_plane():
     assert errors_of([View(130, 30, 0)], View(10, 30, 0), "full", "full")[0] == pytest.approx(0, abs=1e-5)
 
 
-def test_the_metric_is_index_symmetrys_one_pose_error():
+def test_the_metric_is_the_one_pose_error():
     rng = np.random.default_rng(0)
     views = [View(rng.uniform(0, 360), rng.uniform(0, 90), rng.uniform(-180, 180)) for _ in range(40)]
     gt = views[0]

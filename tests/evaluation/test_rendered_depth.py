@@ -83,8 +83,9 @@ def test_clean_render_without_the_sensor(lmo, renderer):
 def test_service_protocol_sends_rendered_depth(lmo, posedesc_models, tmp_path, modality, test_data):
     """An evaluation on two real frames: real colour (rgbd) with rendered depth, said in the JSON; the
     service measured the distance on that depth where the objects are (their surface, about ‖t‖)."""
+    from evaluation.config import Config
     from evaluation.report import write_json
-    from evaluation.run import Config, evaluate
+    from evaluation.run import evaluate
 
     model = posedesc_models / f"posedesc-{modality}.onnx"
     cfg = Config(lmo, model, modality, frames=FRAMES, objects=(5, 8), methods=("ours",))

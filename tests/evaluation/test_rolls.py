@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 from evaluation.masks import visible_masks
+from evaluation.queries import frame_files
 from evaluation.rolls import RolledFrames, homography, inside, parse_rolls, roll_image, roll_instance
-from evaluation.served import _frames
 from index.bop import BopDataset
 from posedesc.cli import main
 
@@ -46,7 +46,7 @@ def test_the_turned_frame_shows_the_turned_pose(tiny_bop, renderer, degrees):
 def test_roll_zero_is_the_frame_itself_and_centres_that_leave_are_dropped(tiny_bop):
     dataset = BopDataset(tiny_bop)
     instances = [i for i in dataset.instances(2) if i.frame_id < 2]
-    frames = list(_frames(dataset, instances, "rgb", "real", 0))
+    frames = list(frame_files(dataset, instances, "rgb", "real", 0))
     near_corner = replace(instances[0], t=np.linalg.inv(instances[0].K) @ np.array([630.0, 470.0, 1.0]) * 700)
     assert inside(near_corner, 640, 480) and not inside(roll_instance(near_corner, 90), 640, 480)
     frames.append(([near_corner], frames[0][1], None, 1.0))

@@ -8,9 +8,9 @@ from index.pose import (
     camera_centre,
     lookat_rotation,
     pose_to_view,
-    rotation_angle,
     view_to_pose,
 )
+from index.pose_error import rotation_error
 
 
 def project_dir(R: np.ndarray, v_obj) -> np.ndarray:
@@ -27,7 +27,7 @@ def test_view_pose_round_trip(az, el, ip):
     assert np.allclose(R @ R.T, np.eye(3)) and np.isclose(np.linalg.det(R), 1)
     back = pose_to_view(R, t)
     R2, t2 = view_to_pose(back)
-    assert rotation_angle(R, R2) < 1e-4 and np.allclose(t, t2)
+    assert rotation_error(R, R2) < 1e-4 and np.allclose(t, t2)
     assert back.distance == pytest.approx(650)
     if el < 90:  # at the pole azimuth folds into in-plane
         assert back.azimuth == pytest.approx(az % 360, abs=1e-6)
@@ -67,5 +67,5 @@ def test_pole_limit():
     # at the pole, azimuth 0: image up is the object's -x, and it is the limit of el -> 90
     R = lookat_rotation(0, 90)
     assert np.allclose(project_dir(R, [-1, 0, 0]), [0, -1], atol=1e-9)
-    assert rotation_angle(R, lookat_rotation(0, 89.999)) < 0.01
-    assert rotation_angle(lookat_rotation(70, 90), lookat_rotation(70, 89.999)) < 0.01
+    assert rotation_error(R, lookat_rotation(0, 89.999)) < 0.01
+    assert rotation_error(lookat_rotation(70, 90), lookat_rotation(70, 89.999)) < 0.01

@@ -27,7 +27,7 @@ from service_helpers import (
 )
 
 from index.pose import View, view_to_pose
-from index.symmetry import view_error
+from index.pose_error import view_error
 from service.main import create_app
 
 TRUE_VIEW = View(azimuth=37.0, elevation=28.0, inplane=0.0, distance=600.0)  # between template viewpoints

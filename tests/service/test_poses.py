@@ -7,7 +7,8 @@ from __future__ import annotations
 import numpy as np
 
 from index.bop import BopDataset
-from index.pose import pose_to_view, rotation_angle
+from index.pose import pose_to_view
+from index.pose_error import rotation_error
 from index.store import Match
 from service.poses import pose_fields
 
@@ -32,5 +33,5 @@ def test_a_match_at_the_annotated_view_gives_the_annotated_pose(lmo):
         assert np.linalg.norm(t - inst.t) < 1.0, (inst.frame_id, inst.obj_id, t, inst.t)
         # the ray matters: the same view on the optical axis is another rotation
         on_axis = np.reshape(pose_fields(match, np.array([0.0, 0.0, 1.0]), view.distance)["R"], (3, 3))
-        off_axis.append(rotation_angle(on_axis, inst.R))
+        off_axis.append(rotation_error(on_axis, inst.R))
     assert max(off_axis) > 5.0

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from index.pose import View, view_to_pose
-from index.symmetry import rotation_error
+from index.pose_error import rotation_error
 from training.similarity import closer, pose_distances, rotations
 
 

@@ -1,10 +1,10 @@
-"""The one pose error (`index.symmetry`): vectorised, symmetry-aware, and "within" strictly below."""
+"""The one pose error (`index.pose_error`): vectorised, symmetry-aware, and "within" strictly below."""
 
 import numpy as np
 import pytest
 
 from index.pose import View, camera_centre, view_to_pose
-from index.symmetry import rotation_error, rotation_errors, view_error, view_errors, within
+from index.pose_error import rotation_error, rotation_errors, view_error, view_errors, within
 
 
 def R(az: float, el: float, ip: float = 0.0, ray=None) -> np.ndarray:
@@ -48,3 +48,13 @@ def test_view_errors_ignore_in_plane_on_any_ray():
 
 def test_within_is_strictly_below():
     assert within(np.array([19.999, 20.0, 20.001]), 20).tolist() == [True, False, False]
+
+
+def test_equal_poses_are_zero_not_nan():
+    """A rotation's trace may come out a hair above 3 (cosine above 1): clipped before arccos."""
+    rng = np.random.default_rng(2)
+    for _ in range(50):
+        r = R(*rng.uniform([0, 0, -180], [360, 90, 180]))
+        for symmetry in ("none", "180", "full"):
+            assert rotation_error(r, r, symmetry) == pytest.approx(0, abs=1e-5)
+            assert view_errors(r, r, symmetry)[0, 0] == pytest.approx(0, abs=1e-5)
