@@ -121,10 +121,12 @@ class Settings(BaseSettings):
         400.0, gt=0, le=100_000, description="a colour patch sent without distance_mm (and a depth patch "
         "without depth at its centre) is taken to be this far away, mm",
     )  # fmt: skip
-    # A number replaces every model's calibrated threshold (`service.rejection`); "off": never reject.
-    reject_above: Annotated[float, Field(ge=0, allow_inf_nan=False)] | Literal["off"] | None = Field(
-        None, description="answer best = null when the best answer's score (distance) is above this; "
-        "'off': never; unset: each model's calibration (its metadata `reject_above`), none without one",
+    # A number replaces every model's calibrated threshold (`service.rejection`); "off": never reject. It
+    # may be negative: the "lead" statistic (distance less a weight times the lead over another object) is
+    reject_above: Annotated[float, Field(allow_inf_nan=False)] | Literal["off"] | None = Field(
+        None, description="answer best = null when the best answer's statistic (the model's calibration "
+        "says which: its distance, or its lead) is above this; 'off': never; unset: each model's "
+        "calibration (its metadata `reject_above`), none without one",
     )  # fmt: skip
     level: int = Field(3, ge=0, le=4, description="template viewpoints: icosphere level (3 = 301)")
     index_kind: Literal["auto", "flat", "ivf"] = Field(

@@ -3,21 +3,71 @@ what a stage is (`Stage`)."""
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from types import MappingProxyType
-from typing import TYPE_CHECKING, Protocol
+from typing import Protocol
 
 import numpy as np
 
+from index.embed import Embedder
 from index.store import Match, Snapshot
-
-if TYPE_CHECKING:
-    from service.pipeline.query import Decoded, Patches, Query
-    from service.pipeline.score import LocalScore
 
 Key = tuple[int, float, float]  # `index.store.local_key`: object, azimuth, elevation
 Pose = tuple[Key, float]  # a viewpoint and a roll (degrees, rounded to 3 decimals)
+
+
+@dataclass(frozen=True)
+class Query:
+    """What a user sends. `distance_mm`: from the camera centre to the object's origin along the ray
+    through (u, v) (‖t‖ of a BOP pose); without it, a frame's depth gives the surface's distance there."""
+
+    rgb: bytes | None
+    depth: bytes | None
+    depth_scale: float = 1.0
+    fx: float | None = None
+    fy: float | None = None
+    cx: float | None = None
+    cy: float | None = None
+    u: float | None = None
+    v: float | None = None
+    distance_mm: float | None = None
+    k: int = 5
+
+
+@dataclass(frozen=True)
+class Decoded:
+    """A query's images, decoded, and the model its modality picks."""
+
+    modality: str
+    embedder: Embedder
+    rgb: np.ndarray | None
+    depth: np.ndarray | None
+
+
+@dataclass(frozen=True)
+class Patches:
+    """The query cut as the network takes it, once per turn. rgb (n, S, S, 3) uint8 or None; depth
+    (n, S, S) mm or None; offsets (n,) degrees of roll undone; distance (mm) the window was cut at, along
+    `ray` (3,), the unit ray through the centre in the query's camera (for a patch, the patch camera's)."""
+
+    rgb: np.ndarray | None
+    depth: np.ndarray | None
+    offsets: np.ndarray
+    distance: float
+    ray: np.ndarray
+
+
+class Scorer(Protocol):
+    """The re-ranking's score of stored templates against this query (`service.pipeline.score.LocalScore`):
+    `local`, the snapshot's local features by viewpoint."""
+
+    @property
+    def local(self) -> Mapping[Key, np.ndarray]: ...
+
+    def pairs(self, poses: Sequence[Pose]) -> np.ndarray: ...
+
+    def table(self, keys: Sequence[Key], rolls: Sequence[float]) -> np.ndarray: ...
 
 
 @dataclass(frozen=True)
@@ -54,7 +104,7 @@ class Context:
     matches: tuple[Match, ...] = ()
     ranked: Ranked | None = None
     scored: Mapping[Pose, float] = field(default_factory=lambda: MappingProxyType({}))
-    scorer: LocalScore | None = None
+    scorer: Scorer | None = None
     score: str = "descriptor"
     wanted: int = 0
 

@@ -6,9 +6,9 @@ once per turn (`query_turns`); the re-ranking cuts it again at the rolls its can
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import cv2
 import numpy as np
@@ -19,11 +19,8 @@ from index.register import TemplateConfig
 from service.depth_units import check_frame_distance, check_given_distance, check_patch_distance
 from service.errors import ApiError
 from service.images import read_depth, read_rgb
-from service.pipeline.context import Context
+from service.pipeline.context import Context, Decoded, Patches, Query
 from service.settings import Settings
-
-if TYPE_CHECKING:
-    from service.state import AppState  # which builds the pipelines of this package
 
 #: depth stored in whole metres rounds to 0 for anything nearer than half a metre: the empty-depth errors
 #: say what the service reads, the commonest cause of an empty depth where an object is
@@ -34,48 +31,18 @@ MAX_PX = 1e6  # focal lengths and image coordinates beyond this are no camera's
 MIN_DISTANCE_MM, MAX_DISTANCE_MM = 1.0, 100_000.0  # the object's distance, given or measured
 
 
-@dataclass(frozen=True)
-class Query:
-    """What a user sends. `distance_mm`: from the camera centre to the object's origin along the ray
-    through (u, v) (‖t‖ of a BOP pose); without it, a frame's depth gives the surface's distance there."""
+class Loaded(Protocol):
+    """What `decode` reads of the service's state (`service.state.AppState`, which builds this package's
+    pipelines: typed by its shape, not imported)."""
 
-    rgb: bytes | None
-    depth: bytes | None
-    depth_scale: float = 1.0
-    fx: float | None = None
-    fy: float | None = None
-    cx: float | None = None
-    cy: float | None = None
-    u: float | None = None
-    v: float | None = None
-    distance_mm: float | None = None
-    k: int = 5
+    @property
+    def settings(self) -> Settings: ...
+
+    @property
+    def embedders(self) -> Mapping[str, Embedder]: ...
 
 
-@dataclass(frozen=True)
-class Decoded:
-    """A query's images, decoded, and the model its modality picks."""
-
-    modality: str
-    embedder: Embedder
-    rgb: np.ndarray | None
-    depth: np.ndarray | None
-
-
-@dataclass(frozen=True)
-class Patches:
-    """The query cut as the network takes it, once per turn. rgb (n, S, S, 3) uint8 or None; depth
-    (n, S, S) mm or None; offsets (n,) degrees of roll undone; distance (mm) the window was cut at, along
-    `ray` (3,), the unit ray through the centre in the query's camera (for a patch, the patch camera's)."""
-
-    rgb: np.ndarray | None
-    depth: np.ndarray | None
-    offsets: np.ndarray
-    distance: float
-    ray: np.ndarray
-
-
-def decode(state: AppState, q: Query) -> Decoded:
+def decode(state: Loaded, q: Query) -> Decoded:
     """Checks what was sent, picks the model of its modality and decodes the images."""
     embedders, settings = state.embedders, state.settings
     if q.k > settings.max_k:

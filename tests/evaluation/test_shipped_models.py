@@ -76,7 +76,7 @@ def service_runs(lmo, shipped) -> dict[str, dict]:
         mp.delenv("POSEDESC_REJECT_ABOVE", raising=False)
         for m in MODALITIES:
             out[m] = evaluate(config(lmo, m, "service")).summary()
-        mp.setenv("POSEDESC_REJECT_ABOVE", "0")
+        mp.setenv("POSEDESC_REJECT_ABOVE", "-1000")  # below any statistic (the lead's can be negative)
         out["depth rejecting all"] = evaluate(config(lmo, "depth", "service")).summary()
     return out
 
