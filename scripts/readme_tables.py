@@ -134,7 +134,7 @@ ACCURACY = Table(
             "rgb",
             "local",
             f"{CALIBRATE} models/posedesc-rgb.onnx --statistic local=lead:2 --statistic descriptor=lead:1 "
-            "--out models/posedesc-rgb.onnx",
+            "--out models/posedesc-rgb.onnx --json docs/results/reject-posedesc-rgb.json",
         ),
         Row(
             "**rgbd** (colour + depth), real colour, rendered depth",
@@ -166,7 +166,7 @@ ACCURACY = Table(
             "rgbd",
             "local",
             f"{CALIBRATE} models/posedesc-rgbd.onnx --statistic local=lead:1 --statistic descriptor=distance "
-            "--out models/posedesc-rgbd.onnx",
+            "--out models/posedesc-rgbd.onnx --json docs/results/reject-posedesc-rgbd.json",
         ),
         Row(
             "rgbd, **real Kinect depth**: the one frame of `lmo-depth` (a smoke test)",
@@ -185,7 +185,7 @@ ACCURACY = Table(
             "depth",
             "descriptor",
             f"{CALIBRATE} models/posedesc-depth.onnx --splits-from models/posedesc-rgb.onnx "
-            "--held-out 258-435,808-942 --statistic lead:0.5 --out models/posedesc-depth.onnx",
+            "--held-out 258-435,808-942 --statistic lead:0.5 --out models/posedesc-depth.onnx --json docs/results/reject-posedesc-depth.json",
         ),
     ),
 )
