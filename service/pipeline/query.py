@@ -83,13 +83,13 @@ class CutConfig:
         return cls(embedder.info.spec, tuple(float(o) for o in offsets), settings.patch_distance_mm)
 
 
+@dataclass(frozen=True)
 class Cut:
     """The query cut once per turn (`CutConfig.offsets`): the patches every later stage starts from."""
 
     name = "cut"
 
-    def __init__(self, config: CutConfig):
-        self.config = config
+    config: CutConfig
 
     @classmethod
     def build(cls, settings: Settings, embedder: Embedder, templates: TemplateConfig) -> Cut:

@@ -11,7 +11,7 @@ comparison each, and a turned roll one more cut of the query. Measured on valida
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from types import MappingProxyType
 
 import numpy as np
@@ -94,6 +94,7 @@ class RefineConfig:
         return cls(s.roll_refine, s.refine_rounds, s.near_views, spacing, s.refine_roll_divisor)
 
 
+@dataclass(frozen=True)
 class Refine:
     """The best `n` candidates compared also at the viewpoints around theirs and at their roll turned
     either way; each keeps the (viewpoint, roll) scoring best. A pose scored by an earlier stage is not
@@ -101,9 +102,8 @@ class Refine:
 
     name = "refine"
 
-    def __init__(self, config: RefineConfig):
-        self.config = config
-        self.tables = ViewpointTable()
+    config: RefineConfig
+    tables: ViewpointTable = field(default_factory=ViewpointTable)
 
     @classmethod
     def build(cls, settings: Settings, embedder: Embedder, templates: TemplateConfig) -> Refine | None:

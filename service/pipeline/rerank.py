@@ -32,6 +32,7 @@ class RerankConfig:
         return cls(ScoreConfig.from_settings(settings), settings.patch_distance_mm)
 
 
+@dataclass(frozen=True)
 class Rerank:
     """The candidates re-ranked by local similarity: the query is cut once per roll the candidates give
     (turned upright for each), and each candidate's upright template compared with it (`LocalScore`).
@@ -40,8 +41,7 @@ class Rerank:
 
     name = "local"
 
-    def __init__(self, config: RerankConfig):
-        self.config = config
+    config: RerankConfig
 
     @classmethod
     def build(cls, settings: Settings, embedder: Embedder, templates: TemplateConfig) -> Rerank | None:

@@ -45,13 +45,13 @@ class SearchConfig:
         return cls(variants, settings.rerank if embedder.has_local else 0)
 
 
+@dataclass(frozen=True)
 class Search:
     """The nearest distinct answers: as many as are wanted (`Context.wanted`), or as the re-ranking takes."""
 
     name = "search"
 
-    def __init__(self, config: SearchConfig):
-        self.config = config
+    config: SearchConfig
 
     @classmethod
     def build(cls, settings: Settings, embedder: Embedder, templates: TemplateConfig) -> Search:

@@ -31,6 +31,7 @@ class SweepConfig:
         return cls(settings.roll_sweep, tuple(float(a) for a in angles))
 
 
+@dataclass(frozen=True)
 class Sweep:
     """Each of the best `n` candidates at every template angle shifted by its own offset from its
     nearest angle (a turn of the query's), each template read once for all of them (`LocalScore.table`).
@@ -38,8 +39,7 @@ class Sweep:
 
     name = "sweep"
 
-    def __init__(self, config: SweepConfig):
-        self.config = config
+    config: SweepConfig
 
     @classmethod
     def build(cls, settings: Settings, embedder: Embedder, templates: TemplateConfig) -> Sweep | None:

@@ -80,18 +80,24 @@ def cut_distances(monkeypatch):
     return seen
 
 
+def ask(client, frame, inst, modality: str, k: int):
+    """`POST /recognize` of one instance of the frame as a user sends it: the frame's depth (and colour for
+    rgbd), the camera and the instance's centre."""
+    (fx, _, cx), (_, fy, cy) = inst.K[:2]
+    u, v = inst.centre_uv
+    files = {"depth": ("000003.png", frame["depth"])}
+    if modality == "rgbd":
+        files["rgb"] = ("000003-rgb.png", frame["rgb"])
+    fields = {"fx": fx, "fy": fy, "cx": cx, "cy": cy, "u": u, "v": v, "k": k}
+    return client.post("/recognize", files=files, data={k: str(x) for k, x in fields.items()})
+
+
 @pytest.mark.parametrize("modality", ["depth", "rgbd"])
 def test_recognise_objects_in_a_real_depth_frame(client, frame, cut_distances, modality):
     errors: dict[str, list[tuple[float, float]]] = {modality: []}
     for inst in frame["instances"]:
-        (fx, _, cx), (_, fy, cy) = inst.K[:2]
-        u, v = inst.centre_uv
-        files = {"depth": ("000003.png", frame["depth"])}
-        if modality == "rgbd":
-            files["rgb"] = ("000003-rgb.png", frame["rgb"])
-        fields = {"fx": fx, "fy": fy, "cx": cx, "cy": cy, "u": u, "v": v, "k": 5}
         cut_distances.clear()
-        r = client.post("/recognize", files=files, data={k: str(x) for k, x in fields.items()})
+        r = ask(client, frame, inst, modality, k=5)
         assert r.status_code == 200, r.text
         body = r.json()
         assert body["model"] == f"posedesc-{modality}"
@@ -102,7 +108,7 @@ def test_recognise_objects_in_a_real_depth_frame(client, frame, cut_distances, m
         assert {m["object_id"] for m in body["matches"]} <= set(client.ids)
         assert body["timings_ms"]["total"] > 0
         # each answer's pose: a rotation, the origin along the ray through (u, v), near the surface
-        ray = np.linalg.inv(inst.K) @ np.array([u, v, 1.0])
+        ray = np.linalg.inv(inst.K) @ np.array([*inst.centre_uv, 1.0])
         for m in body["matches"]:
             R, t = np.reshape(m["R"], (3, 3)), np.asarray(m["t"])
             assert np.abs(R @ R.T - np.eye(3)).max() < 1e-9 and np.linalg.det(R) == pytest.approx(1.0)
@@ -138,13 +144,7 @@ def test_the_frames_unregistered_objects_are_answered_unknown_or_named(client, f
     """The frame's other objects (the heavily occluded ape among them) are not registered: what each gets is
     printed (rejected, or the object it is taken for), not asserted: one frame is no accuracy figure."""
     for inst in [i for i in frame["all"] if i.obj_id not in OBJECTS]:
-        (fx, _, cx), (_, fy, cy) = inst.K[:2]
-        u, v = inst.centre_uv
-        files = {"depth": ("000003.png", frame["depth"])}
-        if modality == "rgbd":
-            files["rgb"] = ("000003-rgb.png", frame["rgb"])
-        fields = {"fx": fx, "fy": fy, "cx": cx, "cy": cy, "u": u, "v": v, "k": 3}
-        r = client.post("/recognize", files=files, data={k: str(x) for k, x in fields.items()})
+        r = ask(client, frame, inst, modality, k=3)
         if r.status_code == 422:  # no depth measured at its centre: refused, with the reason
             print(f"{modality} unregistered obj {inst.obj_id}: refused, {r.json()['detail']}")
             continue
