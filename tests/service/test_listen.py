@@ -12,6 +12,7 @@ import httpx
 from service_helpers import ROOT, Server, free_port, ply_bytes, serve_command
 
 OPEN = "POSEDESC_ALLOW_OPEN_WRITES"
+HANG = 300.0  # seconds: only stops a test that would never end, not a measure of speed
 
 
 def test_a_busy_port_stops_serve_at_once_in_one_line(tmp_path, posedesc_models):
@@ -20,24 +21,23 @@ def test_a_busy_port_stops_serve_at_once_in_one_line(tmp_path, posedesc_models):
         taken.listen()
         port = taken.getsockname()[1]
         data_dir = tmp_path / "data"
-        t0 = time.monotonic()
         r = subprocess.run(
             serve_command(port, data_dir, posedesc_models),
             cwd=ROOT,
             capture_output=True,
             text=True,
-            timeout=120,
+            timeout=HANG,
         )
-        seconds = time.monotonic() - t0
     assert r.returncode == 2, r.stderr
     assert r.stderr == f"posedesc serve: error: cannot listen on 127.0.0.1:{port}: Address already in use\n"
-    assert not (data_dir / "store.sqlite").exists()  # the store was never opened, nor the models loaded
-    print(f"refused in {seconds:.2f} s")
+    # "at once": the store was never opened, nor the models loaded (the time it takes: `posedesc bench
+    # --only guards`)
+    assert not (data_dir / "store.sqlite").exists()
 
 
 def test_the_ready_line_comes_when_readyz_is_200(tmp_path, posedesc_models):
     with Server(tmp_path / "data", posedesc_models, log_level="info") as server:
-        end = time.monotonic() + 120
+        end = time.monotonic() + HANG
         while "ready on" not in server.log.read_text():
             assert server.proc.poll() is None and time.monotonic() < end, server.log.read_text()
             time.sleep(0.05)
@@ -83,16 +83,16 @@ def test_loopback_is_the_default(tmp_path, posedesc_models):
     cmd.remove("127.0.0.1")
     proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
-        end = time.monotonic() + 60
+        end = time.monotonic() + HANG
         while True:
             listening = subprocess.run(["ss", "-Hltn", f"sport = :{port}"], capture_output=True, text=True)
-            if listening.stdout.strip() or time.monotonic() > end:
+            if listening.stdout.strip() or proc.poll() is not None or time.monotonic() > end:
                 break
             time.sleep(0.1)
         assert listening.stdout.split()[3] == f"127.0.0.1:{port}", listening.stdout
     finally:
         proc.kill()
-        proc.wait(timeout=60)
+        proc.wait(timeout=HANG)
 
 
 def test_make_serve_takes_host_and_port():
