@@ -93,6 +93,7 @@ def run(cfg: MilvusConfig) -> dict:
                 )
                 row["milvus_server_rss_bytes_before"] = before
                 out["by_size"][str(n)] = row
+            out["propagation"] = _propagation(cfg, uri, Path(tmp) / "propagation")
         finally:
             if server is not None:
                 server.stop()
@@ -171,6 +172,53 @@ def _one_size(cfg: MilvusConfig, uri: str, n: int, tmp: Path, bulk: bool, rss=la
         if embedded is not None:
             embedded.close()
     return row
+
+
+def _propagation(cfg: MilvusConfig, uri: str, shared: Path) -> dict:
+    """Two stores on one Milvus and one shared directory, as two replicas of the service: an object added
+    through one, timed until the other's snapshot (what its recognitions search) holds it; removed through
+    the other, timed until the first's no longer does. `registrations` times each."""
+    from index.milvus_store import MilvusStore
+
+    models = {MODEL: (cfg.dim, "bench")}
+    prefix = f"bench{uuid.uuid4().hex[:8]}"
+    a = MilvusStore(uri, shared, models, prefix=prefix, timeout=120)
+    b = MilvusStore(uri, shared, models, prefix=prefix, timeout=120)
+    ts = TemplateSet(
+        poses(TEMPLATES_PER_OBJECT),
+        Synthetic(TEMPLATES_PER_OBJECT, cfg.dim, cfg.seed).rows(np.arange(TEMPLATES_PER_OBJECT)),
+    )
+    seen, gone = [], []
+    try:
+        for i in tqdm(range(cfg.registrations), desc="milvus: replica propagation", disable=None):
+            oid = a.add_object(f"propagation-{i}", "none", {MODEL: ts}).object_id
+            seen.append(_until(lambda oid=oid: oid in b.snapshot.objects))
+            b.remove_object(oid)
+            gone.append(_until(lambda oid=oid: oid not in a.snapshot.objects))
+    finally:
+        a.client.drop_collection(a.collections[MODEL])
+        a.client.drop_collection(a.objects_collection)
+        b.close()
+        a.close()
+
+    def figures(s: list[float]) -> dict:
+        return {"p50_ms": float(np.median(s) * 1e3), "max_ms": float(np.max(s) * 1e3), "runs": len(s)}
+
+    return {
+        "registration_seen": figures(seen),
+        "deletion_seen": figures(gone),
+        "poll_seconds": a.poll_seconds,
+    }
+
+
+def _until(check, hang_s: float = 300.0) -> float:
+    """Seconds until `check()` holds, polled every millisecond; `hang_s` only ends a wait that never would."""
+    t0 = time.perf_counter()
+    while not check():
+        if time.perf_counter() - t0 > hang_s:
+            raise RuntimeError(f"the other replica never saw the change ({hang_s:.0f} s)")
+        time.sleep(0.001)
+    return time.perf_counter() - t0
 
 
 def _faiss_snapshot(sets: list[TemplateSet]) -> FaissSnapshot:
