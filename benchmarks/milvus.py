@@ -7,7 +7,9 @@ Measured through the stores' own interface, the calls a recognition and a regist
   `service.recognition` (no embedding: the descriptor is given), one query at a time, one thread;
 - registration: `add_object` of one object of 301 templates (one model), as `index.register.register`
   calls it after embedding, then `remove_object` (not timed);
-- recall@k: Milvus's answers (`snapshot.search`, k templates) against the exact k nearest (FAISS flat).
+- recall@k: Milvus's answers (`snapshot.search`, k templates) against the exact k nearest (FAISS flat);
+- propagation: two stores on the one Milvus and one shared directory, as two replicas: how long until one
+  store's snapshot shows the other's registration, and its deletion.
 
 Descriptors are `benchmarks.knn.Synthetic` (objects of 301 templates around their centres, 16 values) and
 a query is a template plus noise. The 100-object stores are filled through `add_object`, object by object;
