@@ -19,7 +19,7 @@ PORT ?= 8000
 # `make lock UPGRADE=--upgrade` re-resolves every pin
 UPGRADE ?=
 
-.PHONY: setup setup-serve test lint serve bench clean models lock
+.PHONY: setup setup-serve test check lint serve bench clean models lock
 
 define APT_AND_VENV
 	@missing=$$(for p in $(1); do dpkg -s $$p >/dev/null 2>&1 || echo $$p; done); \
@@ -62,8 +62,16 @@ lint: setup
 	$(BIN)/ruff format --check .
 	$(BIN)/mypy
 
+# Two tiers. `make test` (CI, .ci/run): lint, then every test. `make check`: the fast tier while working,
+# every package's tests but those marked `slow` (real trainings, container builds, Milvus, the large
+# protocol and evaluation runs, the long service load tests), about 3 minutes on a quiet 2-core machine;
+# `make lint check` lints first. A test is `slow` when it takes more than a few seconds (pyproject.toml's
+# markers): mark it so in its file, or the module with `pytestmark = pytest.mark.slow`.
 test: setup lint
 	$(BIN)/pytest -q
+
+check: setup
+	$(BIN)/pytest -q -m "not slow"
 
 serve: setup-serve
 	$(BIN)/posedesc serve --host $(HOST) --port $(PORT) --data-dir data/default

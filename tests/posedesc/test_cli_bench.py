@@ -6,6 +6,8 @@ import argparse
 import json
 import math
 
+import pytest
+
 from benchmarks.suite import DEFAULT_SECTIONS, OPT_IN, SECTIONS
 from posedesc.cli import main
 from posedesc.commands.bench import add_arguments, configure
@@ -16,6 +18,7 @@ def positive(x: object) -> bool:
     return isinstance(x, int | float) and math.isfinite(x) and x > 0
 
 
+@pytest.mark.slow
 def test_bench_quick(tmp_path, posedesc_models, capsys):
     out = tmp_path / "bench.json"
     assert main(["bench", "--quick", "--models", str(posedesc_models), "--json", str(out)]) == 0

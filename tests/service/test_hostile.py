@@ -17,6 +17,9 @@ from service_helpers import Server, depth_png, png
 
 from benchmarks.hostile import UPLOADS, ply_polygons
 
+# uploads of tens of MB, parses of 12 M triangles: `make test`, not `make check`
+pytestmark = pytest.mark.slow
+
 
 @pytest.fixture(scope="module")
 def server(tmp_path_factory, posedesc_models):

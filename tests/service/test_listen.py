@@ -9,6 +9,7 @@ import subprocess
 import time
 
 import httpx
+import pytest
 from service_helpers import ROOT, Server, free_port, ply_bytes, serve_command
 
 OPEN = "POSEDESC_ALLOW_OPEN_WRITES"
@@ -48,6 +49,7 @@ def test_the_ready_line_comes_when_readyz_is_200(tmp_path, posedesc_models):
         assert line == f"INFO ready on {server.url}: 0 objects; templates {sizes}", line
 
 
+@pytest.mark.slow
 def test_writes_on_a_public_address_need_a_key_or_an_opt_in(tmp_path, posedesc_models, t_shape):
     mesh = {"files": {"mesh": ("t.ply", ply_bytes(t_shape))}, "data": {"name": "T"}}
     with Server(tmp_path / "a", posedesc_models, host="0.0.0.0") as server:

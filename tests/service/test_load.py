@@ -16,9 +16,12 @@ from dataclasses import dataclass, field
 
 import httpx
 import numpy as np
+import pytest
 from service_helpers import Server, patch_files
 
 from index.shapes import random_shape
+
+pytestmark = pytest.mark.slow  # a long service load test: `make test`, not `make check`
 
 DELETIONS = 3  # the writer's deletions before the clients stop
 RECOGNITIONS = 30  # recognitions in all

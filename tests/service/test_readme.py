@@ -49,6 +49,7 @@ def registrations(server: Server) -> str:
     return next((x.split()[-1] for x in lines if x.startswith(wanted)), "0")
 
 
+@pytest.mark.slow
 def test_the_curl_examples(server):
     assert shutil.which("curl"), "curl is needed (make setup installs it)"
     (script,) = blocks("sh", "curl -s localhost:8000/recognize")
