@@ -14,6 +14,9 @@ import httpx
 import pytest
 from service_helpers import ROOT, Server
 
+# runs the README's examples against real servers: `make test`, not `make check`
+pytestmark = pytest.mark.slow
+
 MODELS = ROOT / "models"
 DEMO = ["mug", "lamp", "robot", "duck"]
 
@@ -49,7 +52,6 @@ def registrations(server: Server) -> str:
     return next((x.split()[-1] for x in lines if x.startswith(wanted)), "0")
 
 
-@pytest.mark.slow
 def test_the_curl_examples(server):
     assert shutil.which("curl"), "curl is needed (make setup installs it)"
     (script,) = blocks("sh", "curl -s localhost:8000/recognize")

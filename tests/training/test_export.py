@@ -102,6 +102,7 @@ def test_a_fine_tuned_mask_runs_its_own_trunk(tmp_path):
     np.testing.assert_allclose(emb(x), torch_descriptors(net, x), atol=1e-4)
 
 
+@pytest.mark.slow
 def test_a_colour_model_exports_as_rgbd_with_its_mask_cut_from_depth(tmp_path):
     """The RGB-D model is the colour model on the colour channels (same descriptors and local features),
     and its mask is where the depth lies within NEAR in front of the centre's surface and FAR behind
