@@ -19,6 +19,7 @@ import sys
 import tempfile
 import time
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 
 import httpx
@@ -61,18 +62,19 @@ def _declaring(cfg: GuardsConfig) -> dict:
     for name, (make, fmt, what) in tqdm(DECLARING.items(), desc="guards: declaring", disable=None):
         data = make()
         said: list[str] = []
-        t = measure(lambda data=data, fmt=fmt, said=said: said.append(_refusal(data, fmt)), cfg.repeats, 0)
+        t = measure(partial(_refusal, data, fmt, said), cfg.repeats, warmup=0)
         out[name] = {"format": fmt, "bytes": len(data), "refused": f"declares {what}" in said[-1]} | _ms(t)
     return out
 
 
-def _refusal(data: bytes, fmt: str) -> str:
-    """What `load_mesh` says when it refuses the file as too large ("" when it does not)."""
+def _refusal(data: bytes, fmt: str, said: list[str]) -> None:
+    """Appends what `load_mesh` says when it refuses the file as too large ("" when it does not)."""
     try:
         load_mesh(data, file_type=fmt, max_input_faces=MAX_UPLOAD_FACES)
     except MeshTooLarge as e:
-        return str(e)
-    return ""
+        said.append(str(e))
+    else:
+        said.append("")
 
 
 def _fuzz(cfg: GuardsConfig) -> dict:
