@@ -342,9 +342,9 @@ def _summary(sections: dict) -> dict:
         s["guards_busy_port_s"] = gd["busy_port"]["median_s"]
     if mv := sections.get("milvus"):
         if pr := mv.get("propagation"):
-            for what in ("registration_seen", "deletion_seen"):
-                s[f"replica_{what}_p50_ms"] = pr[what]["p50_ms"]
-                s[f"replica_{what}_max_ms"] = pr[what]["max_ms"]
+            for what in ("registration", "deletion"):
+                s[f"replica_{what}_seen_p50_ms"] = pr[what]["seen_p50_ms"]
+                s[f"replica_{what}_seen_max_ms"] = pr[what]["seen_max_ms"]
         for n, row in mv["by_size"].items():
             for store in ("embedded", "milvus"):
                 for q in ("p50", "p99"):
