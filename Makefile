@@ -19,7 +19,7 @@ PORT ?= 8000
 # `make lock UPGRADE=--upgrade` re-resolves every pin
 UPGRADE ?=
 
-.PHONY: setup setup-serve test lint serve bench clean models lock
+.PHONY: setup setup-serve test check lint serve bench clean models lock
 
 define APT_AND_VENV
 	@missing=$$(for p in $(1); do dpkg -s $$p >/dev/null 2>&1 || echo $$p; done); \
@@ -62,12 +62,23 @@ lint: setup
 	$(BIN)/ruff format --check .
 	$(BIN)/mypy
 
+# Two tiers. `make test` (CI, .ci/run): lint, then every test (~10 min on a quiet 2-core machine).
+# `make check`: the fast tier while working, every package's tests but those marked `slow` (real trainings,
+# container builds, Milvus, the large protocol and evaluation runs, the hostile uploads, the long service
+# load tests): 414 of 498 tests in 2.5 minutes on this 2-core machine at load 2.5. `make lint check` lints
+# first. A test that takes more than a few seconds is marked `slow` in its file (`@pytest.mark.slow`, or
+# `pytestmark = pytest.mark.slow` for the module); tests never assert how fast anything is (bench does).
 test: setup lint
 	$(BIN)/pytest -q
+
+check: setup
+	$(BIN)/pytest -q -m "not slow"
 
 serve: setup-serve
 	$(BIN)/posedesc serve --host $(HOST) --port $(PORT) --data-dir data/default
 
+# The default sections (7.5 min on this 2-core machine); `posedesc bench --all` adds the long ones
+# (1,000 objects, the roll section's second model, Milvus), `--only guards` etc. one section.
 bench: setup
 	$(BIN)/posedesc bench --json out/bench.json
 

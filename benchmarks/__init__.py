@@ -16,6 +16,9 @@ its baseline) and two older scripts.
   beside its baseline: `service.recognition.recognise_decoded` in-process at 100 objects (vs upright
   templates and LineMOD), a 640x480 frame over HTTP, registration of a 20k-face mesh; the model is a
   parameter (the shipped one, an untrained stand-in of the coming design exported on the spot, a path).
+- `guards.py`: how long the service's guards take to refuse: hostile uploads over HTTP, meshes refused from
+  what they declare, damaged meshes, `posedesc serve` on a busy port (the tests check only the answers);
+  `hostile.py` makes those inputs, for the tests and for it.
 - `train_step.py`: the network's training throughput (torch, imported there and, for the roll section's
   stand-in export, in `roll.py`).
 - `render.py`, `serving.py`: scripts (`.venv/bin/python benchmarks/render.py`): template rendering with and

@@ -7,7 +7,9 @@ Measured through the stores' own interface, the calls a recognition and a regist
   `service.recognition` (no embedding: the descriptor is given), one query at a time, one thread;
 - registration: `add_object` of one object of 301 templates (one model), as `index.register.register`
   calls it after embedding, then `remove_object` (not timed);
-- recall@k: Milvus's answers (`snapshot.search`, k templates) against the exact k nearest (FAISS flat).
+- recall@k: Milvus's answers (`snapshot.search`, k templates) against the exact k nearest (FAISS flat);
+- propagation: two stores on the one Milvus and one shared directory, as two replicas: how long until one
+  store's snapshot shows the other's registration, and its deletion.
 
 Descriptors are `benchmarks.knn.Synthetic` (objects of 301 templates around their centres, 16 values) and
 a query is a template plus noise. The 100-object stores are filled through `add_object`, object by object;
@@ -20,6 +22,7 @@ from __future__ import annotations
 
 import json
 import tempfile
+import threading
 import time
 import uuid
 from dataclasses import dataclass
@@ -93,6 +96,7 @@ def run(cfg: MilvusConfig) -> dict:
                 )
                 row["milvus_server_rss_bytes_before"] = before
                 out["by_size"][str(n)] = row
+            out["propagation"] = _propagation(cfg, uri, Path(tmp) / "propagation")
         finally:
             if server is not None:
                 server.stop()
@@ -171,6 +175,80 @@ def _one_size(cfg: MilvusConfig, uri: str, n: int, tmp: Path, bulk: bool, rss=la
         if embedded is not None:
             embedded.close()
     return row
+
+
+def _propagation(cfg: MilvusConfig, uri: str, shared: Path) -> dict:
+    """Two stores on one Milvus and one shared directory, as two replicas of the service: an object added
+    through one until the other's snapshot (what its recognitions search) holds it; removed through the
+    other until the first's no longer does. Each from the call's start (the call itself waits for Milvus
+    to show the change, so the other store may see it before the call returns), and how long the call
+    took. `registrations` times each."""
+    from index.milvus_store import MilvusStore
+
+    models = {MODEL: (cfg.dim, "bench")}
+    prefix = f"bench{uuid.uuid4().hex[:8]}"
+    a = MilvusStore(uri, shared, models, prefix=prefix, timeout=120)
+    b = MilvusStore(uri, shared, models, prefix=prefix, timeout=120)
+    rows = Synthetic(TEMPLATES_PER_OBJECT, cfg.dim, cfg.seed).rows(np.arange(TEMPLATES_PER_OBJECT))
+    ts = TemplateSet(poses(TEMPLATES_PER_OBJECT), rows)
+    times: dict[str, list[tuple[float, float]]] = {"registration": [], "deletion": []}
+    try:
+        for i in tqdm(range(cfg.registrations), desc="milvus: replica propagation", disable=None):
+            name = f"propagation-{i}"
+            times["registration"].append(
+                _seen(
+                    lambda name=name: a.add_object(name, "none", {MODEL: ts}),
+                    lambda name=name: b.snapshot.named(name),
+                )
+            )
+            rec = b.snapshot.named(name)
+            assert rec is not None  # seen above
+            oid = rec.object_id
+            times["deletion"].append(
+                _seen(lambda oid=oid: b.remove_object(oid), lambda oid=oid: oid not in a.snapshot.objects)
+            )
+    finally:
+        a.client.drop_collection(a.collections[MODEL])
+        a.client.drop_collection(a.objects_collection)
+        b.close()
+        a.close()
+    out: dict = {"poll_seconds": a.poll_seconds}
+    for what, pairs in times.items():
+        seen, call = np.array([p[0] for p in pairs]), np.array([p[1] for p in pairs])
+        out[what] = {
+            "seen_p50_ms": float(np.median(seen) * 1e3),
+            "seen_max_ms": float(seen.max() * 1e3),
+            "call_p50_ms": float(np.median(call) * 1e3),
+            "runs": len(pairs),
+        }
+    return out
+
+
+def _seen(change, seen, hang_s: float = 300.0) -> tuple[float, float]:
+    """Seconds from the start of `change()` (run on a thread) until `seen()` holds, polled every
+    millisecond, and until `change()` returned; `hang_s` only ends a wait that never would."""
+    done: list[float] = []
+    failed: list[BaseException] = []
+
+    def call() -> None:
+        try:
+            change()
+        except BaseException as e:  # raised again below, on the caller's thread
+            failed.append(e)
+        done.append(time.perf_counter() - t0)
+
+    t0 = time.perf_counter()
+    worker = threading.Thread(target=call)
+    worker.start()
+    while not seen() and not failed:
+        if time.perf_counter() - t0 > hang_s:
+            raise RuntimeError(f"the other replica never saw the change ({hang_s:.0f} s)")
+        time.sleep(0.001)
+    seen_s = time.perf_counter() - t0
+    worker.join()
+    if failed:
+        raise failed[0]
+    return seen_s, done[0]
 
 
 def _faiss_snapshot(sets: list[TemplateSet]) -> FaissSnapshot:

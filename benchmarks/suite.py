@@ -5,9 +5,14 @@ Sections: "descriptor" (throughput vs HOG), "recognition" (vs LineMOD at 8 / 100
 "register" (`POST /objects`, 20k faces), "roll" (the roll-estimating set-up: from a decoded patch to the
 answer over in-plane templates with query turns, beside upright templates and LineMOD; a 640x480 frame
 over HTTP; registration with in-plane templates; `benchmarks/roll.py`), "train" (the network's training
-throughput), "milvus" (the template store through Milvus beside the embedded one, at 100 objects and
-10^6 templates, and HNSW's recall; `benchmarks/milvus.py`; not in the default run: `--only milvus`). The headline figures are copied to the top of the JSON (`summary`, and the issue's keys
-`recognize_vs_linemod_speedup_100` and `register_20k_faces_s`) with the issue's targets."""
+throughput), "guards" (how long the refusals of hostile uploads, oversized and damaged meshes and a busy
+port take; `benchmarks/guards.py`), "milvus" (the template store through Milvus beside the embedded one,
+at 100 objects and 10^6 templates, HNSW's recall, and how soon a replica sees another's registration and
+deletion; `benchmarks/milvus.py`). The headline figures are copied to the top of the JSON (`summary`, and
+the issue's keys `recognize_vs_linemod_speedup_100` and `register_20k_faces_s`) with the issue's targets.
+
+The default run fits ten minutes on a 2-core machine; `everything()` (`posedesc bench --all`) adds what
+does not (OPT_IN)."""
 
 from __future__ import annotations
 
@@ -19,18 +24,29 @@ from pathlib import Path
 
 from tqdm import tqdm
 
-from benchmarks import descriptor, knn, milvus, over_http, recognition, registration, roll, train_step
+from benchmarks import descriptor, guards, knn, milvus, over_http, recognition, registration, roll, train_step
 from benchmarks.descriptor import DescriptorConfig
+from benchmarks.guards import GuardsConfig
 from benchmarks.knn import KnnConfig
 from benchmarks.milvus import MilvusConfig
 from benchmarks.over_http import HttpConfig
 from benchmarks.recognition import RecognitionConfig
-from benchmarks.roll import RollConfig
+from benchmarks.roll import MODEL_KINDS, RollConfig
 from benchmarks.timing import machine, pin_threads
 from benchmarks.train_step import TrainStepConfig
 
-SECTIONS = ("descriptor", "recognition", "knn", "http", "register", "roll", "train", "milvus")
+SECTIONS = ("descriptor", "recognition", "knn", "http", "register", "roll", "train", "guards", "milvus")
 DEFAULT_SECTIONS = SECTIONS[:-1]  # milvus starts a server and bulk-loads 10^6 templates: on request
+#: What the default run leaves out, each past the ten minutes a default run may take on a 2-core machine
+#: (seconds from docs/results/bench.json, bench-roll-*.json and bench-milvus.json, load average 0.3-6):
+OPT_IN = {
+    # LineMOD's build at 1,000 objects alone took 171 s, and the section 319 s in all (8, 100, 1,000)
+    "recognition at 1,000 objects": "--objects 8,100,1000",
+    # a second model doubles the roll section: 453 s for both against 144-217 s for the shipped one alone
+    "the roll section's untrained stand-in model": "--roll-models shipped,untrained",
+    "the milvus section (a Milvus server, 10^6 templates bulk-loaded: 328 s)": "--only milvus",
+}
+DEFAULT_COUNTS = (8, 100)  # the recognition section's object counts by default
 TARGETS = {  # the issue's
     "recognize_p50_ms_100": ("<", 5.0, "recognition p50 in-process, 100 objects (ms)"),
     "http_p50_ms_100": ("<", 15.0, "recognition p50 over HTTP, 1 client, 100 objects (ms)"),
@@ -63,12 +79,22 @@ class BenchConfig:
     setup_threads: int = 2  # onnxruntime threads for making template descriptors (not timed)
     register_repeats: int = 3
     descriptor: DescriptorConfig = field(default_factory=DescriptorConfig)
-    recognition: RecognitionConfig = field(default_factory=RecognitionConfig)
+    recognition: RecognitionConfig = field(default_factory=lambda: RecognitionConfig(counts=DEFAULT_COUNTS))
     knn: KnnConfig = field(default_factory=KnnConfig)
     http: HttpConfig = field(default_factory=HttpConfig)
     train: TrainStepConfig = field(default_factory=TrainStepConfig)
-    roll: RollConfig = field(default_factory=RollConfig)
+    roll: RollConfig = field(default_factory=lambda: RollConfig(models=MODEL_KINDS[:1]))  # the shipped model
+    guards: GuardsConfig = field(default_factory=GuardsConfig)
     milvus: MilvusConfig = field(default_factory=MilvusConfig)
+
+    def everything(self) -> BenchConfig:
+        """Every section at full size: the default run and OPT_IN."""
+        return replace(
+            self,
+            sections=SECTIONS,
+            recognition=replace(self.recognition, counts=RecognitionConfig().counts),
+            roll=replace(self.roll, models=MODEL_KINDS),
+        )
 
     def shapes_needed(self) -> int:
         if self.distinct is not None:
@@ -96,7 +122,17 @@ class BenchConfig:
             ),
             http=HttpConfig(objects=8, concurrency=(1, 2), requests=10, rounds=1, warmup=4),
             train=TrainStepConfig(steps=2, warmup=1, samples_per_batch=8),
-            roll=replace(self.roll, objects=8, queries=20, warmup=2, http_requests=10, http_warmup=2),
+            # both models: the quick run covers what --all measures
+            roll=replace(
+                self.roll,
+                models=MODEL_KINDS,
+                objects=8,
+                queries=20,
+                warmup=2,
+                http_requests=10,
+                http_warmup=2,
+            ),
+            guards=GuardsConfig(repeats=1, fuzz_cases=20, small_only=True),
             milvus=replace(
                 self.milvus, objects=3, large=(2000,), queries=20, recall_queries=20, registrations=1
             ),
@@ -189,6 +225,8 @@ def run(cfg: BenchConfig) -> dict:
             notes += out["sections"][name]["notes"]
         elif name == "train":
             out["sections"][name] = train_step.run(cfg.modality, cfg.train, cfg.seed)
+        elif name == "guards":
+            out["sections"][name] = guards.run(cfg.guards, cfg.models)
         elif name == "milvus":
             out["sections"][name] = milvus.run(cfg.milvus)
         elif name in ("http", "register"):
@@ -296,7 +334,17 @@ def _summary(sections: dict) -> dict:
         s |= _roll_summary(ro, s)
     if t := sections.get("train"):
         s["train_patches_per_s"] = t["train_patches_per_s"]
+    if gd := sections.get("guards"):
+        s["guards_upload_max_ms"] = max(u["max_ms"] for u in gd["uploads"].values())
+        s["guards_declaring_max_ms"] = max(d["max_ms"] for d in gd["declaring"].values())
+        s["guards_fuzz_p99_ms"] = gd["fuzz"]["p99_ms"]
+        s["guards_fuzz_max_ms"] = gd["fuzz"]["max_ms"]
+        s["guards_busy_port_s"] = gd["busy_port"]["median_s"]
     if mv := sections.get("milvus"):
+        if pr := mv.get("propagation"):
+            for what in ("registration", "deletion"):
+                s[f"replica_{what}_seen_p50_ms"] = pr[what]["seen_p50_ms"]
+                s[f"replica_{what}_seen_max_ms"] = pr[what]["seen_max_ms"]
         for n, row in mv["by_size"].items():
             for store in ("embedded", "milvus"):
                 for q in ("p50", "p99"):

@@ -21,6 +21,49 @@ def _table(title: str, header: list[str], rows: list[list[str]]) -> list[str]:
     return ["", title, fmt.format(*header), *(fmt.format(*r) for r in rows)]
 
 
+def _guards(gd: dict) -> list[str]:
+    """The guards section: hostile uploads over HTTP, meshes refused from their counts, the fuzz cases, a
+    busy port."""
+    rows = [
+        [name, f"{u['bytes']:,}", f"{u['status']}" + ("" if u["status"] == u["expected"] else f" (not {u['expected']})"),
+         _num(u["median_ms"]), _num(u["max_ms"])]
+        for name, u in gd["uploads"].items()
+    ]  # fmt: skip
+    lines = _table(
+        "hostile uploads refused by the service (loopback), request to answer; ms",
+        ["upload", "bytes", "status", "median", "max"],
+        rows,
+    )
+    rows = [
+        [
+            name,
+            f"{d['bytes']:,}",
+            "yes" if d["refused"] else "NO",
+            _num(d["median_ms"], 2),
+            _num(d["max_ms"], 2),
+        ]
+        for name, d in gd["declaring"].items()
+    ]
+    lines += _table(
+        "meshes refused from what they declare, before parsing (load_mesh); ms",
+        ["file", "bytes", "refused", "median", "max"],
+        rows,
+    )
+    fz, bp = gd["fuzz"], gd["busy_port"]
+    lines += _table(
+        f"damaged meshes (load_mesh), {fz['cases']} cases: {fz['loaded']} loaded, {fz['refused']} refused, "
+        f"{fz['other_error']} other errors; ms",
+        ["p50", "p99", "max", *(f"max {f}" for f in fz["by_format_max_ms"])],
+        [[_num(fz["p50_ms"], 2), _num(fz["p99_ms"], 2), _num(fz["max_ms"], 2),
+          *(_num(v, 2) for v in fz["by_format_max_ms"].values())]],
+    )  # fmt: skip
+    lines.append(
+        f"posedesc serve on a busy port: exit {', '.join(map(str, bp['exit_codes']))} after "
+        f"{bp['median_s']:.2f} s (median of {bp['runs']}; max {bp['max_s']:.2f} s)"
+    )
+    return lines
+
+
 def _roll(ro: dict, summary: dict) -> list[str]:
     """The roll section: in-process per model and set-up, then the served set-up."""
     n_obj = ro["objects"]
@@ -217,6 +260,18 @@ def render(result: dict) -> str:
             ["templates", "embedded answers p50 / p99", "Milvus answers p50 / p99", "embedded add_object",
              "Milvus add_object", f"Milvus recall@{mv['k']}"],
             rows,
+        )  # fmt: skip
+    if gd := sec.get("guards"):
+        lines += _guards(gd)
+    if (pr := (sec.get("milvus") or {}).get("propagation")) is not None:
+        lines += _table(
+            f"replicas: two stores on one Milvus and one shared directory (each polls every "
+            f"{pr['poll_seconds'] * 1e3:.0f} ms): from the call's start until the other store shows the change; ms",
+            ["change", "seen p50", "seen max", "call p50", "runs"],
+            [
+                [what, *(_num(pr[what][k]) for k in ("seen_p50_ms", "seen_max_ms", "call_p50_ms")), str(pr[what]["runs"])]
+                for what in ("registration", "deletion")
+            ],
         )  # fmt: skip
     if result.get("targets"):
         rows = []

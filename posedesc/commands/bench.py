@@ -1,6 +1,12 @@
 """Measure speed beside HOG, LineMOD and exact k-NN.
 
 Every figure beside its baseline in the same run: a table, and JSON for the README.
+
+The default run: descriptor, recognition (8 and 100 objects), knn, http, register, roll (the shipped
+model), train and guards (the times of the service's refusals): 7.5 minutes on this project's 2-core
+machine (measured at load 1-1.6; the roll section is 4.8 of them). --all adds recognition at 1,000
+objects, the roll section's untrained stand-in model and the milvus section (a Milvus server, replica
+propagation): 20-30 minutes. --quick: every section at tiny sizes, a few minutes (the tests').
 """
 
 from __future__ import annotations
@@ -9,8 +15,12 @@ import argparse
 import json
 from dataclasses import replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from posedesc.cli import UserError
+
+if TYPE_CHECKING:
+    from benchmarks.suite import BenchConfig
 
 
 def _ints(text: str) -> tuple[int, ...]:
@@ -29,12 +39,20 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--only",
         default=None,
-        help="comma-separated sections: descriptor,recognition,knn,http,register,roll,train,milvus "
+        help="comma-separated sections: descriptor,recognition,knn,http,register,roll,train,guards,milvus "
         "(default: all but milvus)",
+    )
+    p.add_argument(
+        "--all",
+        action="store_true",
+        help="also what the default leaves out for time: recognition at 1,000 objects, the roll section's "
+        "untrained model, the milvus section",
     )
     p.add_argument("--models", type=Path, default=Path("models"), help="folder of posedesc-*.onnx models")
     p.add_argument("--modality", choices=("rgb", "depth", "rgbd"), default="rgb", help="the model measured")
-    p.add_argument("--objects", default=None, help="object counts for the LineMOD comparison (8,100,1000)")
+    p.add_argument(
+        "--objects", default=None, help="object counts for the LineMOD comparison (8,100; --all: 8,100,1000)"
+    )
     p.add_argument(
         "--linemod-max-objects",
         type=int,
@@ -55,7 +73,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default=None,
         help="models of the roll section, comma-separated: shipped (the --models folder's), untrained "
         "(a stand-in exported now: the coming design, 32-d, inplane_step in its metadata) or .onnx paths "
-        "(default shipped,untrained)",
+        "(default shipped; --all: shipped,untrained)",
     )
     p.add_argument(
         "--roll-objects", type=int, default=None, help="objects in the roll section's stores (100)"
@@ -69,12 +87,26 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from benchmarks.objects import VARIANTS
-    from benchmarks.suite import SECTIONS, BenchConfig
     from benchmarks.suite import run as run_bench
     from benchmarks.table import render
 
+    cfg = configure(args)
+    args.json.parent.mkdir(parents=True, exist_ok=True)
+    result = run_bench(cfg)
+    print(render(result))
+    args.json.write_text(json.dumps(result, indent=1) + "\n")
+    print(f"\nwrote {args.json}")
+    return 0
+
+
+def configure(args: argparse.Namespace) -> BenchConfig:
+    """The run the arguments ask for: the default, --all or --quick, then each size given."""
+    from benchmarks.objects import VARIANTS
+    from benchmarks.suite import SECTIONS, BenchConfig
+
     cfg = BenchConfig(models=args.models, modality=args.modality, seed=args.seed)
+    if args.all:
+        cfg = cfg.everything()
     if args.quick:
         cfg = cfg.tiny()
     if args.only:
@@ -123,9 +155,4 @@ def run(args: argparse.Namespace) -> int:
     if cfg.distinct is not None:  # --quick: few shapes, but enough for the largest count
         needed = max(cfg.recognition.counts) if "recognition" in cfg.sections else 0
         cfg = replace(cfg, distinct=max(cfg.distinct, -(-needed // VARIANTS)))
-    args.json.parent.mkdir(parents=True, exist_ok=True)
-    result = run_bench(cfg)
-    print(render(result))
-    args.json.write_text(json.dumps(result, indent=1) + "\n")
-    print(f"\nwrote {args.json}")
-    return 0
+    return cfg

@@ -1,5 +1,6 @@
 """The milvus section of `posedesc bench` at tiny sizes against the session's real Milvus: both stores hold
-the same templates, so Milvus's answers are found by exact search too (recall), and the figures are there."""
+the same templates, so Milvus's answers are found by exact search too (recall), and the figures are there,
+with the replicas' propagation delay (what tests/service/test_replicas.py waits for without timing)."""
 
 from __future__ import annotations
 
@@ -24,7 +25,11 @@ def test_milvus_section(milvus):
         assert row["recognition"]["milvus"]["runs"] == 10 and row["recognition"]["embedded"]["p50_ms"] > 0
         assert row["registration"]["milvus"]["p50_ms"] > 0
     assert "embedded" in small["registration"] and "embedded" not in large["registration"]
+    # two stores on one Milvus, as two replicas: each saw the other's registration and deletion
+    for what in ("registration", "deletion"):
+        pr = out["propagation"][what]
+        assert pr["runs"] == 1 and pr["seen_p50_ms"] > 0 and pr["call_p50_ms"] > 0
     table = render({"machine": {"cores_usable": 2, "cpu": "x", "load_average_at_start": [0], "load_average_at_end": [0]},
                     "threads": {"onnxruntime_intra_op": 1, "faiss_omp": 1, "opencv": 1}, "seconds": {"total": 1},
                     "sections": {"milvus": out}})  # fmt: skip
-    assert "Milvus recall@5" in table
+    assert "Milvus recall@5" in table and "until the other store shows the change" in table

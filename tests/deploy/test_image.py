@@ -23,6 +23,7 @@ from index.pose import View
 pytestmark = [pytest.mark.container, pytest.mark.slow]
 COMPOSE_FILE = Path(__file__).resolve().parents[2] / "deploy" / "docker-compose.yml"
 CONTAINER_UID = 10001  # the Dockerfile's USER
+HANG = 300.0  # seconds: only stops a wait that would never end, not a measure of speed
 API_KEY = "test-key"  # the container listens on 0.0.0.0: writes need a key (or POSEDESC_ALLOW_OPEN_WRITES)
 
 
@@ -154,15 +155,15 @@ def test_image_replicas_share_a_milvus_store(podman, image, milvus, tmp_path, l_
         for url, name in zip(urls, names, strict=True):
             podman.wait_ready(url, name)
         object_id = register(urls[0], l_shape, "l-shape")
-        deadline = time.monotonic() + 1.0
+        deadline = time.monotonic() + HANG  # seen, however slowly (how soon: `posedesc bench --only milvus`)
         while object_id not in {o["object_id"] for o in httpx.get(f"{urls[1]}/objects", timeout=10).json()}:
-            assert time.monotonic() < deadline, "not seen on the other replica within 1 s"
+            assert time.monotonic() < deadline, "never seen on the other replica"
             time.sleep(0.05)
         r = httpx.delete(f"{urls[1]}/objects/{object_id}", headers={"X-API-Key": API_KEY}, timeout=30)
         assert r.status_code == 204, r.text
-        deadline = time.monotonic() + 1.0
+        deadline = time.monotonic() + HANG
         while httpx.get(f"{urls[0]}/objects/{object_id}", timeout=10).status_code != 404:
-            assert time.monotonic() < deadline, "deletion not seen on the first replica within 1 s"
+            assert time.monotonic() < deadline, "deletion never seen on the first replica"
             time.sleep(0.05)
     finally:
         for name in names:

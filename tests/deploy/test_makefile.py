@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
-TARGETS = ("setup", "setup-serve", "lint", "test", "serve", "bench", "lock")
+TARGETS = ("setup", "setup-serve", "lint", "test", "check", "serve", "bench", "lock")
 
 
 @pytest.mark.parametrize("target", TARGETS)
@@ -37,3 +37,35 @@ def test_setup_installs_from_the_locks() -> None:
     )
     assert "pip install" in run.stdout and "-r requirements.lock" in run.stdout, run.stdout
     assert not any(line.startswith(("-r", "r ")) for line in run.stdout.splitlines()), run.stdout
+
+
+def test_check_runs_the_tests_not_marked_slow_and_test_runs_them_all() -> None:
+    def recipe(target: str) -> list[str]:
+        run = subprocess.run(
+            ["make", "-n", "-B", "--no-print-directory", target], cwd=ROOT, capture_output=True, text=True
+        )
+        assert run.returncode == 0, run.stderr
+        return [line for line in run.stdout.splitlines() if "pytest" in line]
+
+    assert recipe("check") == ['.venv/bin/pytest -q -m "not slow"']
+    assert recipe("test") == [".venv/bin/pytest -q"]  # every tier: nothing deselected
+    phony = next(line for line in (ROOT / "Makefile").read_text().splitlines() if line.startswith(".PHONY:"))
+    assert "check" in phony.split()
+
+
+def test_the_slow_marker_is_declared_and_deselects() -> None:
+    """`-m "not slow"` leaves out a test marked slow (an undeclared marker would only warn)."""
+    run = subprocess.run(
+        [
+            str(ROOT / ".venv/bin/pytest"),
+            "--collect-only",
+            "-q",
+            "-m",
+            "not slow",
+            "tests/deploy/test_image.py",
+        ],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+    )
+    assert "no tests collected" in run.stdout and "deselected" in run.stdout, run.stdout

@@ -6,6 +6,7 @@ import json
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from evaluation.config import Config
 from evaluation.hog import HOG_DIM_PER_CHANNEL, hog_descriptors
@@ -27,6 +28,7 @@ def check_table(table: dict) -> None:
             assert all(row[t] >= table[f"k{k - 1}"][t] for t in row)  # nor does a larger k
 
 
+@pytest.mark.slow
 def test_json_contract_and_report(tiny_bop, untrained_models, tmp_path):
     out = tmp_path / "rgb.json"
     args = [
@@ -72,6 +74,7 @@ def test_baselines_on_two_tiny_shapes(tiny_bop, untrained_models):
         assert k1["20"] >= 0.6, (name, k1)
 
 
+@pytest.mark.slow
 def test_depth_on_synthetic_scenes_and_the_full_protocol(tiny_bop, untrained_models, tmp_path):
     """No depth in the dataset: the depth run says it used synthetic scenes. The full protocol's
     templates carry in-plane variants."""
@@ -142,6 +145,7 @@ def test_split_frames_come_from_the_models_metadata(tiny_bop):
     assert split_frames({}, tiny_bop, 2, "test") is None
 
 
+@pytest.mark.slow
 def test_service_protocol_plumbing(tiny_bop, untrained_models, tmp_path):
     """The default protocol registers the objects with the service's registration and asks the
     service's `recognise`: both errors, timing, the settings it ran with, every method."""

@@ -80,6 +80,7 @@ def test_clean_render_without_the_sensor(lmo, renderer):
 @pytest.mark.parametrize(
     ("modality", "test_data"), [("rgbd", "real colour, rendered depth"), ("depth", "rendered depth")]
 )
+@pytest.mark.slow
 def test_service_protocol_sends_rendered_depth(lmo, posedesc_models, tmp_path, modality, test_data):
     """An evaluation on two real frames: real colour (rgbd) with rendered depth, said in the JSON; the
     service measured the distance on that depth where the objects are (their surface, about ‖t‖)."""

@@ -12,6 +12,9 @@ import pytest
 from posedesc.cli import main
 from tests.evaluation.test_evaluate import check_table
 
+# the protocol on real LM-O frames through the service: `make test`, not `make check`
+pytestmark = pytest.mark.slow
+
 ROOT = Path(__file__).resolve().parents[2]
 MODEL = ROOT / "models" / "posedesc-rgb.onnx"
 

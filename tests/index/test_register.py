@@ -152,6 +152,7 @@ def test_model_metadata_in_plane_step():
             ModelInfo.from_metadata({**base, "inplane_step": bad})
 
 
+@pytest.mark.slow
 def test_an_rgbd_model_made_from_the_rgb_one_shares_its_templates(
     tmp_path, l_shape, render_worker, embedders
 ):

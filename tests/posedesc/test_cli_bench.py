@@ -2,10 +2,15 @@
 
 from __future__ import annotations
 
+import argparse
 import json
 import math
 
+import pytest
+
+from benchmarks.suite import DEFAULT_SECTIONS, OPT_IN, SECTIONS
 from posedesc.cli import main
+from posedesc.commands.bench import add_arguments, configure
 from service.settings import Settings
 
 
@@ -13,6 +18,7 @@ def positive(x: object) -> bool:
     return isinstance(x, int | float) and math.isfinite(x) and x > 0
 
 
+@pytest.mark.slow
 def test_bench_quick(tmp_path, posedesc_models, capsys):
     out = tmp_path / "bench.json"
     assert main(["bench", "--quick", "--models", str(posedesc_models), "--json", str(out)]) == 0
@@ -77,6 +83,46 @@ def test_bench_quick(tmp_path, posedesc_models, capsys):
         assert positive(s[key]), key
     assert s["roll_model_fingerprint"] == ro["models"]["untrained"]["fingerprint"]
     assert "from a decoded patch to the answer" in printed
+    # guards, quick: the small hostile uploads over HTTP, the declaring meshes, 20 fuzz cases, a busy port
+    g = result["sections"]["guards"]
+    assert g["uploads"] and all(u["status"] == u["expected"] for u in g["uploads"].values()), g["uploads"]
+    assert all(u["runs"] == 1 and positive(u["median_ms"]) for u in g["uploads"].values())
+    assert all(d["refused"] for d in g["declaring"].values()) and len(g["declaring"]) == 5
+    assert g["fuzz"]["cases"] == 20 and g["fuzz"]["other_error"] == 0
+    assert g["fuzz"]["loaded"] + g["fuzz"]["refused"] == 20
+    assert g["busy_port"]["exit_codes"] == [2]
+    for key in (
+        "guards_upload_max_ms",
+        "guards_declaring_max_ms",
+        "guards_fuzz_max_ms",
+        "guards_busy_port_s",
+    ):
+        assert positive(s[key]), key
+    assert "hostile uploads refused by the service" in printed and "posedesc serve on a busy port" in printed
+
+
+def options(*argv: str) -> argparse.Namespace:
+    parser = argparse.ArgumentParser()
+    add_arguments(parser)
+    return parser.parse_args(["--json", "b.json", *argv])
+
+
+def test_the_default_run_leaves_out_the_opt_in_parts():
+    """What takes the default past ten minutes on two cores is opt-in (--all, or named)."""
+    cfg = configure(options())
+    assert cfg.sections == DEFAULT_SECTIONS and "milvus" not in cfg.sections and "guards" in cfg.sections
+    assert max(cfg.recognition.counts) == 100 and cfg.roll.models == ("shipped",)
+    every = configure(options("--all"))
+    assert every.sections == SECTIONS and "milvus" in every.sections
+    assert 1000 in every.recognition.counts and every.roll.models == ("shipped", "untrained")
+    assert every.guards == cfg.guards and every.knn == cfg.knn  # the rest at the default's sizes
+    # each opt-in part can be asked for alone, as OPT_IN says
+    assert configure(options("--only", "milvus")).sections == ("milvus",)
+    assert configure(options("--objects", "8,100,1000")).recognition.counts == (8, 100, 1000)
+    assert configure(options("--roll-models", "shipped,untrained")).roll.models == ("shipped", "untrained")
+    assert len(OPT_IN) == 3
+    quick = configure(options("--quick"))
+    assert quick.guards.small_only and quick.guards.fuzz_cases < cfg.guards.fuzz_cases
 
 
 def test_bench_errors(tmp_path, capsys):

@@ -5,8 +5,10 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pytest
 
 
+@pytest.mark.slow
 def test_probe_registers_once_and_compares_answers(lmo, tmp_path, capsys, script):
     probe = script("probe_recognise")
     data, first, second = tmp_path / "store", tmp_path / "a.json", tmp_path / "b.json"

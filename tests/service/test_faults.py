@@ -77,6 +77,7 @@ def check_consistent(server: Server, data_dir: Path) -> dict[int, str]:
     return objects
 
 
+@pytest.mark.slow
 def test_sigkill_during_a_registration_leaves_the_object_wholly_present_or_absent(
     tmp_path, posedesc_models, l_shape, t_shape
 ):

@@ -24,6 +24,9 @@ from service_helpers import Server, register
 
 from service.main import app
 
+# schemathesis against a real server, hundreds of requests: `make test`, not `make check`
+pytestmark = pytest.mark.slow
+
 CHECKS = [
     not_a_server_error,
     status_code_conformance,

@@ -11,9 +11,11 @@ import subprocess
 import time
 
 import httpx
+import pytest
 from service_helpers import ROOT, Server, free_port, ply_bytes, serve_command
 
 OPEN = "POSEDESC_ALLOW_OPEN_WRITES"
+HANG = 300.0  # seconds: only stops a test that would never end, not a measure of speed
 
 
 def test_a_busy_port_stops_serve_at_once_in_one_line(tmp_path, posedesc_models):
@@ -22,19 +24,18 @@ def test_a_busy_port_stops_serve_at_once_in_one_line(tmp_path, posedesc_models):
         taken.listen()
         port = taken.getsockname()[1]
         data_dir = tmp_path / "data"
-        t0 = time.monotonic()
         r = subprocess.run(
             serve_command(port, data_dir, posedesc_models),
             cwd=ROOT,
             capture_output=True,
             text=True,
-            timeout=120,
+            timeout=HANG,
         )
-        seconds = time.monotonic() - t0
     assert r.returncode == 2, r.stderr
     assert r.stderr == f"posedesc serve: error: cannot listen on 127.0.0.1:{port}: Address already in use\n"
-    assert not (data_dir / "store.sqlite").exists()  # the store was never opened, nor the models loaded
-    print(f"refused in {seconds:.2f} s")
+    # "at once": the store was never opened, nor the models loaded (the time it takes: `posedesc bench
+    # --only guards`)
+    assert not (data_dir / "store.sqlite").exists()
 
 
 #: every line `posedesc serve` logs: local time (ISO 8601, ms), level, logger, message
@@ -43,7 +44,7 @@ LOG_LINE = re.compile(r"^\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d\.\d{3} (DEBUG|INFO|WARNI
 
 def test_the_ready_line_comes_when_readyz_is_200(tmp_path, posedesc_models):
     with Server(tmp_path / "data", posedesc_models, log_level="info") as server:
-        end = time.monotonic() + 120
+        end = time.monotonic() + HANG
         while "ready on" not in server.log.read_text():
             assert server.proc.poll() is None and time.monotonic() < end, server.log.read_text()
             time.sleep(0.05)
@@ -66,6 +67,7 @@ def test_the_ready_line_comes_when_readyz_is_200(tmp_path, posedesc_models):
     assert any('"GET /readyz HTTP/1.1" 200' in x for x in lines)
 
 
+@pytest.mark.slow
 def test_writes_on_a_public_address_need_a_key_or_an_opt_in(tmp_path, posedesc_models, t_shape):
     mesh = {"files": {"mesh": ("t.ply", ply_bytes(t_shape))}, "data": {"name": "T"}}
     with Server(tmp_path / "a", posedesc_models, host="0.0.0.0") as server:
@@ -101,16 +103,16 @@ def test_loopback_is_the_default(tmp_path, posedesc_models):
     cmd.remove("127.0.0.1")
     proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
-        end = time.monotonic() + 60
+        end = time.monotonic() + HANG
         while True:
             listening = subprocess.run(["ss", "-Hltn", f"sport = :{port}"], capture_output=True, text=True)
-            if listening.stdout.strip() or time.monotonic() > end:
+            if listening.stdout.strip() or proc.poll() is not None or time.monotonic() > end:
                 break
             time.sleep(0.1)
         assert listening.stdout.split()[3] == f"127.0.0.1:{port}", listening.stdout
     finally:
         proc.kill()
-        proc.wait(timeout=60)
+        proc.wait(timeout=HANG)
 
 
 def test_make_serve_takes_host_and_port():

@@ -14,6 +14,9 @@ import httpx
 import pytest
 from service_helpers import ROOT, Server
 
+# runs the README's examples against real servers: `make test`, not `make check`
+pytestmark = pytest.mark.slow
+
 MODELS = ROOT / "models"
 DEMO = ["mug", "lamp", "robot", "duck"]
 

@@ -19,6 +19,9 @@ from service_helpers import ROOT, created, service_settings, wait_ready
 from index.bop import BopDataset, instance_patch
 from service.main import create_app
 
+# registers the real LM-O objects and reads real Kinect frames: `make test`, not `make check`
+pytestmark = pytest.mark.slow
+
 LMO_DEPTH = ROOT.parent / "shared" / "data" / "lmo-depth"
 SCENE = LMO_DEPTH / "test" / "000002"
 # can, cat, holepuncher: over 95 % visible, the surface at their centre within 4 % of ‖t‖

@@ -1,6 +1,6 @@
 """Two real `posedesc serve` replicas (uvicorn on loopback, subprocesses) sharing one real Milvus (the
-session's server) and one data directory: what one does, the other sees within a second; concurrent
-recognitions while objects come and go; a replica SIGKILLed mid-registration; Milvus restarted under them.
+session's server) and one data directory: what one does, the other sees (how soon: `posedesc bench --only
+milvus`, its propagation figures); concurrent recognitions while objects come and go; a replica SIGKILLed mid-registration; Milvus restarted under them.
 Answers are k = 100 on plain patches: more than all the templates of these small stores, so each answer
 shows exactly which objects the replica searched."""
 
@@ -17,7 +17,7 @@ from service_helpers import Server, patch_files, ply_bytes
 pytestmark = pytest.mark.slow
 
 PATCHES = patch_files()
-BOUND = 1.0  # seconds: what one replica does, the other sees within this
+HANG = 300.0  # seconds: only stops a wait that would never end, not a measure of speed
 
 
 def env(milvus, prefix: str) -> dict[str, str]:
@@ -49,8 +49,8 @@ def post(url: str, mesh, name: str) -> httpx.Response:
     return httpx.post(f"{url}/objects", files=files, data={"name": name}, timeout=60)
 
 
-def finish(url: str, job_id: str, timeout: float = 60.0) -> dict:
-    end = time.monotonic() + timeout
+def finish(url: str, job_id: str) -> dict:
+    end = time.monotonic() + HANG
     while (job := httpx.get(f"{url}/jobs/{job_id}", timeout=30).json())["status"] == "running":
         assert time.monotonic() < end, "registration did not finish"
         time.sleep(0.05)
@@ -67,13 +67,12 @@ def seen(url: str) -> dict[str, set[int]]:
     return out
 
 
-def within(bound: float, check) -> float:
-    """Seconds until `check()` is true; fails after `bound`."""
-    t0 = time.monotonic()
+def until(check, what: str = "never seen") -> None:
+    """Polls `check()` until it is true (HANG only stops a wait that would never end)."""
+    end = time.monotonic() + HANG
     while not check():
-        assert time.monotonic() - t0 < bound, f"not seen within {bound} s"
+        assert time.monotonic() < end, what
         time.sleep(0.02)
-    return time.monotonic() - t0
 
 
 def listed(url: str) -> dict[int, str]:
@@ -87,41 +86,46 @@ def test_register_on_one_recognise_and_delete_on_the_other(replicas, l_shape, t_
     job = finish(b.url, r.json()["job_id"])  # polled on the replica that does not run it
     assert job["status"] == "done", job
     oid = job["object_id"]
-    t_seen = within(BOUND, lambda: oid in listed(b.url))
+    until(lambda: oid in listed(b.url))
     assert all(oid in s for s in seen(b.url).values())
     # one name, across replicas: 409 at once, naming the object
     r = post(b.url, t_shape, "L")
     assert r.status_code == 409 and f"object_id {oid}" in r.json()["detail"]
     assert httpx.delete(f"{b.url}/objects/{oid}", timeout=30).status_code == 204
-    t_gone = within(BOUND, lambda: httpx.get(f"{a.url}/objects/{oid}", timeout=30).status_code == 404)
+    until(lambda: httpx.get(f"{a.url}/objects/{oid}", timeout=30).status_code == 404)
     assert all(oid not in s for s in seen(a.url).values())
     assert httpx.delete(f"{a.url}/objects/{oid}", timeout=30).status_code == 404
-    print(f"registration seen on the other replica after {t_seen:.2f} s, deletion after {t_gone:.2f} s")
 
 
 def test_recognitions_while_objects_come_and_go(replicas, l_shape, t_shape):
+    """Each replica, once it answers 404 for a deleted object, never answers a recognition with it again;
+    every recognition succeeds meanwhile."""
     (a, b), _, _ = replicas
     stop = threading.Event()
-    deleted: dict[int, float] = {}  # object -> when its DELETE answered
+    gone: dict[tuple[str, int], float] = {}  # (replica, object) -> when that replica first said 404
+    started: dict[str, list[float]] = {a.url: [], b.url: []}  # when each recognition started, per replica
     problems: list[str] = []
-    calls = [0]
 
     def recognise(url: str) -> None:
-        with httpx.Client(base_url=url, timeout=30) as c:
+        with httpx.Client(base_url=url, timeout=HANG) as c:
             while not stop.is_set():
                 for files in PATCHES.values():
                     t0 = time.monotonic()
                     r = c.post("/recognize", files=files, data={"k": "100"})
-                    calls[0] += 1
+                    started[url].append(t0)
                     if r.status_code != 200:
                         problems.append(f"{url}: {r.status_code} {r.text[:200]}")
                         continue
                     for m in r.json()["matches"]:
-                        gone = deleted.get(m["object_id"])
-                        if gone is not None and t0 > gone + BOUND:
-                            problems.append(
-                                f"{url}: object {m['object_id']} answered {t0 - gone:.2f} s after its deletion"
-                            )
+                        said = gone.get((url, m["object_id"]))
+                        if said is not None and t0 > said:
+                            problems.append(f"{url}: object {m['object_id']} answered after its 404")
+
+    def said_gone(url: str, oid: int) -> bool:
+        if httpx.get(f"{url}/objects/{oid}", timeout=HANG).status_code != 404:
+            return False
+        gone[(url, oid)] = time.monotonic()  # once the 404 came: a recognition started later follows it
+        return True
 
     threads = [threading.Thread(target=recognise, args=(s.url,)) for s in (a, b)]
     for t in threads:
@@ -131,15 +135,18 @@ def test_recognitions_while_objects_come_and_go(replicas, l_shape, t_shape):
             here, there = (a, b) if i % 2 == 0 else (b, a)
             job = finish(there.url, post(here.url, mesh, f"churn-{i}").json()["job_id"])
             assert job["status"] == "done", job
-            assert httpx.delete(f"{there.url}/objects/{job['object_id']}", timeout=30).status_code == 204
-            deleted[job["object_id"]] = time.monotonic()
-        time.sleep(BOUND + 0.5)  # recognitions go on past the bound of the last deletion
+            oid = job["object_id"]
+            assert httpx.delete(f"{there.url}/objects/{oid}", timeout=30).status_code == 204
+            for url in (a.url, b.url):
+                until(lambda url=url, oid=oid: said_gone(url, oid), f"{url} still lists object {oid}")
+        # recognitions go on after the last 404: each replica answers a few more that must not show it
+        last = max(gone.values())
+        until(lambda: all(sum(t > last for t in list(ts)) >= 2 * len(PATCHES) for ts in started.values()))
     finally:
         stop.set()
         for t in threads:
             t.join()
     assert problems == []
-    assert calls[0] > 20
 
 
 def test_a_replica_killed_mid_registration_leaves_no_half_object(replicas, posedesc_models, t_shape, milvus):
@@ -153,7 +160,7 @@ def test_a_replica_killed_mid_registration_leaves_no_half_object(replicas, posed
     # the templates go in just before the record turns live: kill while they are being written
     prefix = settings["POSEDESC_STORE_PREFIX"]
     pending = []
-    end = time.monotonic() + 30
+    end = time.monotonic() + HANG
     while not pending and time.monotonic() < end:
         pending = client.query(f"{prefix}_objects", filter="state == 0", output_fields=["object_id"])
     a.kill()
@@ -162,7 +169,7 @@ def test_a_replica_killed_mid_registration_leaves_no_half_object(replicas, posed
     # the other replica never shows it, nor answers with it, and says the job failed once `a` is stale
     for _ in range(10):
         assert oid not in listed(b.url) and all(oid not in s for s in seen(b.url).values())
-    job = finish(b.url, r.json()["job_id"], timeout=30)
+    job = finish(b.url, r.json()["job_id"])
     assert job["status"] in ("failed", "done"), job
     if job["status"] == "failed":
         assert "stopped" in job["error"]
@@ -178,7 +185,7 @@ def test_a_replica_killed_mid_registration_leaves_no_half_object(replicas, posed
         )
 
     if oid not in listed(b.url):
-        within(30.0, lambda: orphans() == 0)
+        until(lambda: orphans() == 0, "orphan templates never swept")
     client.close()
     # a new replica in place of the killed one serves the same store
     again = Server(shared, posedesc_models, settings)
@@ -192,7 +199,7 @@ def test_milvus_restarted_under_the_replicas(replicas, milvus, l_shape):
     job = finish(a.url, post(b.url, l_shape, "survivor").json()["job_id"])
     assert job["status"] == "done", job
     oid = job["object_id"]
-    within(BOUND, lambda: oid in listed(a.url))
+    until(lambda: oid in listed(a.url))
     milvus.stop()
     try:
         for url in (a.url, b.url):
@@ -200,7 +207,7 @@ def test_milvus_restarted_under_the_replicas(replicas, milvus, l_shape):
             assert r.status_code == 503 and "Milvus" in r.json()["detail"], r.text
             r = httpx.delete(f"{url}/objects/{oid}", timeout=30)
             assert r.status_code == 503 and "Milvus" in r.json()["detail"], r.text
-            within(5.0, lambda url=url: httpx.get(f"{url}/readyz", timeout=30).status_code == 503)
+            until(lambda url=url: httpx.get(f"{url}/readyz", timeout=30).status_code == 503)
         r = post(a.url, l_shape, "while-down")
         if r.status_code == 202:  # accepted, then failed in the job: polled on the other replica
             job = finish(b.url, r.json()["job_id"])
@@ -211,7 +218,7 @@ def test_milvus_restarted_under_the_replicas(replicas, milvus, l_shape):
         milvus.start()
     # the replicas recover without a restart: ready again, the object found on both
     for url in (a.url, b.url):
-        within(120.0, lambda url=url: httpx.get(f"{url}/readyz", timeout=30).status_code == 200)
+        until(lambda url=url: httpx.get(f"{url}/readyz", timeout=30).status_code == 200)
         # ready means its collections are loaded again: searches work at once
         assert oid in seen(url)["rgb"]
 

@@ -49,6 +49,7 @@ def test_trunk_is_imagenet_mobilenet_and_frozen():
         DescriptorNet(NetConfig("depth", 32, arch="trunk"))
 
 
+@pytest.mark.slow
 def test_mask_head_exports_as_a_third_output(tmp_path):
     """A model with a mask head answers its logits as a third output, as torch computes them; the
     embedder reads them as where the centred object is."""
@@ -74,6 +75,7 @@ def test_mask_head_exports_as_a_third_output(tmp_path):
         export_onnx(DescriptorNet(NetConfig("rgb", 16)), tmp_path / "p.onnx", 200.0, mask=mask)
 
 
+@pytest.mark.slow
 def test_a_fine_tuned_mask_runs_its_own_trunk(tmp_path):
     """A mask head fine-tuned with its own copy of the trunk (`--mask-finetune`) exports that copy: the
     mask follows the copy's weights, the descriptor and local features the frozen trunk's."""
@@ -100,6 +102,7 @@ def test_a_fine_tuned_mask_runs_its_own_trunk(tmp_path):
     np.testing.assert_allclose(emb(x), torch_descriptors(net, x), atol=1e-4)
 
 
+@pytest.mark.slow
 def test_a_colour_model_exports_as_rgbd_with_its_mask_cut_from_depth(tmp_path):
     """The RGB-D model is the colour model on the colour channels (same descriptors and local features),
     and its mask is where the depth lies within NEAR in front of the centre's surface and FAR behind

@@ -15,6 +15,8 @@ from training.local import LocalTrunk
 from training.mask import MaskNet
 from training.model import DescriptorNet, NetConfig
 
+pytestmark = pytest.mark.slow  # trains and grafts real heads: `make test`, not `make check`
+
 
 @pytest.fixture(scope="module")
 def exported(tmp_path_factory):

@@ -82,6 +82,7 @@ def test_the_outline_weight_counts_the_outline_s_errors_more():
     assert away[1] == pytest.approx(away[0], rel=1e-4) and away[0] > 0
 
 
+@pytest.mark.slow
 def test_the_head_learns_masks_and_iou_measures_them(shapes, tmp_path):
     """A few minutes' budget cut to 60 steps: the validation-free run still writes its checkpoint, and
     the head's masks on fresh samples overlap the true ones far better than an all-object guess."""

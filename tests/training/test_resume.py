@@ -83,6 +83,7 @@ def test_resume_refuses_an_empty_folder_and_pca(bop, tmp_path, capsys):
         assert says in err and err.count("\n") == 1, err
 
 
+@pytest.mark.slow
 def test_the_command_neither_overwrites_nor_resumes_a_run_it_should_not(bop, tmp_path, capsys):
     """A real run (2 steps, with the command's settings, on two small shapes: `train` takes the data it
     is given) is finished: without --resume the command refuses to train over it, with --resume it says

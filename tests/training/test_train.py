@@ -13,6 +13,8 @@ from training.model import DescriptorNet, NetConfig
 from training.render_cache import build
 from training.train import BatchProducer, TrainConfig, batch_descriptors, load_checkpoint, train
 
+pytestmark = pytest.mark.slow  # real trainings: `make test`, not `make check`
+
 
 @pytest.fixture(scope="module")
 def two_shapes():
@@ -39,7 +41,6 @@ def batch_loss(net, batches, stems) -> float:
     return float(np.mean([t[1]["triplet"] for t in terms]))
 
 
-@pytest.mark.slow
 def test_loss_falls_and_shapes_separate(two_shapes, tmp_path):
     data = two_shapes
     cfg = TrainConfig(
