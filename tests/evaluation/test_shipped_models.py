@@ -22,6 +22,9 @@ from index.embed import Embedder
 from posedesc.cli import main
 from tests.evaluation.test_evaluate import check_table
 
+# every protocol with the shipped models: about a minute and a half on 2 cores
+pytestmark = pytest.mark.slow
+
 ROOT = Path(__file__).resolve().parents[2]
 MODELS = {m: ROOT / "models" / f"posedesc-{m}.onnx" for m in ("rgb", "depth", "rgbd")}
 FRAMES, OBJECTS = (8, 58), (1, 5)

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from index.symmetry import view_error
+from index.pose_error import view_error
 from index.viewpoints import hemisphere
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -139,6 +139,9 @@ def test_render_patches_writes_queries_the_service_answers(tmp_path, l_shape):
         demo_objects=False,
         level=2,
         sync_seconds=300.0,
+        # the files are what is checked, not the open set: the models' calibrations were made at level 3
+        # on LM-O objects and do not hold for two plain synthetic shapes at level 2
+        reject_above="off",
     )
     with TestClient(create_app(settings)) as c:
         while c.get("/readyz").status_code != 200:
