@@ -17,7 +17,8 @@ BOP's model-based errors (Hodaň et al., BOP 2018/2019/2020), the model's points
 - `add`, `adi` (ADD-S) (mm): the mean distance between corresponding / nearest transformed points;
 - `te` (mm), `re` (degrees): translation and rotation errors; `within_deg_cm`: the classic "5°, 5 cm";
 - `vsd`: the visible surface discrepancy, from depth maps rendered at both poses (`render_depths`);
-- `bop_recall`: the recall over BOP19's thresholds and the average recall AR, as the challenge scores."""
+- `bop_recall`: the recall over BOP19's thresholds and the average recall AR, as the challenge scores, from
+  one error per target; `bop_matches`: BOP's matching of several scored estimates to an image's instances."""
 
 from __future__ import annotations
 
@@ -346,3 +347,26 @@ def bop_recall(
     if v.shape != (len(d), len(VSD_TAUS)):
         raise ValueError(f"vsd_errors must be (targets, {len(VSD_TAUS)} taus); got {v.shape}")
     return BopRecall(mssd_r, mspd_r, np.stack([recall(v[:, i], VSD_THRESHOLDS) for i in range(v.shape[1])]))
+
+
+def bop_matches(
+    scores: np.ndarray | Sequence[float], errors: np.ndarray, thresholds: np.ndarray | Sequence[float]
+) -> np.ndarray:
+    """BOP's matching of one image's estimates of one object to its G annotated instances, at each
+    threshold: only the G best-scored estimates count; in descending score, each takes the still
+    unmatched instance it fits best, when that error is below the threshold. scores (E,), errors (E, G)
+    (nan: not computed, never matches), thresholds (T,) -> found (T, G) bool. The count of found targets
+    over all images, divided by the count of targets, is `recall`'s figure with several estimates."""
+    e = _missing_as_inf(errors)
+    if e.ndim != 2 or len(e) != len(scores):
+        raise ValueError(f"errors must be (estimates {len(scores)}, instances); got shape {e.shape}")
+    n_gt = e.shape[1]
+    order = np.argsort(-np.asarray(scores, float), kind="stable")[:n_gt]
+    found = np.zeros((len(thresholds), n_gt), bool)
+    for k, th in enumerate(thresholds):
+        for i in order:
+            free = np.where(found[k], np.inf, e[i])
+            j = int(np.argmin(free))
+            if free[j] < th:
+                found[k, j] = True
+    return found

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from index.pose_error import MSPD_THRESHOLDS, MSSD_THRESHOLDS, VSD_TAUS, bop_recall, recall
+from index.pose_error import MSPD_THRESHOLDS, MSSD_THRESHOLDS, VSD_TAUS, bop_matches, bop_recall, recall
 
 
 def test_bop19_thresholds():
@@ -45,3 +45,18 @@ def test_bad_input_is_a_clear_error():
         recall([], MSSD_THRESHOLDS)
     with pytest.raises(ValueError, match="taus"):
         bop_recall([0.0], [0.0], [100.0], 640, np.zeros((1, 3)))
+
+
+def test_bop_matching_takes_estimates_by_score_each_to_its_best_free_instance():
+    """Two instances; estimate a (best score) fits instance 0 at 4 and 1 at 6, estimate b fits 0 at 5
+    and 1 at 30, and a third estimate c (lowest score) fits 1 perfectly but only two estimates count."""
+    scores = [0.9, 0.5, 0.1]
+    errors = np.array([[4.0, 6.0], [5.0, 30.0], [np.nan, 0.0]])
+    found = bop_matches(scores, errors, [5.0, 10.0, 50.0])
+    # th 5: a takes 0; b's best free is 1 at 30, too far. th 10: the same. th 50: b takes 1.
+    assert found.tolist() == [[True, False], [True, False], [True, True]]
+    # Scores decide the order: b first takes 0 (at 5, below 10); a then takes 1 (at 6).
+    assert bop_matches([0.5, 0.9, 0.1], errors, [10.0]).tolist() == [[True, True]]
+    assert not bop_matches([0.9], np.array([[np.nan]]), [1e9]).any()  # nan never matches
+    with pytest.raises(ValueError, match="estimates"):
+        bop_matches([0.9, 0.1], np.zeros((3, 2)), [5.0])
