@@ -107,22 +107,28 @@ def silhouette(
 
 
 def draw_answers(image: np.ndarray, answers: Sequence[tuple[DrawMesh, Drawn]], K: np.ndarray) -> np.ndarray:
-    """`image` (H, W, 3) uint8 RGB with each answer drawn at its pose (the first on top: it is drawn last)
-    in `PALETTE`'s colours; an answer behind the camera is skipped. Returns a new image."""
+    """`image` (H, W, 3) uint8 RGB with each answer drawn at its pose in `PALETTE`'s colours, the first on
+    top (drawn last), then the labels, the first placed first, each moved down past those placed; an
+    answer behind the camera is skipped. Returns a new image."""
     out = np.ascontiguousarray(image, np.uint8).copy()
-    for i in reversed(range(len(answers))):
-        mesh, a = answers[i]
-        colour = REJECTED_RGB if a.rejected else PALETTE[i % len(PALETTE)]
-        draw_answer(out, mesh, a, K, colour)
+    colours = [REJECTED_RGB if a.rejected else PALETTE[i % len(PALETTE)] for i, (_, a) in enumerate(answers)]
+    anchors = [
+        draw_answer(out, mesh, a, K, colours[i]) for i, (mesh, a) in reversed(list(enumerate(answers)))
+    ]
+    taken: list[tuple[int, int, int, int]] = []
+    for (_, a), colour, anchor in zip(answers, colours, reversed(anchors), strict=True):
+        if anchor is not None:
+            taken.append(draw_label(out, a.label, anchor, colour, taken))
     return out
 
 
 def draw_answer(
     image: np.ndarray, mesh: DrawMesh, a: Drawn, K: np.ndarray, colour: tuple[int, int, int]
-) -> None:
-    """One answer, drawn into `image` (H, W, 3) uint8 in place: nothing when its origin is behind the camera."""
+) -> tuple[int, int] | None:
+    """One answer's silhouette and axes, drawn into `image` (H, W, 3) uint8 in place; returns where its
+    label goes (the silhouette's top left; None: nothing drawn, its origin behind the camera)."""
     if float(np.ravel(a.t)[2]) <= NEAR_MM:
-        return
+        return None
     mask = silhouette(mesh, a.R, a.t, K, image.shape[:2])
     on = mask > 0
     tint = np.array(colour, np.float32)
@@ -136,9 +142,7 @@ def draw_answer(
         cv2.drawContours(image, contours, -1, colour, 2, cv2.LINE_AA)
     origin = draw_axes(image, a.R, a.t, K, mesh.diameter / 2)
     ys, xs = np.nonzero(mask)
-    anchor = (int(xs.min()), int(ys.min())) if xs.size else origin
-    if anchor is not None:
-        draw_label(image, a.label, anchor, colour)
+    return (int(xs.min()), int(ys.min())) if xs.size else origin
 
 
 def draw_axes(
@@ -161,15 +165,29 @@ def draw_axes(
     return o
 
 
-def draw_label(image: np.ndarray, text: str, anchor: tuple[int, int], colour: tuple[int, int, int]) -> None:
-    """`text` on a dark box just above `anchor` (x, y), kept inside the image."""
+def draw_label(
+    image: np.ndarray,
+    text: str,
+    anchor: tuple[int, int],
+    colour: tuple[int, int, int],
+    taken: Sequence[tuple[int, int, int, int]] = (),
+) -> tuple[int, int, int, int]:
+    """`text` on a dark box just above `anchor` (x, y), kept inside the image and moved down past the
+    boxes in `taken` (x0, y0, x1, y1) it would cover; returns its own box."""
     font, scale, thick = cv2.FONT_HERSHEY_SIMPLEX, 0.5, 1
     (tw, th), base = cv2.getTextSize(text, font, scale, thick)
     h, w = image.shape[:2]
     x = int(np.clip(anchor[0], 0, max(0, w - tw - 4)))
     y = int(np.clip(anchor[1] - 6, th + 4, max(th + 4, h - base - 2)))
-    cv2.rectangle(image, (x, y - th - 4), (x + tw + 4, y + base), (20, 20, 20), -1)
+    for _ in range(len(taken)):  # each move clears one box at least
+        hit = [b for b in taken if b[0] < x + tw + 4 and x < b[2] and b[1] < y + base and y - th - 4 < b[3]]
+        if not hit:
+            break
+        y = min(max(b[3] for b in hit) + th + 5, max(th + 4, h - base - 2))
+    box = (x, y - th - 4, x + tw + 4, y + base)
+    cv2.rectangle(image, box[:2], box[2:], (20, 20, 20), -1)
     cv2.putText(image, text, (x + 2, y - 2), font, scale, colour, thick, cv2.LINE_AA)
+    return box
 
 
 def patch_view(patch: np.ndarray, spec: PatchSpec, distance_mm: float) -> tuple[np.ndarray, np.ndarray]:
