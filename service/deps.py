@@ -8,10 +8,11 @@ from __future__ import annotations
 
 import ipaddress
 import secrets
-from typing import Annotated
+from typing import Annotated, Any
 from urllib.parse import urlsplit
 
 from fastapi import Depends, Header, Request
+from fastapi.dependencies.models import Dependant
 
 from service.errors import ApiError
 from service.settings import Settings
@@ -76,8 +77,8 @@ async def known_fields(request: Request) -> None:
     """422 naming any form field the route does not take (`image` for `rgb`): FastAPI would ignore it,
     and the answer would then be about what is missing, not about what was misnamed. The accepted names
     are the route's own form parameters, so they cannot drift from the signature."""
-    route = request.scope.get("route")
-    accepted = [f.alias for f in getattr(getattr(route, "dependant", None), "body_params", [])]
+    dependant = getattr(request.scope.get("route"), "dependant", None)
+    accepted = [f.alias for f in _body_params(dependant)] if dependant is not None else []
     # FastAPI has parsed the form already (Starlette keeps it on the request): this reads no body again
     unknown = sorted({k for k in await request.form() if k not in accepted})
     if unknown:
@@ -87,6 +88,12 @@ async def known_fields(request: Request) -> None:
             f"unexpected form field{'s' if len(unknown) > 1 else ''} {names}; "
             f"this endpoint takes {', '.join(accepted)}",
         )
+
+
+def _body_params(dependant: Dependant) -> list[Any]:  # FastAPI's ModelField, which it does not export
+    """A route's form fields, those of the dependencies it shares with other routes (`/recognize`'s form)
+    first, then its own."""
+    return [*(p for d in dependant.dependencies for p in _body_params(d)), *dependant.body_params]
 
 
 KnownFieldsDep = Depends(known_fields)

@@ -9,6 +9,7 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
+from index.draw import DrawMesh, MeshCache
 from index.embed import Embedder, load_models, store_keys
 from index.register import TemplateConfig
 from index.render import RenderWorker
@@ -43,6 +44,8 @@ class AppState:
     recognition_gate: asyncio.Semaphore = field(default_factory=lambda: asyncio.Semaphore(2))
     #: where recognitions run (as many threads as the gate lets in)
     recognizer: ThreadPoolExecutor = field(init=False)
+    #: the meshes `POST /recognize/draw` draws, read from the store once per object (`index.draw`)
+    draw_meshes: MeshCache = field(init=False)
     jobs: Jobs = field(default_factory=Jobs)
     metrics: Metrics = field(default_factory=Metrics)
     ready: threading.Event = field(default_factory=threading.Event)
@@ -60,6 +63,7 @@ class AppState:
         self.embed_pool = worker_pool(2, "embed", n)
         self.mesh_loader = worker_pool(1, "mesh", n)
         self.recognizer = worker_pool(2, "recognise", n)
+        self.draw_meshes = MeshCache(lambda oid: DrawMesh.from_glb(self.store.mesh_bytes(oid)))
 
     @property
     def pipelines(self) -> dict[str, Pipeline]:

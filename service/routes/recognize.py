@@ -3,47 +3,44 @@
 from __future__ import annotations
 
 import asyncio
+from dataclasses import dataclass, replace
 from typing import Annotated
 
-from fastapi import APIRouter, File, Form, UploadFile
+import cv2
+import numpy as np
+from fastapi import APIRouter, Depends, File, Form, Response, UploadFile
 
+from index.draw import PATCH_DRAW_PX, Drawn, draw_answers, grey_to_rgb, patch_view
 from service.deps import KnownFieldsDep, StateDep
-from service.errors import responses
-from service.pipeline.query import MAX_DISTANCE_MM, MAX_PX, MIN_DISTANCE_MM, Query
-from service.poses import pose_fields
-from service.recognition import recognise
+from service.errors import ApiError, responses
+from service.pipeline.query import MAX_DISTANCE_MM, MAX_PX, MIN_DISTANCE_MM, Query, decode
+from service.poses import match_pose, pose_fields
+from service.recognition import recognise, recognise_decoded
 from service.schemas import MatchOut, RecognizeOut
+from service.state import AppState
 
 router = APIRouter(tags=["recognition"])
 
 
-@router.post(
-    "/recognize",
-    response_model=RecognizeOut,
-    summary="The k nearest distinct poses of a patch, or of the object at (u, v) in a full frame",
-    description=(
-        "Send `rgb` (PNG/JPEG) and/or `depth` (16-bit PNG, mm x `depth_scale`): the modality picks the "
-        "model. Either a square patch already centred on the object and spanning the model's metric "
-        "window, or a full frame with intrinsics `fx`, `fy`, `cx`, `cy` and the object's centre `u`, `v` "
-        "(pixels, where the object's origin projects). `distance_mm` is the distance from the camera "
-        "centre to the object's origin along the ray through (u, v) (‖t‖ of a BOP pose); a colour-only "
-        "frame needs it. With depth and no `distance_mm`, the service measures the surface at (u, v) and "
-        "cuts the patch there; each answer then puts the origin behind that surface by its template's "
-        "offset (how far the origin of that object lies behind the surface seen from that viewpoint). The answer holds `k` distinct (object, viewpoint) "
-        "matches, nearest first, each with its azimuth, elevation and estimated in-plane angle (roll, "
-        "counter-clockwise in the image, in (-180, 180]; 0 when the templates are upright only) and its pose "
-        "in the camera as BOP writes it: `R` (model to camera, row-major) and `t` (mm) along the ray through "
-        "(u, v) at the object's origin: `distance_mm` when sent, else the measured surface plus the answer's "
-        "offset (for a patch, in the patch's own camera). `best` is null, "
-        "with a `reason`, when the nearest answer is too far to be a registered object (open-set rejection: "
-        "each model's calibrated threshold, or the REJECT_ABOVE setting); each match's `confidence` is the "
-        "calibrated chance that it is the right object."
-    ),
-    responses=responses(400, 413, 422),
-    dependencies=[KnownFieldsDep],
-)
-async def recognize(
-    state: StateDep,
+@dataclass(frozen=True)
+class RecognizeForm:
+    """What `/recognize` takes (and `/recognize/draw`): the uploaded images, unread, and the other
+    fields (`fields`, a query without its images)."""
+
+    rgb: UploadFile | None
+    depth: UploadFile | None
+    fields: Query
+
+    async def query(self) -> Query:
+        """The query, its images read: call it inside `recognition_gate`."""
+        return replace(
+            self.fields,
+            rgb=await self.rgb.read() if self.rgb is not None else None,
+            depth=await self.depth.read() if self.depth is not None else None,
+        )
+
+
+def recognize_form(
     rgb: Annotated[UploadFile | None, File(description="colour image, PNG or JPEG")] = None,
     depth: Annotated[UploadFile | None, File(description="depth image, 16-bit PNG")] = None,
     depth_scale: Annotated[float, Form(gt=0, le=1000, allow_inf_nan=False, description="mm per unit")] = 1.0,
@@ -77,21 +74,44 @@ async def recognize(
     k: Annotated[
         int, Form(ge=1, description="how many distinct (object, viewpoint) answers", examples=[5])
     ] = 5,
-) -> RecognizeOut:
+) -> RecognizeForm:
+    """The form of `/recognize`, a dependency of each route that takes it (`KnownFieldsDep` reads its
+    fields through it)."""
+    fields = Query(None, None, depth_scale, fx, fy, cx, cy, u, v, distance_mm, k)
+    return RecognizeForm(rgb, depth, fields)
+
+
+RecognizeFormDep = Annotated[RecognizeForm, Depends(recognize_form)]
+
+
+@router.post(
+    "/recognize",
+    response_model=RecognizeOut,
+    summary="The k nearest distinct poses of a patch, or of the object at (u, v) in a full frame",
+    description=(
+        "Send `rgb` (PNG/JPEG) and/or `depth` (16-bit PNG, mm x `depth_scale`): the modality picks the "
+        "model. Either a square patch already centred on the object and spanning the model's metric "
+        "window, or a full frame with intrinsics `fx`, `fy`, `cx`, `cy` and the object's centre `u`, `v` "
+        "(pixels, where the object's origin projects). `distance_mm` is the distance from the camera "
+        "centre to the object's origin along the ray through (u, v) (‖t‖ of a BOP pose); a colour-only "
+        "frame needs it. With depth and no `distance_mm`, the service measures the surface at (u, v) and "
+        "cuts the patch there; each answer then puts the origin behind that surface by its template's "
+        "offset (how far the origin of that object lies behind the surface seen from that viewpoint). The answer holds `k` distinct (object, viewpoint) "
+        "matches, nearest first, each with its azimuth, elevation and estimated in-plane angle (roll, "
+        "counter-clockwise in the image, in (-180, 180]; 0 when the templates are upright only) and its pose "
+        "in the camera as BOP writes it: `R` (model to camera, row-major) and `t` (mm) along the ray through "
+        "(u, v) at the object's origin: `distance_mm` when sent, else the measured surface plus the answer's "
+        "offset (for a patch, in the patch's own camera). `best` is null, "
+        "with a `reason`, when the nearest answer is too far to be a registered object (open-set rejection: "
+        "each model's calibrated threshold, or the REJECT_ABOVE setting); each match's `confidence` is the "
+        "calibrated chance that it is the right object."
+    ),
+    responses=responses(400, 413, 422),
+    dependencies=[KnownFieldsDep],
+)
+async def recognize(state: StateDep, form: RecognizeFormDep) -> RecognizeOut:
     async with state.recognition_gate:  # bounds the memory of decoded images; waiting ones stay spooled
-        q = Query(
-            rgb=await rgb.read() if rgb is not None else None,
-            depth=await depth.read() if depth is not None else None,
-            depth_scale=depth_scale,
-            fx=fx,
-            fy=fy,
-            cx=cx,
-            cy=cy,
-            u=u,
-            v=v,
-            distance_mm=distance_mm,
-            k=k,
-        )
+        q = await form.query()
         result = await asyncio.wrap_future(state.recognizer.submit(recognise, state, q))
     matches = [
         MatchOut(**m.__dict__, confidence=c, **pose_fields(m, result.ray, origin))
@@ -105,3 +125,62 @@ async def recognize(
         timings_ms=result.timings_ms,
         model=result.model,
     )
+
+
+@router.post(
+    "/recognize/draw",
+    response_class=Response,
+    summary="The answer drawn over the image: a PNG",
+    description=(
+        "Takes what `POST /recognize` takes, recognises the same way, and returns the image sent (a frame; "
+        f"a patch upscaled to {PATCH_DRAW_PX} px; a depth-only query in grey) as a PNG with the best "
+        "`draw_k` answers drawn at their poses: each object's silhouette tinted and outlined, its axes "
+        "(x red, y green, z blue, half its diameter long, from its origin) and its name and confidence. "
+        "When the best answer is rejected as no registered object, it is drawn grey and dashed, labelled "
+        "`unknown?`."
+    ),
+    responses={
+        200: {"content": {"image/png": {}}, "description": "the image with the answers drawn"},
+        **responses(400, 413, 422),
+    },
+    dependencies=[KnownFieldsDep],
+)
+async def recognize_draw(
+    state: StateDep,
+    form: RecognizeFormDep,
+    draw_k: Annotated[
+        int, Form(ge=1, description="how many of the answers to draw, best first (at most k)", examples=[1])
+    ] = 1,
+) -> Response:
+    if draw_k > form.fields.k:
+        raise ApiError(422, f"draw_k: at most k ({form.fields.k}) answers can be drawn, got {draw_k}")
+    async with state.recognition_gate:
+        q = await form.query()
+        png = await asyncio.wrap_future(state.recognizer.submit(drawing, state, q, draw_k))
+    return Response(png, media_type="image/png")
+
+
+def drawing(state: AppState, q: Query, draw_k: int) -> bytes:
+    """The PNG `POST /recognize/draw` answers, made on a recognition thread (never the render thread)."""
+    d = decode(state, q)
+    result = recognise_decoded(state, q, d)
+    if d.rgb is not None:
+        image = d.rgb
+    else:
+        assert d.depth is not None  # `decode` refuses a query without images
+        image = grey_to_rgb(d.depth)
+    if q.fx is None:  # a patch: its answers are in the patch camera, at the distance it was cut at
+        image, K = patch_view(image, d.embedder.info.spec, result.distance_mm)
+    else:
+        K = np.array([[q.fx, 0.0, q.cx], [0.0, q.fy, q.cy], [0.0, 0.0, 1.0]])
+    state.draw_meshes.prune(state.store.snapshot.objects.keys())
+    drawn = []
+    n = draw_k
+    for m, c, origin in zip(result.matches[:n], result.confidences[:n], result.origins_mm[:n], strict=True):
+        mesh = state.draw_meshes.get(m.object_id)
+        if mesh is not None:  # deleted since
+            R, t = match_pose(m, result.ray, origin)
+            drawn.append((mesh, Drawn(m.name, c, R, t, rejected=result.reason is not None)))
+    ok, png = cv2.imencode(".png", cv2.cvtColor(draw_answers(image, drawn, K), cv2.COLOR_RGB2BGR))
+    assert ok  # a uint8 RGB image always encodes
+    return png.tobytes()
