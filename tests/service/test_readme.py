@@ -58,6 +58,7 @@ def test_the_curl_examples(server):
     assert names(server) == DEMO
     before = float(registrations(server))
     script = script.replace("localhost:8000", server.url.removeprefix("http://"))
+    (ROOT / "out" / "answer.png").unlink(missing_ok=True)  # the drawing is the example's own
     r = subprocess.run(
         ["bash", "-e", "-o", "pipefail", "-c", script], cwd=ROOT, capture_output=True, text=True, timeout=300
     )
@@ -68,6 +69,9 @@ def test_the_curl_examples(server):
     assert out.count('"best":{"object_id":3,"name":"robot"') == 3, out[:3000]
     assert '"name":"part"' in out and re.search(r"\}204\n", out)  # registered, shown, then deleted
     assert "posedesc_requests_total" in out  # the metrics
+    drawn = ROOT / "out" / "answer.png"  # the drawing, where the example writes it
+    assert drawn.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    drawn.unlink()
     assert names(server) == DEMO  # the part is gone and the demo objects (the mug is id 1) are not
     assert float(registrations(server)) == before + 1
 
