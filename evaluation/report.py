@@ -50,6 +50,24 @@ def rejected_text(summary: dict) -> str:
     )
 
 
+def bop_text(summary: dict) -> str:
+    """The BOP figures of the service's best answers (`evaluation.bop_scores`), percent; "" without them."""
+    b = summary.get("bop")
+    if not b:
+        return ""
+    vsd = "" if b["ar_vsd"] is None else f", AR_VSD {_pct(b['ar_vsd'])}"
+    return (
+        f"BOP ({b['n_targets']} targets, {b['n_estimated']} with an estimate of their object): "
+        f"AR {_pct(b['ar'])} (AR_MSSD {_pct(b['ar_mssd'])}, AR_MSPD {_pct(b['ar_mspd'])}{vsd}), "
+        f"ADD(-S) < 0.1 d {_pct(b['recall_add_s'])}, 5°5cm {_pct(b['recall_5deg_5cm'])} (percent)"
+        + (
+            "; t sent with the query (the true distance): these measure the rotation"
+            if "translation" in b
+            else ""
+        )
+    )
+
+
 def tables_text(summary: dict) -> str:
     """The tables as `posedesc evaluate` prints them: the protocol's error, the viewing-direction error
     where there is one, and, with the open set (the service protocol), the same answers as ranked."""
@@ -62,6 +80,8 @@ def tables_text(summary: dict) -> str:
         if "view_direction" in off:
             parts += ["open set off, viewing-direction error:", table(off, key="view_direction")]
         parts.append(f"open set on: {rejected_text(summary)}, counted as misses above")
+    if bop := bop_text(summary):
+        parts.append(bop)
     return "\n".join(parts)
 
 
@@ -167,6 +187,11 @@ def write_report(ev: Evaluation, folder: Path, command: str, model_3d: Path | No
                 "",
             ]
             if "open_set_off" in summary
+            else []
+        ),
+        *(
+            [bop, "", f"({summary['bop']['targets']}; {summary['bop']['vsd']})", ""]
+            if (bop := bop_text(summary))
             else []
         ),
         "Per object, k = 1:",

@@ -35,6 +35,8 @@ import numpy as np
 import trimesh
 
 from evaluation import ours
+from evaluation.bop_recall import MSPD_REFERENCE_WIDTH
+from evaluation.bop_scores import Best, bop_block, estimates, object_model
 from evaluation.config import Config
 from evaluation.masks import black_outside, visible_masks
 from evaluation.methods import rank
@@ -54,7 +56,9 @@ from index.register import register, template_views
 from index.render import Renderer
 from index.symmetry import Symmetry
 from service.errors import ApiError
+from service.pipeline.answer import Result
 from service.pipeline.query import Query, cut, decode
+from service.poses import match_pose
 from service.recognition import recognise
 from service.rejection import read_calibrations
 from service.settings import Settings
@@ -103,8 +107,9 @@ def evaluate_served(cfg: Config) -> Evaluation:
             seconds["register"] = time.perf_counter() - t0
             t0 = time.perf_counter()
             depth_errors: list[tuple[float, float]] = []
+            bop = _BopAnswers()
             samples, answers, call_ms, refused, instances, dropped = _ask(
-                state, dataset, instances, kind, cfg, dataset_ids, meshes, depth_errors
+                state, dataset, instances, kind, cfg, dataset_ids, meshes, depth_errors, bop
             )
             seconds["ours"] = time.perf_counter() - t0
             n_templates = state.store.snapshot.models[cfg.modality].size
@@ -147,6 +152,8 @@ def evaluate_served(cfg: Config) -> Evaluation:
     }
     if depth_errors:  # measured from depth: where the answers put the origin, against ‖t‖
         ev.extra["origin_distance_mm"] = origin_errors(np.array(depth_errors))
+    ev.extra["bop"] = _bop_scores(dataset, instances, bop, cfg.min_visib, cfg.modality)
+    ev.bop_estimates = estimates(instances, bop.bests)
     obj, views, rejected = answers
     rot, view, same = score(obj, views, instances, symmetries)
     ranked = MethodResult(rot, same, seconds["ours"], view_errors=view, call_ms=np.asarray(call_ms))
@@ -214,6 +221,41 @@ def register_objects(
     return meshes, dataset_ids
 
 
+class _BopAnswers:
+    """What BOP's scoring keeps of the answers: each query's best answer (None: rejected, refused or
+    none) in the order sent, and the widths (px) of the frames sent."""
+
+    def __init__(self) -> None:
+        self.bests: list[Best | None] = []
+        self.widths: set[int] = set()
+
+
+def _best(result: Result, obj_id: int, seconds: float) -> Best | None:
+    """The service's best answer as a pose, as the API returns it (`service.poses`); None when it
+    answered "no known object" or nothing."""
+    if result.reason is not None or not result.matches or obj_id < 0:
+        return None
+    R, t = match_pose(result.matches[0], result.ray, result.origins_mm[0])
+    return Best(obj_id, R, t, result.confidences[0], seconds)
+
+
+def _bop_scores(
+    dataset: BopDataset, instances: Sequence[Instance], bop: _BopAnswers, min_visib: float, modality: str
+) -> dict:
+    """The JSON's "bop" block (`evaluation.bop_scores`): models from the full meshes and models_info."""
+    if len(bop.widths) > 1:
+        raise ValueError(f"frames of several widths {sorted(bop.widths)}: MSPD's thresholds need one")
+    width = bop.widths.pop() if bop.widths else MSPD_REFERENCE_WIDTH  # every query refused: all missing
+    models = {o: object_model(dataset.models_info[o], dataset.mesh(o)) for o in {i.obj_id for i in instances}}
+    block = bop_block(instances, bop.bests, models, width, min_visib)
+    if modality == "rgb":  # colour is sent the true centre and distance: the answer's t is the truth's
+        block["translation"] = (
+            "colour queries are sent the ground truth's centre and distance (as a user with a detector and "
+            "a range would), so each answer's t is the true t (te ~ 0): these figures measure the rotation"
+        )
+    return block
+
+
 def _ask(
     state,
     dataset,
@@ -223,6 +265,7 @@ def _ask(
     dataset_ids: dict[int, int],
     meshes: Mapping[int, trimesh.Trimesh],
     depth_errors: list[tuple[float, float]] | None = None,
+    bop: _BopAnswers | None = None,
 ):
     """Every instance through `recognise`; the unturned patches the service cut (for the baselines),
     its answers (objects, views, and whether the service rejected the best one: "no known object"),
@@ -263,12 +306,17 @@ def _ask(
                         decoded = decode(state, Query(rgb=rgb, depth=depth, depth_scale=scale))
                     except ApiError:
                         decoded = None  # `recognise` says why
+                if decoded is not None and bop is not None:
+                    image = decoded.rgb if decoded.rgb is not None else decoded.depth
+                    bop.widths.add(int(image.shape[1]))  # type: ignore[union-attr]  # a decoded query has one
                 q, i = query(inst, rgb, depth, scale), len(ordered)
                 t0 = time.perf_counter()
+                best = None
                 try:
                     result = recognise(state, q)
                     call_ms.append(1000 * (time.perf_counter() - t0))
                     obj[i], answer_views[i], _ = ours.answers(result.matches, dataset_ids, K_MAX)
+                    best = _best(result, int(obj[i, 0]), call_ms[-1] / 1000)
                     rejected[i] = result.reason is not None
                     if depth_errors is not None and q.distance_mm is None and obj[i, 0] == inst.obj_id:
                         true = float(np.linalg.norm(inst.t))
@@ -288,6 +336,8 @@ def _ask(
                     refused.append(e.detail)
                     p = None
                 ordered.append(inst)
+                if bop is not None:
+                    bop.bests.append(best)
                 views.append(inst.view)
                 rgbs.append(None if p is None or p.rgb is None else p.rgb[0])
                 depths.append(None if p is None or p.depth is None else p.depth[0])

@@ -130,13 +130,20 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--seed", type=int, default=0, help="seed of synthetic scenes and of the pictures' samples"
     )
-    p.add_argument("--json", type=Path, required=True, help="where to write the results")
+    p.add_argument("--json", type=Path, required=True,
+                   help="where to write the results (the service protocol adds a 'bop' block: MSSD, MSPD, "
+                   "ADD(-S), te, re of each instance's best answer; AR_MSSD, AR_MSPD, AR, ADD(-S) and "
+                   "5 deg 5 cm recalls)")  # fmt: skip
+    p.add_argument("--bop-csv", type=Path, default=None,
+                   help="service protocol: also write the best answer of each query not rejected as a "
+                   "BOP19 results file (scene_id,im_id,obj_id,score,R,t,time)")  # fmt: skip
     p.add_argument("--report", type=Path, default=None, help="folder for report.md and the pictures")
 
 
 def run(args: argparse.Namespace) -> int:
     from pydantic import ValidationError
 
+    from evaluation.bop_csv import write_bop_csv
     from evaluation.config import Config
     from evaluation.report import tables_text, write_json, write_report
     from evaluation.rolls import parse_rolls
@@ -168,6 +175,10 @@ def run(args: argparse.Namespace) -> int:
             rolls = parse_rolls(args.rolls)
         except ValueError as e:
             raise UserError(f"--rolls: {e}") from None
+    if args.bop_csv is not None and (args.protocol != "service" or rolls):
+        raise UserError(
+            "--bop-csv needs the service protocol, without --rolls (a frame sent at several rolls)"
+        )
     if args.query_turns is not None and not (1 <= args.query_turns <= 36):
         raise UserError("--query-turns must be in 1..36")
     cfg = Config(
@@ -197,6 +208,10 @@ def run(args: argparse.Namespace) -> int:
             "bad setting: " + "; ".join(f"{x['loc'][0]}: {x['msg']}" for x in e.errors())
         ) from None
     summary = write_json(ev, args.json)
+    if args.bop_csv is not None:
+        args.bop_csv.parent.mkdir(parents=True, exist_ok=True)
+        n = write_bop_csv(args.bop_csv, ev.bop_estimates)
+        print(f"{n} BOP19 rows (the best answer of each query not rejected) -> {args.bop_csv}")
     command = "posedesc evaluate " + shlex.join(sys.argv[2:] if sys.argv[1:2] == ["evaluate"] else [])
     if args.report:
         write_report(ev, args.report, command.strip(), args.model_3d)
