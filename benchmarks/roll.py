@@ -72,6 +72,10 @@ class RollConfig:
     #: POSEDESC_INDEX_KIND of the timed set-ups (the service's default); the in-process baseline "exact"
     #: times the primary model's in-plane templates with an exact ("flat") index beside it
     index_kind: str = "auto"
+    #: write a profile of one query (the primary model's in-plane templates, the first query-turn count)
+    #: here: cProfile, the top functions by self time and a flame graph (`benchmarks.profile`)
+    profile: Path | None = None
+    profile_calls: int = 20
 
 
 @dataclass
@@ -146,6 +150,7 @@ def run(
             f"through {len(TURN_FREE_VARIANTS)} transforms without a quarter turn"
         )
         query = _query(objects, modality, cfg.k)
+        primary = served or models[0]
         for i, m in enumerate(models):
             data, upright = tmp / f"roll-{i}", tmp / f"upright-{i}"
             stores = {modality: store_key(m.timed)}
@@ -164,7 +169,9 @@ def run(
                 "upright": _in_process(
                     upright, m, {"inplane_step": 0.0, "inplane_max": None}, query, cfg, level
                 ),
-                "roll": _in_process(data, m, m.settings, query, cfg, level),
+                "roll": _in_process(
+                    data, m, m.settings, query, cfg, level, cfg.profile if m is primary else None
+                ),
             }
             if m is served or (served is None and i == 0):  # the same templates, searched exactly
                 exact = replace(cfg, index_kind="flat", query_turns=cfg.query_turns[:1])
@@ -177,6 +184,11 @@ def run(
             out["notes"].append(
                 "no model has its own inplane_step: the served set-up (HTTP frame, registration) is not measured"
             )
+        for n, row in out["in_process"][primary.label]["roll"]["by_turns"].items():
+            out[f"stages_ms_{cfg.objects}_q{n}"] = row["stages_median_ms"]
+            out[f"stages_p90_ms_{cfg.objects}_q{n}"] = row["stages_p90_ms"]
+        if (prof := out["in_process"][primary.label]["roll"].get("profile")) is not None:
+            out["profile"] = prof
     return out
 
 
@@ -278,9 +290,16 @@ def _query(objects: ObjectSet, modality: str, k: int):
 
 
 def _in_process(
-    data: Path, m: Model, inplane: dict[str, float | None], q, cfg: RollConfig, level: int
+    data: Path,
+    m: Model,
+    inplane: dict[str, float | None],
+    q,
+    cfg: RollConfig,
+    level: int,
+    profile_dir: Path | None = None,
 ) -> dict:
-    """`recognise_decoded` on the state `posedesc serve` would load from `data`, per query-turn count."""
+    """`recognise_decoded` on the state `posedesc serve` would load from `data`, per query-turn count;
+    with `profile_dir`, the first count's calls also profiled there."""
     from service.pipeline.query import decode
     from service.settings import Settings
     from service.state import close_state, load_state
@@ -309,6 +328,8 @@ def _in_process(
         for n in cfg.query_turns:
             st = replace(state, settings=state.settings.model_copy(update={"query_turns": n}))
             out["by_turns"][str(n)] = _time_calls(st, q, d, cfg)
+            if profile_dir is not None and n == cfg.query_turns[0]:
+                out["profile"] = _profile(st, q, d, cfg, profile_dir, m, n)
     finally:
         close_state(state)
     return out
@@ -325,13 +346,27 @@ def _time_calls(state, q, d, cfg: RollConfig) -> dict:
 
     t = measure(call, cfg.queries, warmup=cfg.warmup)
     timed = results[cfg.warmup :]
-    stages = {s: statistics.median(r.timings_ms[s] for r in timed) for s in ("patch", "embed", "search")}
+    # every key the pipeline timed (its stages, `decode` when timed, and the sums), in its order
+    keys = list(dict.fromkeys(k for r in timed for k in r.timings_ms))
+    per = {k: [r.timings_ms[k] for r in timed if k in r.timings_ms] for k in keys}
     best = timed[-1].matches[0] if timed[-1].matches else None
     return t.ms() | {
-        "stages_median_ms": stages,
+        "stages_median_ms": {k: statistics.median(v) for k, v in per.items()},
+        "stages_p90_ms": {k: float(np.percentile(v, 90)) for k, v in per.items()},
         "top1_object": None if best is None else best.object_id - 1,  # object 0 is the query's shape
         "top1_inplane": None if best is None else best.inplane,
     }
+
+
+def _profile(state, q, d, cfg: RollConfig, out_dir: Path, m: Model, turns: int) -> dict:
+    from benchmarks.profile import profile
+    from service.recognition import recognise_decoded
+
+    title = (
+        f"recognise_decoded, {m.label} {m.timed.modality} model ({fingerprint(m.path)[:8]}), "
+        f"{cfg.objects} objects, in-plane templates, {turns} query turn(s), k = {cfg.k}"
+    )
+    return profile(lambda: recognise_decoded(state, q, d), cfg.profile_calls, out_dir, title, cfg.warmup)
 
 
 def _served(

@@ -97,6 +97,7 @@ def _roll(ro: dict, summary: dict) -> list[str]:
     )
     if (lm := summary.get(f"linemod_median_ms_{n_obj}")) is not None:
         lines.append(f"LineMOD, same objects count, upright templates (recognition section): {_num(lm)} ms")
+    lines += _stages(ro)
     if sv := ro.get("server"):
         rows = [
             [
@@ -125,6 +126,27 @@ def _roll(ro: dict, summary: dict) -> list[str]:
                 ]
             ],
         )
+    return lines
+
+
+def _stages(ro: dict) -> list[str]:
+    """The primary model's in-plane set-up, a row per key of the pipeline's `timings_ms` (its stages,
+    then the sums), median and p90 for each query-turn count."""
+    turns = [k.rsplit("_q", 1)[1] for k in ro if k.startswith(f"stages_ms_{ro['objects']}_q")]
+    if not turns:
+        return []
+    med = {n: ro[f"stages_ms_{ro['objects']}_q{n}"] for n in turns}
+    p90 = {n: ro[f"stages_p90_ms_{ro['objects']}_q{n}"] for n in turns}
+    keys = list(dict.fromkeys(k for n in turns for k in med[n]))
+    rows = [[k, *(f"{_num(med[n].get(k), 2)} / {_num(p90[n].get(k), 2)}" for n in turns)] for k in keys]
+    lines = _table(
+        f"per stage (timings_ms), {ro['primary']} model, in-plane templates, {ro['objects']} objects; "
+        "median / p90 ms",
+        ["stage", *(f"{n} turn{'s' if n != '1' else ''}" for n in turns)],
+        rows,
+    )
+    if pr := ro.get("profile"):
+        lines.append(f"profile of {pr['calls']} calls ({pr['samples']:,} stack samples): {pr['dir']}")
     return lines
 
 

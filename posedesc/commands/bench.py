@@ -79,6 +79,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--roll-objects", type=int, default=None, help="objects in the roll section's stores (100)"
     )
     p.add_argument("--query-turns", default=None, help="query turns of the roll section (1,2,3)")
+    p.add_argument(
+        "--profile",
+        type=Path,
+        default=None,
+        metavar="DIR",
+        help="profile one query of the roll section (its primary model, in-plane templates, the first "
+        "query-turn count) into DIR: calls.prof (cProfile, 20 calls), top.txt (the 20 functions of most "
+        "self time), flame.png and stacks.txt (a flame graph of stacks sampled every 1 ms)",
+    )
     p.add_argument("--milvus-uri", default=None,
                    help="the milvus section against this Milvus (default: the PyPI server, started for the run)")  # fmt: skip
     p.add_argument("--milvus-templates", default=None,
@@ -148,6 +157,10 @@ def configure(args: argparse.Namespace) -> BenchConfig:
         if max(turns) > 36:
             raise UserError(f"--query-turns {args.query_turns}: at most 36 (the service's limit)")
         cfg = replace(cfg, roll=replace(cfg.roll, query_turns=turns))
+    if args.profile is not None:
+        if "roll" not in cfg.sections:
+            raise UserError("--profile profiles the roll section: add roll to --only")
+        cfg = replace(cfg, roll=replace(cfg.roll, profile=args.profile))
     if args.milvus_uri:
         cfg = replace(cfg, milvus=replace(cfg.milvus, uri=args.milvus_uri))
     if args.milvus_templates:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+from pathlib import Path
 
 import pytest
 
@@ -82,6 +83,13 @@ def test_bench_quick(tmp_path, posedesc_models, capsys):
     for key in ("roll_http_frame_p50_ms", "roll_register_20k_faces_s", "roll_register_embed_s"):
         assert positive(s[key]), key
     assert s["roll_model_fingerprint"] == ro["models"]["untrained"]["fingerprint"]
+    # every key of the pipeline's timings_ms, median and p90, of the primary model's in-plane set-up
+    for n in (1, 2, 3):
+        med, p90 = ro[f"stages_ms_8_q{n}"], ro[f"stages_p90_ms_8_q{n}"]
+        assert {"cut", "embed", "search", "patch", "total"} <= set(med) and set(med) == set(p90)
+        assert all(positive(v) for v in med.values()) and all(p90[k] >= med[k] for k in med)
+        assert med == ro["in_process"]["untrained"]["roll"]["by_turns"][str(n)]["stages_median_ms"]
+    assert "per stage (timings_ms)" in printed
     assert "from a decoded patch to the answer" in printed
     # guards, quick: the small hostile uploads over HTTP, the declaring meshes, 20 fuzz cases, a busy port
     g = result["sections"]["guards"]
@@ -121,6 +129,7 @@ def test_the_default_run_leaves_out_the_opt_in_parts():
     assert configure(options("--objects", "8,100,1000")).recognition.counts == (8, 100, 1000)
     assert configure(options("--roll-models", "shipped,untrained")).roll.models == ("shipped", "untrained")
     assert len(OPT_IN) == 3
+    assert configure(options("--profile", "p")).roll.profile == Path("p") and cfg.roll.profile is None
     quick = configure(options("--quick"))
     assert quick.guards.small_only and quick.guards.fuzz_cases < cfg.guards.fuzz_cases
 
@@ -132,6 +141,8 @@ def test_bench_errors(tmp_path, capsys):
     assert "not a list of numbers" in capsys.readouterr().err
     assert main(["bench", "--query-turns", "1,40", "--json", str(tmp_path / "b.json")]) == 2
     assert "at most 36" in capsys.readouterr().err
+    assert main(["bench", "--only", "knn", "--profile", "p", "--json", str(tmp_path / "b.json")]) == 2
+    assert "add roll to --only" in capsys.readouterr().err
     empty = tmp_path / "models"
     empty.mkdir()
     assert main(["bench", "--quick", "--models", str(empty), "--json", str(tmp_path / "b.json")]) == 2
