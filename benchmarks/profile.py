@@ -91,12 +91,7 @@ def boxes(root: Node) -> list[Box]:
 
 def label(code: CodeType) -> str:
     """A function as `file:qualified name`, the file shortened to the repository or the installed package."""
-    path = code.co_filename
-    if "site-packages/" in path:
-        path = path.split("site-packages/", 1)[1]
-    elif path.startswith(str(ROOT)):
-        path = path[len(str(ROOT)) + 1 :]
-    return f"{path}:{code.co_qualname}"
+    return f"{_short(code.co_filename)}:{code.co_qualname}"
 
 
 def _stack(frame: FrameType | None, stop: CodeType) -> Stack | None:
