@@ -43,10 +43,18 @@ def read_snapshot(
         if tag.get("generation") != generation:
             log.info("%s: index snapshot is stale, building it from SQLite", model)
             return None
+        if tag.get("kind") != kind:  # written by a store opened with another INDEX_KIND: not damage
+            log.info(
+                "%s: index snapshot is a %s index, %s wanted: building it from SQLite",
+                model,
+                tag.get("kind"),
+                kind,
+            )
+            return None
         if tag.get("sha256") != hashlib.sha256(data).hexdigest():
             raise ValueError("checksum mismatch")
         index = faiss.deserialize_index(np.frombuffer(data, np.uint8))
-        if index.ntotal != ntotal or index.d != dim or tag.get("kind") != kind:
+        if index.ntotal != ntotal or index.d != dim:
             raise ValueError(f"holds {index.ntotal} x {index.d}, SQLite {ntotal} x {dim}")
     except Exception as e:
         log.warning("%s: index snapshot %s is corrupt (%s): building it from SQLite", model, path, e)

@@ -83,6 +83,19 @@ def test_damaged_snapshot_is_rebuilt_from_sqlite(tmp_path, caplog, damage):
     assert matches[0].name == "b" and matches[0].distance == pytest.approx(0.0, abs=1e-5)
 
 
+def test_a_snapshot_of_another_index_kind_is_rebuilt_without_a_warning(tmp_path, caplog):
+    """A store opened with another INDEX_KIND (the bench's exact baseline beside the service's own) finds a
+    sound snapshot of the other kind: rebuilt, said at INFO, not reported as damage."""
+    store = Store(tmp_path, MODELS, kind="flat")
+    add(store, "a", 0.0)
+    store.close()
+    with caplog.at_level("INFO", logger="index.store"):
+        again = Store(tmp_path, MODELS, kind="ivf")
+    assert "is a flat index, ivf wanted: building it from SQLite" in caplog.text
+    assert not [r for r in caplog.records if r.levelname == "WARNING"], caplog.text
+    assert again.snapshot.models["rgb"].index.ntotal == 5
+
+
 def test_failed_write_leaves_nothing(tmp_path, monkeypatch):
     store = Store(tmp_path, MODELS)
     add(store, "a", 0.0)
