@@ -12,12 +12,14 @@ from index.register import TemplateConfig
 from index.store import local_key
 from service.pipeline.context import Context, Ranked
 from service.pipeline.score import LocalScore, QueryCuts, ScoreConfig
+from service.rejection import served_score
 from service.settings import Settings
 
 
 def reranks(settings: Settings, embedder: Embedder) -> bool:
-    """Whether the pipeline of this model re-ranks at all: a model with local features, `rerank` > 0."""
-    return embedder.has_local and settings.rerank > 0
+    """Whether the pipeline of this model re-ranks at all: a model with local features, `rerank` > 0 (the
+    answers' distances are then the local score: `service.rejection.served_score`)."""
+    return served_score(settings, embedder) == "local"
 
 
 @dataclass(frozen=True)

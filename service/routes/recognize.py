@@ -175,8 +175,10 @@ def drawing(state: AppState, q: Query, draw_k: int) -> bytes:
         K = np.array([[q.fx, 0.0, q.cx], [0.0, q.fy, q.cy], [0.0, 0.0, 1.0]])
     state.draw_meshes.prune(state.store.snapshot.objects.keys())
     drawn = []
-    n = draw_k
-    for m, c, origin in zip(result.matches[:n], result.confidences[:n], result.origins_mm[:n], strict=True):
+    best = slice(draw_k)
+    for m, c, origin in zip(
+        result.matches[best], result.confidences[best], result.origins_mm[best], strict=True
+    ):
         mesh = state.draw_meshes.get(m.object_id)
         if mesh is not None:  # deleted since
             R, t = match_pose(m, result.ray, origin)

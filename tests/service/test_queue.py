@@ -7,6 +7,7 @@ import threading
 import time
 
 import httpx
+import pytest
 import uvicorn
 from service_helpers import created, free_port, ply_bytes, service_settings, wait_ready
 
@@ -39,6 +40,7 @@ def test_jobs_count_and_add_in_one_step():
     assert jobs.running() == 4 and jobs.new("again", limit=5).status == "running"
 
 
+@pytest.mark.slow  # a real server and 20 uploads: about 11 s
 def test_concurrent_uploads_beyond_the_queue_get_503(tmp_path, posedesc_models, t_shape):
     """The real app under uvicorn on a loopback port, in this process so the test can hold the registration
     thread: a task of its own waits on a gate there, so no registration finishes while the uploads arrive,

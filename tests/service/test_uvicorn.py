@@ -6,6 +6,7 @@ import signal
 import threading
 
 import httpx
+import pytest
 from service_helpers import Server, expected_templates, frame, frame_fields, png, register
 
 from index.pose import View
@@ -15,6 +16,7 @@ TRUE_VIEW = View(azimuth=250.0, elevation=55.0, inplane=0.0, distance=700.0)
 UV = (260.0, 300.0)
 
 
+@pytest.mark.slow  # a real uvicorn process, registration, restart: about 8 s
 def test_serve_register_recognise_parallel_delete_restart(
     tmp_path, posedesc_models, renderer, l_shape, t_shape
 ):
