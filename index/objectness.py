@@ -29,6 +29,7 @@ import onnxruntime as ort
 
 from index.bop import Instance
 
+OBJECTNESS_FILE = "posedesc-objectness.onnx"  # its file in a models dir, beside the descriptor models
 INPUT = "rgb"  # (1, 3, H, W) float32 pixel values 0-255, H and W multiples of `PAD_TO`
 OUTPUT = "cells"  # (1, 5, H / stride, W / stride): score 0-1, dx, dy (cells), log window, log extent
 PAD_TO = 16  # the deepest map is at stride 16: a level is padded (black, bottom and right) to a multiple

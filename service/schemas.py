@@ -63,6 +63,18 @@ class MatchOut(BaseModel):
     )
 
 
+class DetectionOut(BaseModel):
+    """One object found in a whole frame."""
+
+    u: float = Field(description="where the object's origin projects, px")
+    v: float
+    box: list[float] = Field(
+        description="x0, y0, x1, y1 px: the object's mesh at its pose, clipped to the frame"
+    )
+    best: MatchOut = Field(description="the answer at (u, v): the object and its pose")
+    matches: list[MatchOut] = Field(description="the k nearest distinct answers at (u, v), `best` first")
+
+
 class RecognizeOut(BaseModel):
     model_config = ConfigDict(
         json_schema_extra={
@@ -112,6 +124,12 @@ class RecognizeOut(BaseModel):
         "refine (present when the re-ranking ran); total (all of it)"
     )
     model: str = Field(description="the model that matched the modality sent")
+    detections: list[DetectionOut] | None = Field(
+        None,
+        description="a frame sent without u and v: every registered object found in it, most confident "
+        "first (at most max_detections); `best` and `matches` are then the first detection's. Null when u "
+        "and v were sent",
+    )
 
 
 class ObjectOut(BaseModel):

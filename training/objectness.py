@@ -258,7 +258,7 @@ def make_sample(
             r[0] = c - 1 - r[0]
     img = colour_jitter(np.ascontiguousarray(img), rng, 1.0)
     if rng.random() < 0.3:
-        img = cv2.GaussianBlur(img, (0, 0), rng.uniform(0.3, 1.2))
+        img = np.asarray(cv2.GaussianBlur(img, (0, 0), rng.uniform(0.3, 1.2)), np.uint8)
     return Sample(img, *_targets(np.array(rows, np.float64).reshape(-1, 5), cfg))
 
 
@@ -319,9 +319,11 @@ class ObjectnessHead(nn.Module):
         # dilations 1, 2, 4, 1 add 16 cells (128 px at stride 8) of receptive field
         self.body = nn.Sequential(block(32 + 64, 1), block(width, 2), block(width, 4), block(width, 1))
         self.out = nn.Conv2d(width, 5, 1)
-        nn.init.constant_(self.out.bias, 0.0)
+        bias = self.out.bias
+        assert bias is not None  # a Conv2d has a bias unless told not to
+        nn.init.constant_(bias, 0.0)
         with torch.no_grad():
-            self.out.bias[0] = -4.6  # a prior of 1 % centres: the focal loss starts calm (RetinaNet)
+            bias[0] = -4.6  # a prior of 1 % centres: the focal loss starts calm (RetinaNet)
 
     def forward(self, d8: torch.Tensor, d16: torch.Tensor) -> torch.Tensor:
         up = F.interpolate(d16, scale_factor=2.0, mode="nearest")
@@ -340,7 +342,8 @@ class ObjectnessNet(nn.Module):
         self.head = ObjectnessHead(width)
 
     def features(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        return self.deep(self.trunk((x - self.mean) / self.std))
+        mean, std = self.get_buffer("mean"), self.get_buffer("std")
+        return self.deep(self.trunk((x - mean) / std))
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         return self.head(*self.features(x))
@@ -500,7 +503,8 @@ def train(data: Path, out: Path, cfg: ObjectnessConfig, cache_dir: Path, threads
 
 def load_checkpoint(path: Path) -> tuple[ObjectnessNet, ObjectnessConfig, dict]:
     state = torch.load(path, map_location="cpu", weights_only=False)
-    cfg = ObjectnessConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in state["cfg"].items()})
+    fields: dict = {k: tuple(v) if isinstance(v, list) else v for k, v in state["cfg"].items()}
+    cfg = ObjectnessConfig(**fields)
     net = ObjectnessNet(cfg.width)
     net.head.load_state_dict(state["head"])
     return net.eval(), cfg, state

@@ -33,6 +33,16 @@ class Query:
     v: float | None = None
     distance_mm: float | None = None
     k: int = 5
+    #: a frame without u and v: how many objects found are reported, and the confidence they need
+    #: (None: the model's open-set verdict decides)
+    max_detections: int = 10
+    min_confidence: float | None = None
+
+    @property
+    def finds(self) -> bool:
+        """Whether this query asks to find the objects: a frame (intrinsics sent) without a centre."""
+        camera = any(getattr(self, f) is not None for f in ("fx", "fy", "cx", "cy"))
+        return camera and self.u is None and self.v is None
 
 
 @dataclass(frozen=True)
@@ -43,6 +53,13 @@ class Decoded:
     embedder: Embedder
     rgb: np.ndarray | None
     depth: np.ndarray | None
+
+    @property
+    def size(self) -> tuple[int, int]:
+        """The images' width and height, px (`decode` checks both agree)."""
+        image = self.rgb if self.rgb is not None else self.depth
+        assert image is not None  # `decode` refuses a query without images
+        return image.shape[1], image.shape[0]
 
 
 @dataclass(frozen=True)
