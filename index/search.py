@@ -184,9 +184,8 @@ class Selection:
         ids = np.ascontiguousarray(mi.ids[np.isin(mi.object_ids, object_ids)], np.int64)
         selector = faiss.IDSelectorBatch(ids)
         ivf = faiss.try_extract_index_ivf(mi.index)
-        params = (
-            faiss.SearchParameters(sel=selector)
-            if ivf is None
-            else faiss.SearchParametersIVF(sel=selector, nprobe=ivf.nprobe)
-        )
+        params = faiss.SearchParameters() if ivf is None else faiss.SearchParametersIVF()
+        params.sel = selector
+        if ivf is not None:  # given parameters replace the index's own
+            params.nprobe = ivf.nprobe  # type: ignore[attr-defined]  # SearchParametersIVF's
         return cls(params, selector, len(ids))
