@@ -145,6 +145,10 @@ class ObjectOut(BaseModel):
         "it answers for your frames too: DELETE it (it does not come back), or start a new data dir with "
         "POSEDESC_DEMO_OBJECTS=false",
     )
+    diameter_mm: float | None = Field(
+        None, description="the object's diameter as registered, mm (None: registered before it was kept)"
+    )
+    window_mm: float = Field(description="the patch window the object is seen through, mm (its size's class)")
 
 
 class ObjectCreated(BaseModel):
@@ -157,6 +161,8 @@ class ObjectCreated(BaseModel):
                     "templates": 301,
                     "seconds": 1.84,
                     "timings": {"render": 1.3, "embed": 1.1, "store": 0.04, "total": 1.84},
+                    "diameter_mm": 163.2,
+                    "window_mm": 200.0,
                     "warnings": [],
                 }
             ]
@@ -168,6 +174,15 @@ class ObjectCreated(BaseModel):
     templates: int = Field(description="templates added per model (viewpoints x in-plane steps)")
     seconds: float = Field(description="time the registration took")
     timings: dict[str, float] = Field(description="seconds rendering, embedding (they overlap), storing")
+    # None only in the result of a job saved before they were reported
+    diameter_mm: float | None = Field(
+        None, description="the object's diameter as read in the file's units, mm"
+    )
+    window_mm: float | None = Field(
+        None,
+        description="the patch window chosen for its size, mm: the model's for objects about its size, "
+        "larger or smaller steps of sqrt(2) for others",
+    )
     warnings: list[str] = Field(default_factory=list)
 
 

@@ -109,7 +109,9 @@ class Context:
     scored so far (the same template against the same cut of the query scores the same, so none is scored
     twice); `scorer`: the re-ranking's score of this query (holding the query's cuts, made once per
     roll); `score`: what the answers' distances are ("local" once re-ranked); `wanted`: how many answers
-    are ranked, k or more when the open-set verdict reads past the best (`service.rejection.LISTED`)."""
+    are ranked, k or more when the open-set verdict reads past the best (`service.rejection.LISTED`);
+    `window_mm`: the window the query is cut through, its objects' class's (`index.windows`; None: the
+    model's), `snapshot` then seeing that class's objects only when the store holds several."""
 
     query: Query
     decoded: Decoded
@@ -124,6 +126,12 @@ class Context:
     scorer: Scorer | None = None
     score: str = "descriptor"
     wanted: int = 0
+    window_mm: float | None = None
+
+    @property
+    def window(self) -> float:
+        """The window the query is cut through (mm): `window_mm`, or the model's."""
+        return self.decoded.embedder.info.window_mm if self.window_mm is None else self.window_mm
 
 
 class Stage(Protocol):
