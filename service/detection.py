@@ -18,11 +18,13 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from index.draw import project
+from index.store import Snapshot
+from index.windows import window_classes
 from service.errors import ApiError
 from service.pipeline.answer import Result
 from service.pipeline.query import Decoded, Query, decode
 from service.poses import match_pose
-from service.proposals import Proposal, propose, windows_of
+from service.proposals import Proposal, propose
 from service.state import AppState
 
 #: boxes overlapping by more than this (intersection over union) are one object found twice: the more
@@ -82,11 +84,12 @@ def detect_decoded(state: AppState, q: Query, d: Decoded, decode_s: float = 0.0)
     t0 = time.perf_counter()
     ms: dict[str, float] = {"decode": decode_s}
     K = np.array([[q.fx, 0.0, q.cx], [0.0, q.fy, q.cy], [0.0, 0.0, 1.0]])
-    windows = windows_of(state.store.snapshot, d.embedder.info.window_mm)
+    snapshot = state.store.snapshot  # every proposal verified against the same store
+    windows = window_classes(snapshot.objects, d.embedder.info.window_mm)
     proposals = propose(d, K, state.colour_proposals, windows, state.settings.detect_proposals)
     ms["propose"] = time.perf_counter() - t0
     t = time.perf_counter()
-    found = [det for p in proposals if (det := _verify(state, q, d, p, K)) is not None]
+    found = [det for p in proposals if (det := _verify(state, snapshot, q, d, p, K)) is not None]
     ms["verify"] = time.perf_counter() - t
     kept = suppress(sorted(found, key=lambda x: -x.confidence))
     floor = q.min_confidence
@@ -100,15 +103,18 @@ def detect_decoded(state: AppState, q: Query, d: Decoded, decode_s: float = 0.0)
     )
 
 
-def _verify(state: AppState, q: Query, d: Decoded, p: Proposal, K: np.ndarray) -> Detection | None:
+def _verify(
+    state: AppState, snapshot: Snapshot, q: Query, d: Decoded, p: Proposal, K: np.ndarray
+) -> Detection | None:
     """The verifier's answer at a proposal: screened at its shifts (`_centred`), then the whole pipeline
     cut at the best of them; None when nothing there can be answered."""
     w, h = d.size
-    at = _centred(state, replace(q, k=max(q.k, 1)), d, p, (w, h))
+    seen = snapshot if p.objects is None else snapshot.within(p.objects)
+    at = _centred(state, seen, q, d, p)
     if at is None:
         return None
     try:
-        result = state.pipelines[d.modality](at, d, state.store.snapshot)
+        result = state.pipelines[d.modality](at, d, seen)
     except ApiError:  # nothing measurable there (an empty depth patch): not an object
         return None
     if not result.matches:
@@ -121,14 +127,12 @@ def _verify(state: AppState, q: Query, d: Decoded, p: Proposal, K: np.ndarray) -
     return Detection(at.u, at.v, box, float(result.confidences[0] or 0.0), result)
 
 
-def _centred(state: AppState, q: Query, d: Decoded, p: Proposal, size: tuple[int, int]) -> Query | None:
+def _centred(state: AppState, snapshot: Snapshot, q: Query, d: Decoded, p: Proposal) -> Query | None:
     """The query cut at the proposal's centre or at one of its shifts (`Settings.detect_shift` of its
     window's side in x and y), whichever the screening pipeline (`AppState.screens`) is most confident
     at; None when no shift can be answered (outside the frame, no depth there)."""
-    w, h = size
-    side = p.box[2] - p.box[0]  # the proposal's window, px
-    if p.distance_mm is not None:
-        side = float(q.fx or 0.0) * d.embedder.info.window_mm / p.distance_mm
+    w, h = d.size
+    side = p.box[2] - p.box[0]  # the proposal's window (colour) or the segment's extent (depth), px
     step = state.settings.detect_shift * side
     shifts = [(0.0, 0.0)] + (
         [(i * step, j * step) for i in (-1, 0, 1) for j in (-1, 0, 1) if i or j] if step else []
@@ -141,7 +145,7 @@ def _centred(state: AppState, q: Query, d: Decoded, p: Proposal, size: tuple[int
             continue
         at = replace(q, u=u, v=v, distance_mm=p.distance_mm, k=1)
         try:
-            r = screen(at, d, state.store.snapshot)
+            r = screen(at, d, snapshot)
         except ApiError:  # no depth there
             continue
         if not r.matches:

@@ -12,14 +12,14 @@ is measured rather than inferred from a size."""
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Protocol
 
 import numpy as np
 
 from index.depth_proposals import depth_proposals
-from index.store import Snapshot
+from index.objectness import WINDOW_MM
 from service.errors import ApiError
 from service.pipeline.query import Decoded
 
@@ -45,7 +45,8 @@ Colour = Callable[[np.ndarray, int], Sequence[Seen]]
 @dataclass(frozen=True)
 class Proposal:
     """A place to verify: the centre (px), the distance to cut at (mm; None: measured from depth there),
-    the box it was seen in (x0, y0, x1, y1 px), its score (higher: more object-like) and its source."""
+    the box it was seen in (x0, y0, x1, y1 px), its score (higher: more object-like), its source, and the
+    objects it is verified against (None: all; a colour proposal's distance holds for one window class)."""
 
     u: float
     v: float
@@ -53,13 +54,15 @@ class Proposal:
     box: tuple[float, float, float, float]
     score: float
     source: str
+    objects: frozenset[int] | None = None
 
 
 def propose(
-    d: Decoded, K: np.ndarray, colour: Colour | None, windows: Sequence[float], limit: int
+    d: Decoded, K: np.ndarray, colour: Colour | None, windows: Mapping[float, frozenset[int]], limit: int
 ) -> list[Proposal]:
     """At most `limit` proposals of each source for the decoded frame, best first. `windows`: the window
-    classes (mm) among the registered objects; `colour` None when the service has no objectness model."""
+    classes (mm) among the registered objects, and their objects (`index.windows.window_classes`);
+    `colour` None when the service has no objectness model."""
     out: list[Proposal] = []
     if d.depth is not None:
         out += [
@@ -79,15 +82,14 @@ def propose(
             for p in colour(d.rgb, limit):
                 half = p.window_px / 2
                 box = (p.u - half, p.v - half, p.u + half, p.v + half)
-                # with depth, the pipeline measures the distance at the centre: no size is assumed
-                distances = [None] if d.depth is not None else [focal * w / p.window_px for w in windows]
-                out += [Proposal(p.u, p.v, dist, box, p.score, "colour") for dist in distances]
+                if d.depth is not None:  # the pipeline measures the distance at the centre: no size assumed
+                    out.append(Proposal(p.u, p.v, None, box, p.score, "colour"))
+                    continue
+                # the network's window is of an object filling it as the model's objects fill theirs: an
+                # object of another class looking that large is as much nearer or farther as its window
+                one = len(windows) <= 1
+                out += [
+                    Proposal(p.u, p.v, focal * w / p.window_px, box, p.score, "colour", None if one else ids)
+                    for w, ids in (windows.items() or {WINDOW_MM: None}.items())
+                ]
     return out
-
-
-def windows_of(snap: Snapshot, default_mm: float) -> list[float]:
-    """The window classes (mm) of the registered objects: each object's own (`extra["window_mm"]`), the
-    model's (`default_mm`) for objects registered before windows followed sizes; the model's when none is
-    registered."""
-    found = {float(str(r.extra.get("window_mm", default_mm))) for r in snap.objects.values()}
-    return sorted(found) or [default_mm]

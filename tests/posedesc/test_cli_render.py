@@ -64,7 +64,7 @@ def test_render_refuses_a_mesh_in_other_units(tmp_path, l_shape, units, scale):
     f.write_bytes(small.export(file_type="ply"))
     r = posedesc("render", str(f), "--out", str(tmp_path / "o"), "--level", "1")
     assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1 and "Traceback" not in r.stderr
-    assert "too small for the 200 mm patch window" in r.stderr and f" {units} it is " in r.stderr
+    assert "too small (20-2,000 mm register)" in r.stderr and f" {units} it is " in r.stderr
     assert not (tmp_path / "o").exists()  # nothing written
     r = posedesc("render", str(f), "--out", str(tmp_path / "o"), "--level", "1", "--units", units)
     assert r.returncode == 0, r.stderr

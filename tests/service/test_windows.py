@@ -81,7 +81,7 @@ def test_each_registers_with_its_true_size_and_the_window_it_asks_for(registered
         true = diameter(meshes[name])
         assert obj["diameter_mm"] == pytest.approx(true, abs=0.1)
         assert obj["window_mm"] == window_class(true, 200.0)
-    assert [registered[n]["window_mm"] for n in ("L", "big", "small")] == [200.0, 1600.0, 50.0]
+    assert [registered[n]["window_mm"] for n in ("L", "big", "small")] == [200.0, 1131.37, 50.0]
 
 
 @pytest.fixture(scope="module")
@@ -96,7 +96,7 @@ def test_after_a_restart_each_keeps_its_window_and_is_recognised_in_a_frame(
     with TestClient(create_app(service_settings(data_dir, shipped_rgb, level=2))) as c:
         wait_ready(c)
         listed = {o["name"]: o for o in c.get("/objects").json()}
-        assert {n: o["window_mm"] for n, o in listed.items()} == {"L": 200.0, "big": 1600.0, "small": 50.0}
+        assert {n: o["window_mm"] for n, o in listed.items()} == {"L": 200.0, "big": 1131.37, "small": 50.0}
         assert listed["big"]["diameter_mm"] == registered["big"]["diameter_mm"]
         for name, (rgb, _) in frames.items():
             fields = frame_fields(UV, distance_mm=VIEWS[name].distance)
