@@ -207,8 +207,10 @@ def _frames(
 
 
 def _frame_size(frame: Frame) -> tuple[int, int]:
-    data = frame.rgb if frame.rgb is not None else frame.depth
-    image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)  # type: ignore[arg-type]  # one is sent
+    rgb, depth = decoded(frame)
+    image = rgb if rgb is not None else depth
+    if image is None:
+        raise ValueError(f"frame {frame.key}: nothing to send")
     return int(image.shape[0]), int(image.shape[1])
 
 
@@ -307,12 +309,17 @@ def decoded(frame: Frame) -> tuple[np.ndarray | None, np.ndarray | None]:
     """The frame's colour (RGB) and depth (mm) images from the files sent."""
     rgb = depth = None
     if frame.rgb is not None:
-        bgr = cv2.imdecode(np.frombuffer(frame.rgb, np.uint8), cv2.IMREAD_COLOR)
-        rgb = bgr[..., ::-1]
+        rgb = _image(frame.rgb, cv2.IMREAD_COLOR)[..., ::-1]
     if frame.depth is not None:
-        raw = cv2.imdecode(np.frombuffer(frame.depth, np.uint8), cv2.IMREAD_UNCHANGED)
-        depth = raw.astype(np.float32) * frame.depth_scale
+        depth = _image(frame.depth, cv2.IMREAD_UNCHANGED).astype(np.float32) * frame.depth_scale
     return rgb, depth
+
+
+def _image(data: bytes, flags: int) -> np.ndarray:
+    image = cv2.imdecode(np.frombuffer(data, np.uint8), flags)
+    if image is None:
+        raise ValueError("a frame's file cannot be decoded")
+    return image
 
 
 def _figures(asked: Asked, truths: Sequence[Truth], symmetries: Mapping, n_frames: int) -> dict:
@@ -349,7 +356,7 @@ def false_alarms(cfg: DetectConfig, folder: Path, embedder: Embedder, frames: Se
     state = load_state(settings, {embedder.modality: embedder})
     try:
         with bar(len(shapes), "register unknown shapes", "object") as b:
-            ids = {}
+            ids: dict[int, int] = {}
             for name, mesh in shapes.items():
                 reg = register(
                     mesh,
