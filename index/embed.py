@@ -179,10 +179,13 @@ class Embedder:
         nominal_mm: float | np.ndarray,
         fill: bool = True,
         local: bool = False,
+        window_mm: float | None = None,
     ) -> np.ndarray:
         """Cropped patches (rgb (N, S, S, 3) uint8, depth (N, S, S) mm) -> descriptors (N, D), or with
-        `local` the local features (N, F) instead."""
-        x = batch_inputs(self.modality, rgb, depth, nominal_mm, self.info.window_mm, fill)
+        `local` the local features (N, F) instead. `window_mm`: the window they were cut through (an
+        object's class, `index.windows`), which depth is normalised by; None: the model's."""
+        window = self.info.window_mm if window_mm is None else window_mm
+        x = batch_inputs(self.modality, rgb, depth, nominal_mm, window, fill)
         return self.local(x) if local else self(x)
 
 

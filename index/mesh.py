@@ -1,6 +1,6 @@
 """Loading a user's mesh: any format of `MESH_FORMATS`, in mm, checked, and simplified when too heavy;
-refused when too large to load safely (`max_input_faces`, see `index/mesh_limits.py`) or, given the patch
-window, when its units make an object the templates cannot show (`window_mm`, see `index/units.py`)."""
+refused when too large to load safely (`max_input_faces`, see `index/mesh_limits.py`) or, when asked,
+when its units make an object of a size not registered, or are doubtful (`check_size`, see `index/units.py`)."""
 
 from __future__ import annotations
 
@@ -35,20 +35,21 @@ class MeshTooLarge(MeshError):
 
 def load_mesh(
     source: str | Path | bytes,
-    units: str = "mm",
+    units: str | None = "mm",
     file_type: str | None = None,
     max_faces: int | None = 200_000,
     max_input_faces: int | None = None,
-    window_mm: float | None = None,
+    check_size: bool = False,
 ) -> trimesh.Trimesh:
     """One triangle mesh in millimetres from a path or bytes (`file_type` needed for bytes).
 
     Multi-part files (OBJ groups, GLB scenes) are merged with their colours and textures baked to
     vertex colours where the parts differ. A mesh over `max_faces` is simplified to it; one over
     `max_input_faces` (or `mesh_limits.MAX_PARTS`) raises MeshTooLarge, before parsing when it can.
-    With `window_mm`, an object whose diameter does not fit that patch window raises MeshError saying
-    which units would make it fit."""
-    if units not in UNIT_SCALE:
+    `units` None: not given, read as mm. With `check_size`, an object whose diameter is not registered,
+    or whose units are doubtful, raises MeshError saying which units would make it fit
+    (`index.units.size_problem`)."""
+    if units is not None and units not in UNIT_SCALE:
         raise MeshError(f"units must be one of {', '.join(UNITS)}, got {units!r}")
     if isinstance(source, (str, Path)):
         path = Path(source)
@@ -75,7 +76,7 @@ def load_mesh(
         raise
     except Exception as e:  # trimesh raises anything from KeyError to struct.error on garbage
         raise MeshError(f"not a readable {file_type.upper()} mesh ({type(e).__name__}: {e})") from None
-    mesh.apply_scale(UNIT_SCALE[units])
+    mesh.apply_scale(UNIT_SCALE[units or "mm"])
     size = float(np.ptp(mesh.vertices, axis=0).max())
     if not size <= MAX_SIZE_MM:
         raise MeshError(f"the mesh is {size:.3g} mm across, over {MAX_SIZE_MM:g}: check its units")
@@ -83,7 +84,7 @@ def load_mesh(
         mesh = simplify(mesh, max_faces)
         if len(mesh.faces) == 0:  # e.g. a million copies of one triangle
             raise MeshError(f"simplifying it to {max_faces:,} faces left none: its faces are degenerate")
-    if window_mm is not None and (problem := size_problem(diameter(mesh), units, window_mm)):
+    if check_size and (problem := size_problem(diameter(mesh), units)):
         raise MeshError(problem)
     return mesh
 

@@ -44,7 +44,7 @@ import time
 import uuid
 from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -89,6 +89,14 @@ class MilvusSnapshot(Snapshot):
     store: MilvusStore
     #: the search filter: templates of these objects only (pending and deleted ones are left out)
     expr: str
+
+    def within(self, object_ids: frozenset[int]) -> MilvusSnapshot:
+        live = {o: r for o, r in self.objects.items() if o in object_ids}
+        models = {
+            m: MilvusModel(sum(r.templates.get(m, 0) for r in live.values()), mm.local)
+            for m, mm in self.models.items()
+        }
+        return replace(self, objects=live, models=models, expr=f"object_id in {sorted(live)}")
 
     def knn(self, model: str, queries: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         hits = self.store.search_raw(model, queries, n, self.expr)

@@ -20,6 +20,11 @@ are the same picture, so only azimuths in [0, 180) are kept; a "full" object loo
 azimuth at one elevation, and the icosphere is 5-fold symmetric about z, so the wedge [0, 72) holds
 every elevation of the set: a fifth of the templates with no loss of elevation resolution. The answer
 for such an object gives the matched template's azimuth, one of the equivalent ones.
+
+Each object is seen through the window its size asks for (`index.windows`: chosen here from the mesh's
+diameter, stored with its record as `extra["window_mm"]` and `extra["diameter_mm"]`): its templates are
+rendered through it, from a distance scaled with it (400 mm for the model's own window), so that every
+object fills its templates about alike and is seen with the same perspective.
 """
 
 from __future__ import annotations
@@ -28,20 +33,21 @@ import logging
 import time
 from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import trimesh
 
 from index.embed import Embedder
 from index.local import with_relief, with_silhouettes
-from index.mesh import MeshError, load_mesh, simplify
+from index.mesh import MeshError, diameter, load_mesh, simplify
 from index.pose import View
 from index.render import INVISIBLE, Renderer, RenderWorker, Templates
 from index.store import ObjectRecord, TemplateSet, TemplateStore
 from index.surface import SURFACE_KEY, template_offsets
 from index.symmetry import SYMMETRIES
 from index.viewpoints import inplane_steps, sphere_views
+from index.windows import DIAMETER_KEY, WINDOW_KEY, object_window, window_class
 
 log = logging.getLogger(__name__)
 
@@ -71,6 +77,12 @@ class TemplateConfig:
         """Degrees between neighbouring in-plane templates of such a model; 0 when upright only."""
         step = model_step if self.inplane_step is None else self.inplane_step
         return float(step) if len(self.inplane(model_step)) > 1 else 0.0
+
+    def through(self, window_mm: float, model_window_mm: float) -> TemplateConfig:
+        """The config for an object seen through `window_mm`: rendered from a distance scaled with it."""
+        if window_mm == model_window_mm:
+            return self
+        return replace(self, distance_mm=self.distance_mm * window_mm / model_window_mm)
 
 
 @dataclass
@@ -142,32 +154,40 @@ def embed_templates(
     keep: Sequence[int] | None = None,
     *,
     local_features: bool = True,
+    window_mm: float | None = None,
 ) -> TemplateSet:
-    """Descriptors of rendered templates (those at `keep`, default all) with one model.
+    """Descriptors of rendered templates (those at `keep`, default all) with one model, rendered through
+    `window_mm` (the object's window, `index.windows`; None: the model's).
     `local_features`: also the local features of a model that has them, with each template's silhouette
     and relief from its depth (what the service's re-ranking compares); False: the descriptors alone
     (what a ranking by descriptor distance needs: the paper's protocols, whose templates may carry no
     depth)."""
-    t = rendered[embedder.info.window_mm]
+    window = embedder.info.window_mm if window_mm is None else window_mm
+    t = rendered[window]
     idx = np.arange(len(t.views)) if keep is None else np.asarray(keep, int)
     rgb = t.rgb[idx] if embedder.modality in ("rgb", "rgbd") else None
     depth = t.depth[idx] if embedder.modality in ("depth", "rgbd") else None
     views = [t.views[i] for i in idx]
     nominal = np.array([v.distance for v in views])
-    desc = embedder.embed_patches(rgb, depth, nominal, fill=False)  # a render's zeros are background
+    desc = embedder.embed_patches(rgb, depth, nominal, fill=False, window_mm=window)  # zeros: background
     poses = np.array([(v.azimuth, v.elevation, v.inplane) for v in views], np.float32).reshape(-1, 3)
     if not (local_features and embedder.has_local):
         return TemplateSet(poses, desc)
     # local features of the upright templates only: the service turns the query to a candidate's roll
     up = np.flatnonzero(np.abs(poses[:, 2]) < 1e-3)
     local = embedder.embed_patches(
-        None if rgb is None else rgb[up], None if depth is None else depth[up], nominal[up], False, local=True
+        None if rgb is None else rgb[up],
+        None if depth is None else depth[up],
+        nominal[up],
+        False,
+        local=True,
+        window_mm=window,
     )
     # where each template's object is: the re-ranking compares the cells it covers (`index.local`)
     # and the shape depth sees there, for queries with depth: stored for every model with local features,
     # since the RGB-D model takes the rgb model's templates (`template_twins`); 512 bytes a viewpoint
     local = with_silhouettes(local, t.depth[idx][up], embedder.local_grid)
-    local = with_relief(local, t.depth[idx][up], nominal[up], embedder.local_grid, embedder.info.window_mm)
+    local = with_relief(local, t.depth[idx][up], nominal[up], embedder.local_grid, window)
     return TemplateSet(poses, desc, up, local)
 
 
@@ -191,9 +211,11 @@ def make_templates(
     pool: ThreadPoolExecutor | None = None,
     chunks: int = 4,
     progress: Progress | None = None,
+    window_mm: float | None = None,
 ) -> tuple[dict[str, TemplateSet], dict[str, float], np.ndarray]:
-    """Every model's templates of `mesh` from its `views`, seconds spent rendering and embedding, and
-    each viewpoint's surface offset (`index.surface.template_offsets`, rows of azimuth, elevation, mm).
+    """Every model's templates of `mesh` from its `views` through `window_mm` (the object's window; None:
+    each model's own), seconds spent rendering and embedding, and each viewpoint's surface offset
+    (`index.surface.template_offsets`, rows of azimuth, elevation, mm).
 
     The union of the views goes to the render thread once, in `chunks` (whole viewpoints each); a chunk
     is embedded while the next renders, each model embedding its own views of it, side by side on
@@ -204,7 +226,7 @@ def make_templates(
         return simplify(mesh, renderer.max_faces) if len(mesh.faces) > renderer.max_faces else mesh
 
     light = worker.submit(decimate)
-    windows = {e.info.window_mm for e in embedders.values()}
+    windows = {e.info.window_mm for e in embedders.values()} if window_mm is None else {window_mm}
     groups = _viewpoints(views)
     per = max(1, int(np.ceil(len(groups) / chunks)))
     renders = [
@@ -240,10 +262,14 @@ def make_templates(
         # each model's views in halves: with a pool of two, one model's templates use both cores
         work = [(m, half) for m in own for half in _halves(keep[m], 2 if pool is not None else 1)]
         if pool is None:
-            done = [embed_templates(embedders[m], rendered, k) for m, k in work]
+            done = [embed_templates(embedders[m], rendered, k, window_mm=window_mm) for m, k in work]
         else:
             done = [
-                f.result() for f in [pool.submit(embed_templates, embedders[m], rendered, k) for m, k in work]
+                f.result()
+                for f in [
+                    pool.submit(embed_templates, embedders[m], rendered, k, window_mm=window_mm)
+                    for m, k in work
+                ]
             ]
         seconds["embed"] += time.perf_counter() - t0
         sets = {m: _concatenate([ts for (w, _), ts in zip(work, done, strict=True) if w == m]) for m in own}
@@ -296,18 +322,29 @@ def register(
     extra: Mapping[str, object] | None = None,
     progress: Progress | None = None,
 ) -> Registration:
-    """Adds `mesh` (mm) under `name` to every model's store; raises MeshError when it cannot be used.
-    `progress`, when given, is told how far it is (`Progress`)."""
+    """Adds `mesh` (mm) under `name` to every model's store, through the window its diameter asks for
+    (`index.windows`); raises MeshError when it cannot be used. `progress`, when given, is told how far
+    it is (`Progress`)."""
     t0 = time.perf_counter()
-    views = model_views(symmetry, cfg, embedders)
-    sets, timings, offsets = make_templates(worker, embedders, mesh, views, pool, progress=progress)
+    size = diameter(mesh)
+    model_window = min(e.info.window_mm for e in embedders.values())
+    window = window_class(size, model_window)
+    views = model_views(symmetry, cfg.through(window, model_window), embedders)
+    sets, timings, offsets = make_templates(
+        worker, embedders, mesh, views, pool, progress=progress, window_mm=window
+    )
     t1 = time.perf_counter()
     stored = sum(len(ts.poses) for ts in sets.values())
     if progress:
         progress("store", 0, stored)
     glb = mesh.export(file_type="glb")  # kept so templates can be made again when a model changes
     assert isinstance(glb, bytes)  # glb is binary
-    extra = {**(extra or {}), SURFACE_KEY: np.round(offsets, 2).tolist()}
+    extra = {
+        **(extra or {}),
+        SURFACE_KEY: np.round(offsets, 2).tolist(),
+        WINDOW_KEY: window,
+        DIAMETER_KEY: round(size, 1),
+    }
     record = store.add_object(name, symmetry, sets, faces=len(mesh.faces), mesh=glb, extra=extra)
     t2 = time.perf_counter()
     if progress:
@@ -339,7 +376,10 @@ def reembed(
             continue
         mesh = load_mesh(glb, file_type="glb", max_faces=None)
         subset = {m: embedders[m] for m in models}
-        sets, _, _ = make_templates(worker, subset, mesh, model_views(rec.symmetry, cfg, subset), pool)
+        model_window = min(e.info.window_mm for e in subset.values())
+        window = object_window(rec.extra, model_window) if WINDOW_KEY in rec.extra else None
+        views = model_views(rec.symmetry, cfg.through(window or model_window, model_window), subset)
+        sets, _, _ = make_templates(worker, subset, mesh, views, pool, window_mm=window)
         try:
             for m, ts in sets.items():
                 store.add_templates(oid, m, ts)

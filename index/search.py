@@ -1,13 +1,16 @@
 """Searching a store's state: a `Snapshot` is what one search sees from start to end (the objects and, per
 model, the templates), whatever the backend; `FaissSnapshot` is the embedded store's, its indexes in
 memory. Both answer through the same code: the k nearest templates of each query (`search`) and the k
-best distinct (object, viewpoint) answers of a query cut several times (`answers`)."""
+best distinct (object, viewpoint) answers of a query cut several times (`answers`). A snapshot `within`
+some of its objects searches their templates only (a query cut through one window class searches that
+class's objects: `index.windows`)."""
 
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from functools import cached_property
 from typing import Protocol
 
 import faiss
@@ -60,6 +63,14 @@ class Snapshot(ABC):
         """The n nearest templates of each query (Q, D) among this snapshot's objects: squared L2
         distances (Q, n), object ids (Q, n; -1 where fewer were found) and poses (Q, n, 3), nearest first."""
 
+    @abstractmethod
+    def within(self, object_ids: frozenset[int]) -> Snapshot:
+        """This snapshot seeing only these of its objects: their records, their templates in searches."""
+
+    def size(self, model: str) -> int:
+        """How many templates of `model` a search looks through."""
+        return self.models[model].size
+
     def named(self, name: str) -> ObjectRecord | None:
         """The object of this name, if any."""
         return next((r for r in self.objects.values() if r.name == name), None)
@@ -76,7 +87,7 @@ class Snapshot(ABC):
 
     def search(self, model: str, queries: np.ndarray, k: int) -> list[list[Match]]:
         """The k nearest templates of each query descriptor (Q, D), nearest first (fewer if the store is small)."""
-        size = self.models[model].size
+        size = self.size(model)
         if size == 0 or k <= 0:
             return [[] for _ in range(len(queries))]
         dist, oids, poses = self.knn(model, np.ascontiguousarray(queries, np.float32), min(k, size))
@@ -101,7 +112,7 @@ class Snapshot(ABC):
         nearest (`index.answers.distinct`). Each turn searches k * min(`variants`, 4) neighbours
         (`variants`: the templates a viewpoint has), twice as many (up to `most`) while they hold fewer
         than k distinct viewpoints; fewer answers than k only when the store is small."""
-        size = self.models[model].size
+        size = self.size(model)
         if size == 0 or k <= 0:
             return []
         q = np.ascontiguousarray(queries, np.float32)
@@ -127,14 +138,54 @@ class Snapshot(ABC):
 
 @dataclass(frozen=True)
 class FaissSnapshot(Snapshot):
-    """The embedded store's state: each model's FAISS index in memory (`ModelIndex`)."""
+    """The embedded store's state: each model's FAISS index in memory (`ModelIndex`). `only`, in a
+    snapshot `within` some objects: per model, the search's selection of their templates and its size."""
 
     models: Mapping[str, ModelIndex]
+    only: Mapping[str, Selection] | None = None
+
+    def size(self, model: str) -> int:
+        return self.models[model].size if self.only is None else self.only[model].size
+
+    def within(self, object_ids: frozenset[int]) -> FaissSnapshot:
+        # kept per snapshot: every query of a store with several window classes asks for the same ones
+        if (hit := self._within.get(object_ids)) is None:
+            ids = sorted(object_ids)
+            only = {m: Selection.of(mi, ids) for m, mi in self.models.items()}
+            objects = {o: self.objects[o] for o in ids if o in self.objects}
+            hit = self._within[object_ids] = FaissSnapshot(self.generation, objects, self.models, only)
+        return hit
+
+    @cached_property
+    def _within(self) -> dict[frozenset[int], FaissSnapshot]:
+        return {}
 
     def knn(self, model: str, queries: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         mi = self.models[model]
-        dist, ids = mi.index.search(queries.reshape(len(queries), mi.index.d), n)
+        params = None if self.only is None else self.only[model].params
+        dist, ids = mi.index.search(queries.reshape(len(queries), mi.index.d), n, params=params)
         pos = np.searchsorted(mi.ids, np.where(ids >= 0, ids, 0))
         pos = np.minimum(pos, max(mi.size - 1, 0))
         oids = np.where(ids >= 0, mi.object_ids[pos], -1)
         return dist, oids, mi.poses[pos]
+
+
+@dataclass(frozen=True)
+class Selection:
+    """Some objects' templates in one model's index: FAISS search parameters that select them (the
+    selector kept beside them: FAISS holds it by a bare pointer) and how many there are."""
+
+    params: faiss.SearchParameters
+    selector: faiss.IDSelector
+    size: int
+
+    @classmethod
+    def of(cls, mi: ModelIndex, object_ids: list[int]) -> Selection:
+        ids = np.ascontiguousarray(mi.ids[np.isin(mi.object_ids, object_ids)], np.int64)
+        selector = faiss.IDSelectorBatch(ids)
+        ivf = faiss.try_extract_index_ivf(mi.index)
+        params = faiss.SearchParameters() if ivf is None else faiss.SearchParametersIVF()
+        params.sel = selector
+        if ivf is not None:  # given parameters replace the index's own
+            params.nprobe = ivf.nprobe  # type: ignore[attr-defined]  # SearchParametersIVF's
+        return cls(params, selector, len(ids))

@@ -1,9 +1,22 @@
-"""A mesh file's units: the scales accepted, and whether the object they make is a size a patch can show.
+"""A mesh file's units: the scales accepted, the sizes of object registered, and when a file's units are
+doubtful.
 
 A mesh file says nothing of its units. Read in the wrong ones, an object comes out 10, 25.4 or 1000 times
-too small or too large, and its templates show a speck, nothing at all (black), or the inside of the
-object. `index.mesh.load_mesh(window_mm=...)` refuses such an object for `POST /objects`,
-`posedesc build-index` and `posedesc render`, and says which units would make its size fit.
+too small or too large: its templates would show another object's size, and a query would be answered
+with it. Each object gets the patch window its size asks for (`index.windows`), so any object from
+`SMALLEST_MM` to `LARGEST_MM` across registers. `index.mesh.load_mesh(check_size=True)` refuses one outside
+that for `POST /objects`, `posedesc build-index` and `posedesc render`, and says which units would make its
+size fit.
+
+A range of 100 no longer tells mm from cm by size alone (a 25 mm part and a 250 mm one in cm read alike),
+so wrong units are caught where they still can be, by this rule: units given are believed over the whole
+range; units not given are taken as mm (CAD and BOP files are), except that an object whose size in mm is
+unusual (outside `ORDINARY_MM`, the sizes of the household and industrial objects the service was first
+made for: LineMOD's are 100-300 mm) while another unit would make it ordinary is refused, naming both
+readings, until the units are given. So a 30 cm object in a cm file sent without units is asked about (30
+mm or 300 mm?), where it would otherwise register as a 30 mm part; and a 1.5 m object in mm registers as it
+is, since no other unit makes it ordinary. Every registration's answer says the size it read
+(`diameter_mm`) and the window chosen (`window_mm`).
 """
 
 from __future__ import annotations
@@ -16,35 +29,49 @@ UNITS: tuple[str, ...] = get_args(Units)
 UNIT_SCALE = {"mm": 1.0, "cm": 10.0, "m": 1000.0, "inch": 25.4}
 assert tuple(UNIT_SCALE) == UNITS
 
-# An object fits a patch window of w mm when its diameter is between w / 5 (13 px of a 64 px patch: less
-# shows too little to tell objects apart) and 2 w (from LineMOD's 400 mm the camera is then within 200 mm of
-# its surface, and a patch shows a quarter of it). For the 200 mm window that is 40-400 mm (LineMOD's objects
-# are 100-300 mm), a span of 10: a file read in units 10 or more times off never fits.
-SMALLEST, LARGEST = 1 / 5, 2.0
+# The objects registered: from 20 mm (a patch window of 35 mm, `index.windows`; a smaller part spans too few
+# pixels of a frame to be told apart at any distance a depth camera measures) to 2 m (a window of 2.3 m).
+SMALLEST_MM, LARGEST_MM = 20.0, 2000.0
+# The sizes taken for mm without question when no units are given: the 200 mm window's old range (1/5 to 2
+# windows), a span of 10, so that no other unit of a file (10, 25.4 or 1000 times off) is ordinary too.
+ORDINARY_MM = (40.0, 400.0)
 
 
-def fits(diameter_mm: float, window_mm: float) -> bool:
-    return window_mm * SMALLEST <= diameter_mm <= window_mm * LARGEST
+def fits(diameter_mm: float) -> bool:
+    return SMALLEST_MM <= diameter_mm <= LARGEST_MM
 
 
-def size_problem(diameter_mm: float, units: str, window_mm: float) -> str | None:
-    """Why an object `diameter_mm` across, read from a file in `units`, does not fit the window, and
-    which units would make it fit (metric first), in one line; None when it fits."""
-    if fits(diameter_mm, window_mm):
-        return None
-    lo, hi = window_mm * SMALLEST, window_mm * LARGEST
-    size = "too small" if diameter_mm < lo else "too large"
-    said = diameter_mm / UNIT_SCALE[units]  # the file's own numbers
-    better = [(u, said * s) for u, s in UNIT_SCALE.items() if u != units and fits(said * s, window_mm)]
-    if better:
-        hint = (
-            "read in " + ", in ".join(f"{u} it is {_mm(mm)}" for u, mm in better) + ": give the file's units"
+def _ordinary(diameter_mm: float) -> bool:
+    return ORDINARY_MM[0] <= diameter_mm <= ORDINARY_MM[1]
+
+
+def size_problem(diameter_mm: float, units: str | None) -> str | None:
+    """Why an object `diameter_mm` across, read from a file in `units` (None: not given, read as mm), is
+    refused, and which units would make it fit (metric first), in one line; None when it is accepted."""
+    read = units or "mm"
+    said = diameter_mm / UNIT_SCALE[read]  # the file's own numbers
+    if not fits(diameter_mm):
+        size = "too small" if diameter_mm < SMALLEST_MM else "too large"
+        better = [(u, said * s) for u, s in UNIT_SCALE.items() if u != read and fits(said * s)]
+        if better:
+            hint = "read in " + ", in ".join(f"{u} it is {_mm(mm)}" for u, mm in better)
+            hint += ": give the file's units"
+        else:
+            hint = f"no units of {', '.join(UNITS)} make it fit: check the file"
+        return (
+            f"the object is {_mm(diameter_mm)} across read in {read}: {size} "
+            f"({SMALLEST_MM:g}-{LARGEST_MM:,.0f} mm register); {hint}"
         )
-    else:
-        hint = f"no units of {', '.join(UNITS)} make it fit: check the file"
+    if units is not None or _ordinary(diameter_mm):
+        return None
+    others = [(u, said * s) for u, s in UNIT_SCALE.items() if u != "mm" and _ordinary(said * s)]
+    if not others:
+        return None
+    readings = ", in ".join(f"{u} {_mm(mm)}" for u, mm in others)
+    choices = " or ".join(f"units={u}" for u in ("mm", *(u for u, _ in others)))
     return (
-        f"the object is {_mm(diameter_mm)} across read in {units}: {size} for the {window_mm:g} mm patch "
-        f"window ({lo:g}-{hi:g} mm fit); {hint}"
+        f"the file's units are not given: read in mm the object is {_mm(diameter_mm)} across, in {readings}; "
+        f"say which ({choices})"
     )
 
 

@@ -9,7 +9,15 @@ object the size of the window is nearer than the window is wide (at 10x too near
 Each check refuses a query (422) naming what looks wrong and the `depth_scale` that would make the depth
 plausible: the sent scale times the smallest power of ten that passes the same check; or, when that
 scale says the values are whole metres (or decimetres), to store millimetres instead. A user whose
-object really is that near or far can say so with `distance_mm`."""
+object really is that near or far can say so with `distance_mm`.
+
+Each object has the window its size asks for (`index.windows`), and a frame query is cut once per window
+class among the registered objects: the checks run per class with its window (a 50 mm part's window may
+be 150 mm away, a 1.6 m one's not nearer than 1.6 m). A class the depth makes implausible is left out of
+that query; only when every class is, the query is refused, with the reason of the class nearest the
+model's window (`service.pipeline.Pipeline`). So with objects of very different sizes registered, depth 10
+times off may be plausible for one class and go on against its objects: the answer's `distance_mm` then
+shows the distance read."""
 
 from __future__ import annotations
 

@@ -63,6 +63,18 @@ class MatchOut(BaseModel):
     )
 
 
+class DetectionOut(BaseModel):
+    """One object found in a whole frame."""
+
+    u: float = Field(description="where the object's origin projects, px")
+    v: float
+    box: list[float] = Field(
+        description="x0, y0, x1, y1 px: the object's mesh at its pose, clipped to the frame"
+    )
+    best: MatchOut = Field(description="the answer at (u, v): the object and its pose")
+    matches: list[MatchOut] = Field(description="the k nearest distinct answers at (u, v), `best` first")
+
+
 class RecognizeOut(BaseModel):
     model_config = ConfigDict(
         json_schema_extra={
@@ -112,6 +124,12 @@ class RecognizeOut(BaseModel):
         "refine (present when the re-ranking ran); total (all of it)"
     )
     model: str = Field(description="the model that matched the modality sent")
+    detections: list[DetectionOut] | None = Field(
+        None,
+        description="a frame sent without u and v: every registered object found in it, most confident "
+        "first (at most max_detections); `best` and `matches` are then the first detection's. Null when u "
+        "and v were sent",
+    )
 
 
 class ObjectOut(BaseModel):
@@ -127,6 +145,10 @@ class ObjectOut(BaseModel):
         "it answers for your frames too: DELETE it (it does not come back), or start a new data dir with "
         "POSEDESC_DEMO_OBJECTS=false",
     )
+    diameter_mm: float | None = Field(
+        None, description="the object's diameter as registered, mm (None: registered before it was kept)"
+    )
+    window_mm: float = Field(description="the patch window the object is seen through, mm (its size's class)")
 
 
 class ObjectCreated(BaseModel):
@@ -139,6 +161,8 @@ class ObjectCreated(BaseModel):
                     "templates": 301,
                     "seconds": 1.84,
                     "timings": {"render": 1.3, "embed": 1.1, "store": 0.04, "total": 1.84},
+                    "diameter_mm": 163.2,
+                    "window_mm": 200.0,
                     "warnings": [],
                 }
             ]
@@ -150,6 +174,15 @@ class ObjectCreated(BaseModel):
     templates: int = Field(description="templates added per model (viewpoints x in-plane steps)")
     seconds: float = Field(description="time the registration took")
     timings: dict[str, float] = Field(description="seconds rendering, embedding (they overlap), storing")
+    # None only in the result of a job saved before they were reported
+    diameter_mm: float | None = Field(
+        None, description="the object's diameter as read in the file's units, mm"
+    )
+    window_mm: float | None = Field(
+        None,
+        description="the patch window chosen for its size, mm: the model's for objects about its size, "
+        "larger or smaller steps of sqrt(2) for others",
+    )
     warnings: list[str] = Field(default_factory=list)
 
 

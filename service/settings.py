@@ -140,6 +140,26 @@ class Settings(BaseSettings):
         50_000, ge=1, description="embedded store, index_kind auto: an IVF index from this many templates"
     )
 
+    # Each proposal costs one run of the pipeline (~20 ms at 8 objects, 2 cores): 20 is what the frame
+    # time target (300 ms at 8 objects) leaves, with the proposals themselves
+    detect_proposals: int = Field(
+        20,
+        ge=1,
+        le=500,
+        description="a frame without u and v: how many proposals of each source are verified",
+    )
+
+    # A proposal's centre is a few px off and the re-ranking's cells are 4 px of a 64 px patch: the
+    # verifier named the right object on 97 % of validation instances at their true centre and 39 % a
+    # window's eighth off (docs/experiments.md). So each proposal is screened at a grid of shifts first
+    detect_shift: float = Field(
+        1 / 12, ge=0, le=0.5, description="a frame without u and v: each proposal is screened at its centre "
+        "and this share of its window's side away in x and y (0: at its centre only)",
+    )  # fmt: skip
+    detect_screen_rerank: int = Field(
+        60, ge=1, le=1000, description="a frame without u and v: the answers the screening re-ranks"
+    )
+
     sync_seconds: float = Field(2.0, ge=0, description="POST /objects answers 201 within this, else 202")
     demo_objects: bool = Field(True, description="register the built-in demo shapes into an empty data dir")
 
@@ -159,3 +179,12 @@ def default_store() -> str:
     """The `store` setting (POSEDESC_STORE) alone, for a tool that opens a store without serving
     (`posedesc build-index`): another setting's bad value is no reason for it to fail."""
     return _StoreOnly().store
+
+
+def screening(settings: Settings) -> Settings:
+    """The settings of a detection's screening (`AppState.screens`): the re-ranking of
+    `detect_screen_rerank` answers, no roll sweep, no refinement: where around a proposal the object is
+    centred, before the whole pipeline names it there."""
+    return settings.model_copy(
+        update={"rerank": settings.detect_screen_rerank, "roll_sweep": 0, "roll_refine": 0}
+    )

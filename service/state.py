@@ -8,9 +8,13 @@ import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
+from functools import partial
+from pathlib import Path
 
 from index.draw import DrawMesh, MeshCache
 from index.embed import Embedder, load_models, store_keys
+from index.objectness import OBJECTNESS_FILE, ObjectnessNet
+from index.objectness import propose as propose_objects
 from index.register import TemplateConfig
 from index.render import RenderWorker
 from index.shared_files import SharedFiles
@@ -18,7 +22,8 @@ from index.store import EMBEDDED, TemplateStore, open_store
 from service.jobs import Jobs
 from service.metrics import Metrics
 from service.pipeline import Pipeline
-from service.settings import Settings
+from service.proposals import Colour
+from service.settings import Settings, screening
 from service.threads import limit_threads, worker_pool
 
 log = logging.getLogger("service")
@@ -46,6 +51,9 @@ class AppState:
     recognizer: ThreadPoolExecutor = field(init=False)
     #: the meshes `POST /recognize/draw` draws, read from the store once per object (`index.draw`)
     draw_meshes: MeshCache = field(init=False)
+    #: colour proposals for finding objects in a whole frame (`service.proposals`): the objectness model
+    #: of the models dir, or None without one
+    colour_proposals: Colour | None = None
     jobs: Jobs = field(default_factory=Jobs)
     metrics: Metrics = field(default_factory=Metrics)
     ready: threading.Event = field(default_factory=threading.Event)
@@ -54,6 +62,9 @@ class AppState:
     startup_error: str | None = None
     #: `pipelines` and the settings and models they were built from
     _pipelines: tuple[Settings, dict[str, Embedder], dict[str, Pipeline]] | None = field(
+        default=None, init=False, repr=False
+    )
+    _screens: tuple[Settings, dict[str, Embedder], dict[str, Pipeline]] | None = field(
         default=None, init=False, repr=False
     )
 
@@ -77,6 +88,17 @@ class AppState:
                 m: Pipeline.build(self.settings, e, self.templates) for m, e in self.embedders.items()
             }
             self._pipelines = built = (self.settings, self.embedders, pipelines)
+        return built[2]
+
+    @property
+    def screens(self) -> dict[str, Pipeline]:
+        """Each model's screening pipeline (`service.detection`): the same stages with a shorter re-ranking
+        and no roll sweep or refinement, kept as `pipelines` are."""
+        built = self._screens
+        if built is None or built[0] is not self.settings or built[1] is not self.embedders:
+            light = screening(self.settings)
+            screens = {m: Pipeline.build(light, e, self.templates) for m, e in self.embedders.items()}
+            self._screens = built = (self.settings, self.embedders, screens)
         return built[2]
 
     @property
@@ -112,7 +134,18 @@ def load_state(settings: Settings, embedders: dict[str, Embedder] | None = None)
     log.info("models %s, %d objects in %s", sorted(embedders), len(store.snapshot.objects), where)
     # behind a load balancer a job is polled on any replica: with a shared store, job states are shared files
     jobs = Jobs() if settings.store == EMBEDDED else Jobs(files=SharedFiles(settings.data_dir))
-    return AppState(settings, embedders, store, worker, cfg, jobs=jobs)
+    colour = colour_proposals(settings.models_dir / OBJECTNESS_FILE, settings.threads)
+    return AppState(settings, embedders, store, worker, cfg, jobs=jobs, colour_proposals=colour)
+
+
+def colour_proposals(path: Path, threads: int) -> Colour | None:
+    """The objectness model at `path` as the detection's colour proposals, or None when there is none (a
+    colour frame without a centre is then refused with what to send instead)."""
+    if not path.is_file():
+        log.warning("no objectness model at %s: colour frames need u and v", path)
+        return None
+    net = ObjectnessNet(path, threads)
+    return partial(propose_objects, net)
 
 
 def close_state(state: AppState) -> None:

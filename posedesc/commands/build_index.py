@@ -24,7 +24,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--store", default=default_store(),
                    help="'embedded' or a Milvus URI, http://host:19530; POSEDESC_STORE sets the default")  # fmt: skip
     p.add_argument("--models", type=Path, default=Path("models"), help="folder of posedesc-*.onnx models")
-    p.add_argument("--units", choices=UNITS, default="mm", help="units of the mesh files")
+    p.add_argument("--units", choices=UNITS, default=None,
+                   help="units of the mesh files (not given: mm, but a file whose size would read as an "
+                   "ordinary object's in other units is refused until they are given)")  # fmt: skip
     p.add_argument("--symmetry", choices=("none", "180", "full"), default="none", help="of every mesh")
     p.add_argument("--inplane-step", type=float, default=None,
                    help="template in-plane step for every model, degrees (0: upright only; default: each "
@@ -43,6 +45,7 @@ def run(args: argparse.Namespace) -> int:
     from index.register import TemplateConfig, register
     from index.render import RenderWorker
     from index.store import StoreError, open_store
+    from index.windows import DIAMETER_KEY, WINDOW_KEY
 
     if not args.meshes.is_dir():
         raise UserError(f"--meshes {args.meshes}: not a folder")
@@ -66,8 +69,8 @@ def run(args: argparse.Namespace) -> int:
                     tqdm.write(f"{f.name}: {f.stem} is already in the store, skipped")
                     continue
                 try:
-                    mesh = load_mesh(f, units=args.units, max_faces=args.max_faces, window_mm=window)
-                    register(
+                    mesh = load_mesh(f, units=args.units, max_faces=args.max_faces, check_size=True)
+                    reg = register(
                         mesh,
                         f.stem,
                         args.symmetry,
@@ -78,6 +81,10 @@ def run(args: argparse.Namespace) -> int:
                         pool=pool,
                     )
                     added += 1
+                    extra = reg.record.extra
+                    tqdm.write(
+                        f"{f.name}: {f.stem}, diameter_mm {extra[DIAMETER_KEY]}, window_mm {extra[WINDOW_KEY]}"
+                    )
                 except MeshError as e:
                     failed.append(f"{f.name}: {e}")
     finally:

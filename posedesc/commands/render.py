@@ -1,7 +1,7 @@
 """Render a mesh's templates, or query files to send.
 
 From the paper's viewpoints (icosphere level 3: 301), optionally with in-plane variants and through the
-sensor model. A mesh whose units make the object too small or too large for the patch window is refused,
+sensor model. A mesh whose units make the object too small or too large to register is refused,
 as POST /objects refuses it.
 
 `--patches DIR` writes what a user can send to `POST /recognize` as it is, from a few views of the mesh
@@ -77,7 +77,7 @@ def run(args: argparse.Namespace) -> int:
     if args.distance_mm <= 0 or args.window_mm <= 0:
         raise UserError("--distance-mm and --window-mm must be positive")
     try:  # the check of POST /objects: a mesh whose units make it too small or large to show is refused
-        mesh = load_mesh(args.mesh, units=args.units, window_mm=args.window_mm)
+        mesh = load_mesh(args.mesh, units=args.units, check_size=True)
     except MeshError as e:
         raise UserError(f"{args.mesh}: {e}") from None
     renderer = Renderer(window_mm=args.window_mm)

@@ -51,7 +51,7 @@ def part() -> trimesh.Trimesh:
 
 def write_part(path: Path = HERE / "part.ply") -> None:
     mesh = part()
-    assert fits(diameter(mesh), 200.0)  # what POST /objects accepts in mm
+    assert fits(diameter(mesh))  # what POST /objects accepts in mm
     data = mesh.export(file_type="ply")
     assert isinstance(data, bytes)  # binary PLY
     path.write_bytes(data)

@@ -18,6 +18,12 @@ query's frozen `context.Context` and hands on a new one (or None: nothing to do 
 that a model or the settings leave out is not in its pipeline (`build` returns None). Adding a stage is a
 new module and one line in `STAGES`.
 
+Window classes: each object is seen through the window its size asks for (`index.windows`). A query with a
+centre (a frame) is cut once per class among the registered objects, the stages run once per class on a
+snapshot that sees that class's objects only, and the answers are merged by distance
+(`service.pipeline.answer`); with one class (every store before this) it is one run, as before. A patch
+query spans the model's window (the API says so) and is searched against every object.
+
 Roll: a template's in-plane angle is a roll the service can answer, so with templates over the whole
 turn (a model trained with roll, or the settings) every answer's in-plane is an estimate. With
 `query_turns` n > 1 the query is also cut turned by j * s / n (j < n, s the templates' in-plane step, or
@@ -37,10 +43,12 @@ from collections.abc import Mapping
 from index.embed import Embedder
 from index.register import TemplateConfig
 from index.store import Snapshot
-from service.pipeline.answer import Result, answer, judged, ranked_matches
+from index.windows import window_classes
+from service.errors import ApiError
+from service.pipeline.answer import Result, answer, judged
 from service.pipeline.context import Context, Stage
 from service.pipeline.mask import Mask
-from service.pipeline.query import Cut, Decoded, Query
+from service.pipeline.query import FRAME_FIELDS, Cut, Decoded, Query
 from service.pipeline.refine import Refine
 from service.pipeline.rerank import Rerank
 from service.pipeline.search import Embed, Search
@@ -74,13 +82,45 @@ class Pipeline:
         """The k best distinct (object, viewpoint) answers to a decoded query, nearest first.
         `decode_s`: the seconds decoding took, reported as `decode` and counted in `total`."""
         t0 = time.perf_counter()
-        ctx, spent = Context(q, d, snapshot, wanted=max(q.k, self.judged)), {}
+        spent: dict[str, float] = {}
+        runs, refused = [], []
+        for window, objects in classes(q, d, snapshot):
+            seen = snapshot if objects is None else snapshot.within(objects)
+            ctx = Context(q, d, seen, wanted=max(q.k, self.judged), window_mm=window)
+            try:
+                runs.append(self.run(ctx, spent))
+            except ApiError as e:
+                # a class whose window the query's depth finds implausible (too near, too few pixels)
+                # is left out while another class takes the query; refused by all, the first says why
+                if objects is None:
+                    raise
+                refused.append(e)
+        if not runs:
+            raise refused[0]
+        return answer(runs, timings(spent, time.perf_counter() - t0, decode_s), self.settings)
+
+    def run(self, ctx: Context, spent: dict[str, float]) -> Context:
+        """The stages on one context; each stage's seconds added to `spent`."""
         for stage in self.stages:
             t = time.perf_counter()
             if (out := stage(ctx)) is not None:
-                ctx, spent[stage.name] = out, time.perf_counter() - t
-        matches = ranked_matches(ctx)
-        return answer(ctx, matches, timings(spent, time.perf_counter() - t0, decode_s), self.settings)
+                ctx = out
+                spent[stage.name] = spent.get(stage.name, 0.0) + time.perf_counter() - t
+        return ctx
+
+
+def classes(q: Query, d: Decoded, snapshot: Snapshot) -> list[tuple[float | None, frozenset[int] | None]]:
+    """The windows a query is cut through (None: the model's) and the objects each searches (None: all):
+    one per window class of the snapshot's objects for a query with a centre, the model's window first;
+    one window for all when there is one class (or none), or for a patch, which spans the model's window."""
+    model = d.embedder.info.window_mm
+    if not any(getattr(q, f) is not None for f in FRAME_FIELDS):
+        return [(None, None)]
+    by = window_classes(snapshot.objects, model)
+    if len(by) <= 1:
+        window = next(iter(by), model)
+        return [(None if window == model else window, None)]
+    return [(w, ids) for w, ids in by.items()]
 
 
 def timings(spent: Mapping[str, float], total: float, decode: float | None) -> dict[str, float]:

@@ -6,7 +6,11 @@ the ray (`origin_distances`): the distance its `t` is at.
 the centre (‖t‖). Sent, it is the answer's distance. Measured from depth, it is the surface at the centre
 (the median of the central quarter of the patch, as the templates measure theirs), and each answer adds its
 own template's offset (origin minus surface for that object from that viewpoint, `index.surface`): the
-surface of a mug seen from the side lies its radius in front of its origin, seen from above its half height."""
+surface of a mug seen from the side lies its radius in front of its origin, seen from above its half height.
+
+A query cut through several windows (one per window class of the store's objects: `service.pipeline`)
+runs the stages once per class; the answers are each class's ranked answers merged by their distance
+(every class is scored the same way), each answer's origin measured in its own class's window."""
 
 from __future__ import annotations
 
@@ -68,17 +72,25 @@ def ranked_matches(ctx: Context) -> list[Match]:
     return (out + [m for i, m in enumerate(matches) if i not in scored])[:k]
 
 
-def answer(ctx: Context, matches: list[Match], timings_ms: dict[str, float], settings: Settings) -> Result:
-    """The response: the first k of `matches` (`ranked_matches`) with the verdict, read on all of them,
-    and their origins."""
-    d, p = ctx.decoded, ctx.patches
+def answer(runs: Sequence[Context], timings_ms: dict[str, float], settings: Settings) -> Result:
+    """The response to a query run once per window class (`runs`, at least one): the first k of their
+    answers (`ranked_matches`; merged by distance when several) with the verdict, read on all of them
+    (`Context.wanted`), and their origins."""
+    ctx, d, p = runs[0], runs[0].decoded, runs[0].patches
     assert p is not None  # `Cut` ran
+    found = [(m, i) for i, run in enumerate(runs) for m in ranked_matches(run)]
+    if len(runs) > 1:
+        found = sorted(found, key=lambda f: f[0].distance)[: ctx.wanted]
+    matches = [m for m, _ in found]
     calibration = read_calibrations(d.embedder.info.extra, d.embedder.path.name).get(ctx.score)
     verdict = judge(matches, ctx.score, calibration, settings.reject_above)
-    matches = matches[: ctx.query.k]
-    measured = ctx.query.distance_mm is None and p.depth is not None
-    depth0 = None if p.depth is None else p.depth[0]  # the surface as measured, not as masked
-    origins = origin_distances(ctx.snapshot, matches, p.distance, depth0, d.embedder.info.window_mm, measured)
+    kept = found[: ctx.query.k]
+    origin = {}
+    for i, run in enumerate(runs):
+        mine = [m for m, j in kept if j == i]
+        origin[i] = iter(_origins(run, mine))
+    origins = [next(origin[i]) for _, i in kept]
+    matches = [m for m, _ in kept]
     return Result(
         d.embedder.path.stem,
         matches,
@@ -90,6 +102,15 @@ def answer(ctx: Context, matches: list[Match], timings_ms: dict[str, float], set
         verdict.reason,
         origins,
     )
+
+
+def _origins(ctx: Context, matches: list[Match]) -> list[float]:
+    """`origin_distances` of a run's matches, in the window its query was cut through."""
+    p = ctx.patches
+    assert p is not None  # `Cut` ran
+    measured = ctx.query.distance_mm is None and p.depth is not None
+    depth0 = None if p.depth is None else p.depth[0]  # the surface as measured, not as masked
+    return origin_distances(ctx.snapshot, matches, p.distance, depth0, ctx.window, measured)
 
 
 def judged(settings: Settings, embedder: Embedder) -> int:

@@ -33,6 +33,16 @@ class Query:
     v: float | None = None
     distance_mm: float | None = None
     k: int = 5
+    #: a frame without u and v: how many objects found are reported, and the confidence they need
+    #: (None: the model's open-set verdict decides)
+    max_detections: int = 10
+    min_confidence: float | None = None
+
+    @property
+    def finds(self) -> bool:
+        """Whether this query asks to find the objects: a frame (intrinsics sent) without a centre."""
+        camera = any(getattr(self, f) is not None for f in ("fx", "fy", "cx", "cy"))
+        return camera and self.u is None and self.v is None
 
 
 @dataclass(frozen=True)
@@ -43,6 +53,13 @@ class Decoded:
     embedder: Embedder
     rgb: np.ndarray | None
     depth: np.ndarray | None
+
+    @property
+    def size(self) -> tuple[int, int]:
+        """The images' width and height, px (`decode` checks both agree)."""
+        image = self.rgb if self.rgb is not None else self.depth
+        assert image is not None  # `decode` refuses a query without images
+        return image.shape[1], image.shape[0]
 
 
 @dataclass(frozen=True)
@@ -92,7 +109,9 @@ class Context:
     scored so far (the same template against the same cut of the query scores the same, so none is scored
     twice); `scorer`: the re-ranking's score of this query (holding the query's cuts, made once per
     roll); `score`: what the answers' distances are ("local" once re-ranked); `wanted`: how many answers
-    are ranked, k or more when the open-set verdict reads past the best (`service.rejection.LISTED`)."""
+    are ranked, k or more when the open-set verdict reads past the best (`service.rejection.LISTED`);
+    `window_mm`: the window the query is cut through, its objects' class's (`index.windows`; None: the
+    model's), `snapshot` then seeing that class's objects only when the store holds several."""
 
     query: Query
     decoded: Decoded
@@ -107,6 +126,12 @@ class Context:
     scorer: Scorer | None = None
     score: str = "descriptor"
     wanted: int = 0
+    window_mm: float | None = None
+
+    @property
+    def window(self) -> float:
+        """The window the query is cut through (mm): `window_mm`, or the model's."""
+        return self.decoded.embedder.info.window_mm if self.window_mm is None else self.window_mm
 
 
 class Stage(Protocol):

@@ -28,11 +28,11 @@ class Mask:
 
     def __call__(self, ctx: Context) -> Context:
         assert ctx.patches is not None  # `Cut` ran
-        described, keep = foreground(ctx.decoded, ctx.patches)
+        described, keep = foreground(ctx.decoded, ctx.patches, ctx.window)
         return replace(ctx, described=described, keep=keep)
 
 
-def foreground(d: Decoded, p: Patches) -> tuple[Patches, np.ndarray]:
+def foreground(d: Decoded, p: Patches, window_mm: float) -> tuple[Patches, np.ndarray]:
     """The query's patches with what the model's mask (`index.embed.MASK_NAME`) says is not the centred
     object black (colour) and empty (depth), as a template's background is, and that mask (N, S, S)
     bool. The descriptor and the local features then see the object, not what stands around it:
@@ -40,8 +40,9 @@ def foreground(d: Decoded, p: Patches) -> tuple[Patches, np.ndarray]:
     mask head against the same network re-ranked over template silhouettes only. The mask reads the depth
     as measured: a pixel without depth is not known to lie in an RGB-D model's band, so it is not the
     object's (filling first flooded a patch cut out on an empty background with the object's depth, and
-    its mask with it). The depth's holes are then filled (`filled`) and what the mask empties stays empty."""
-    x = batch_inputs(d.modality, p.rgb, p.depth, p.distance, d.embedder.info.window_mm, fill=False)
+    its mask with it). The depth's holes are then filled (`filled`) and what the mask empties stays empty.
+    `window_mm`: the window the patches were cut through."""
+    x = batch_inputs(d.modality, p.rgb, p.depth, p.distance, window_mm, fill=False)
     keep = d.embedder.mask(x)
     return masked(filled(p), keep), keep
 

@@ -97,7 +97,8 @@ class Cut:
 
     def __call__(self, ctx: Context) -> Context:
         c, d = self.config, ctx.decoded
-        p = cut(ctx.query, d.rgb, d.depth, c.spec, c.offsets, patch_distance_mm=c.patch_distance_mm)
+        spec = c.spec if ctx.window_mm is None else replace(c.spec, window_mm=ctx.window_mm)
+        p = cut(ctx.query, d.rgb, d.depth, spec, c.offsets, patch_distance_mm=c.patch_distance_mm)
         return replace(ctx, patches=p, described=p)
 
 

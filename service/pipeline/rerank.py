@@ -56,7 +56,9 @@ class Rerank:
             return None
         assert p is not None  # `Cut` ran
         mask = None if ctx.keep is None else (float(p.offsets[0]), ctx.keep[0])
-        cuts = QueryCuts(ctx.query, d, mask, self.config.patch_distance_mm)
+        cuts = QueryCuts(ctx.query, d, mask, self.config.patch_distance_mm, ctx.window)
+        # the relief's clip, `relief_clip_mm` at the model's window, scales with the window the query is
+        # cut through: the same share of it, whatever the class (the relief is measured in windows)
         scorer = LocalScore(self.config.score, cuts, local, d.embedder.local_grid, d.embedder.info.window_mm)
         ctx = replace(ctx, scorer=scorer, score="local")
         every = [local_key(m.object_id, m.azimuth, m.elevation) for m in ctx.matches]

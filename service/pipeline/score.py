@@ -15,7 +15,7 @@ table kernel one roll at a time, 47.7 ms as a gather from the whole table."""
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -66,10 +66,19 @@ class QueryCuts:
     """The query's cuts by roll, each made once for the whole query: every stage asks again for rolls an
     earlier one cut. `mask`: (in-plane, mask (S, S)) of the query cut at that in-plane, as the mask stage
     found it: turned to each roll (`turn_masks`) rather than found again, which would run the mask head
-    once a roll. `patch_distance_mm`: as `service.pipeline.query.cut` takes it."""
+    once a roll. `patch_distance_mm`: as `service.pipeline.query.cut` takes it; `window_mm`: the window
+    the query is cut through (its objects' class, `index.windows`; None: the model's)."""
 
-    def __init__(self, q: Query, d: Decoded, mask: tuple[float, np.ndarray] | None, patch_distance_mm: float):
+    def __init__(
+        self,
+        q: Query,
+        d: Decoded,
+        mask: tuple[float, np.ndarray] | None,
+        patch_distance_mm: float,
+        window_mm: float | None = None,
+    ):
         self._q, self._d, self._mask, self._patch_mm = q, d, mask, patch_distance_mm
+        self._window = d.embedder.info.window_mm if window_mm is None else window_mm
         self._cuts: dict[float, RollCut] = {}
 
     def at(self, rolls: Sequence[float]) -> list[RollCut]:
@@ -79,8 +88,8 @@ class QueryCuts:
         return [self._cuts[r] for r in rolls]
 
     def _make(self, rolls: list[float]) -> dict[float, RollCut]:
-        q, d, mask = self._q, self._d, self._mask
-        spec = d.embedder.info.spec
+        q, d, mask, window = self._q, self._d, self._mask, self._window
+        spec = replace(d.embedder.info.spec, window_mm=window)
         # undoes each roll: the object upright
         p = cut(q, d.rgb, d.depth, spec, rolls, patch_distance_mm=self._patch_mm)
         keep = None
@@ -88,8 +97,7 @@ class QueryCuts:
             keep = np.stack([turn_masks(mask[1][None], r - mask[0], spec)[0] for r in rolls])
             p = masked(filled(p), keep)
         elif d.embedder.has_mask:
-            p, keep = foreground(d, p)
-        window = d.embedder.info.window_mm
+            p, keep = foreground(d, p, window)
         x = batch_inputs(d.modality, p.rgb, p.depth, p.distance, window, fill=keep is None)
         shapes = None
         if p.depth is not None:  # the depth as cut (holes filled, emptied outside the mask): its relief
@@ -105,7 +113,9 @@ class QueryCuts:
 @dataclass(frozen=True)
 class LocalScore:
     """The score of stored templates (`local`: the snapshot's local features by viewpoint) against this
-    query's cuts (`cuts`), as `config` says."""
+    query's cuts (`cuts`), as `config` says. `window_mm`: the model's; the relief's clip is
+    `relief_clip_mm` / `window_mm` windows whatever window the query is cut through: `relief_clip_mm` is
+    the clip at the model's window, and scales with an object's (`index.windows`)."""
 
     config: ScoreConfig
     cuts: QueryCuts

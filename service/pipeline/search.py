@@ -26,7 +26,9 @@ class Embed:
         p = ctx.described
         assert p is not None  # `Cut` ran
         # a masked query's depth was filled before the mask emptied the rest (`service.pipeline.mask`)
-        desc = ctx.decoded.embedder.embed_patches(p.rgb, p.depth, p.distance, fill=ctx.keep is None)
+        desc = ctx.decoded.embedder.embed_patches(
+            p.rgb, p.depth, p.distance, fill=ctx.keep is None, window_mm=ctx.window
+        )
         return replace(ctx, descriptors=desc)
 
 
@@ -61,6 +63,7 @@ class Search:
         assert ctx.descriptors is not None and ctx.patches is not None  # `Embed` ran
         m = ctx.decoded.modality
         rerank = self.config.rerank if ctx.snapshot.models[m].local else 0
+        # a snapshot within a window class's objects (`service.pipeline.Pipeline`) searches theirs only
         found = ctx.snapshot.answers(
             m, ctx.descriptors, max(ctx.wanted, rerank), ctx.patches.offsets, self.config.variants
         )

@@ -15,7 +15,8 @@ from fastapi.responses import JSONResponse
 from index.mesh import FORMATS_TEXT, MeshError, MeshTooLarge, load_mesh
 from index.register import register
 from index.store import NameTaken, StoreError
-from index.units import LARGEST, SMALLEST, Units
+from index.units import LARGEST_MM, ORDINARY_MM, SMALLEST_MM, Units
+from index.windows import DIAMETER_KEY, WINDOW_KEY, object_window
 from service.demo import DEMO_KEY
 from service.deps import ApiKeyDep, KnownFieldsDep, StateDep
 from service.errors import DISK_FULL, ApiError, responses
@@ -41,7 +42,13 @@ def _out(state: AppState, object_id: int) -> ObjectOut:
         templates=dict(rec.templates),
         created=rec.created,
         demo=bool(rec.extra.get(DEMO_KEY)),
+        diameter_mm=_number(rec.extra.get(DIAMETER_KEY)),
+        window_mm=object_window(rec.extra, min(e.info.window_mm for e in state.embedders.values())),
     )
+
+
+def _number(x: object) -> float | None:
+    return float(x) if isinstance(x, (int, float)) else None
 
 
 @router.post(
@@ -61,12 +68,14 @@ async def add_object(
     mesh: Annotated[UploadFile, File(description=f"{FORMATS_TEXT}; vertex colours or a texture (GLB, glTF)")],
     name: Annotated[str, Form(min_length=1, max_length=200, examples=["my-part"])],
     units: Annotated[
-        Units,
+        Units | None,
         Form(
-            description=f"units of the mesh file; an object whose diameter comes out under {SMALLEST:g} or "
-            f"over {LARGEST:g} times the patch window's side is refused, with the units that would fit"
+            description=f"units of the mesh file; an object whose diameter comes out under {SMALLEST_MM:g} or "
+            f"over {LARGEST_MM:g} mm is refused, with the units that would fit. Not given: mm, but an object "
+            f"outside {ORDINARY_MM[0]:g}-{ORDINARY_MM[1]:g} mm that another unit would put inside is refused "
+            "until the units are given"
         ),
-    ] = "mm",
+    ] = None,
     symmetry: Annotated[
         Literal["none", "180", "full"], Form(description="about the object's z axis")
     ] = "none",
@@ -96,15 +105,14 @@ async def add_object(
     return ObjectCreated(**job.result)  # type: ignore[arg-type]
 
 
-async def _load_upload(state: AppState, mesh: UploadFile, units: str, file_type: str):
+async def _load_upload(state: AppState, mesh: UploadFile, units: str | None, file_type: str):
     """The uploaded mesh, parsed on the mesh thread (413/422 when unusable)."""
     limits = state.settings.max_faces, state.settings.max_upload_faces
-    window = min(e.info.window_mm for e in state.embedders.values())
     async with state.mesh_gate:  # meanwhile the other uploads wait spooled to disk, not in memory
         data = await mesh.read()
         try:
             loaded = await asyncio.wrap_future(
-                state.mesh_loader.submit(_load, data, units, file_type, *limits, window)
+                state.mesh_loader.submit(_load, data, units, file_type, *limits)
             )
         except MeshTooLarge as e:
             raise ApiError(413, f"mesh: {e}") from None
@@ -118,12 +126,12 @@ def _taken(e: NameTaken) -> str:
     return f"{e}: delete it first, or choose another name"
 
 
-def _load(data: bytes, units: str, file_type: str, max_faces: int, max_upload_faces: int, window_mm: float):
+def _load(data: bytes, units: str | None, file_type: str, max_faces: int, max_upload_faces: int):
     """`load_mesh` on the mesh thread, leaving nothing behind: trimesh's meshes are reference cycles
     (mesh <-> visual), so a refused or simplified one would stay in memory until the next full GC and
     the next upload's parse stack on it (measured: +750 MB for three 12 M-triangle files in a row)."""
     try:
-        return load_mesh(data, units, file_type, max_faces, max_upload_faces, window_mm)
+        return load_mesh(data, units, file_type, max_faces, max_upload_faces, check_size=True)
     except MeshError as e:
         raise e.with_traceback(None) from None  # its frames hold the parsed mesh
     finally:
@@ -180,6 +188,8 @@ def _register(state: AppState, job: Job, mesh, name: str, symmetry: str) -> None
         templates=max(reg.record.templates.values()),
         seconds=round(reg.timings["total"], 3),
         timings={k: round(v, 3) for k, v in reg.timings.items()},
+        diameter_mm=float(reg.record.extra[DIAMETER_KEY]),  # type: ignore[arg-type]  # register stores it
+        window_mm=float(reg.record.extra[WINDOW_KEY]),  # type: ignore[arg-type]
     ).model_dump()
     job.status = "done"
 

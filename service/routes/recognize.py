@@ -12,14 +12,19 @@ from fastapi import APIRouter, Depends, File, Form, Response, UploadFile
 
 from index.draw import PATCH_DRAW_PX, Drawn, draw_answers, grey_to_rgb, patch_view
 from service.deps import KnownFieldsDep, StateDep
+from service.detection import Found, check, detect, detect_decoded
 from service.errors import ApiError, responses
+from service.pipeline.answer import Result
 from service.pipeline.query import MAX_DISTANCE_MM, MAX_PX, MIN_DISTANCE_MM, Query, decode
 from service.poses import match_pose, pose_fields
 from service.recognition import recognise, recognise_decoded
-from service.schemas import MatchOut, RecognizeOut
+from service.schemas import DetectionOut, MatchOut, RecognizeOut
 from service.state import AppState
 
 router = APIRouter(tags=["recognition"])
+
+MAX_DETECTIONS = 100  # objects one frame's answer reports at most
+NOTHING_FOUND = "no registered object was found in the frame"
 
 
 @dataclass(frozen=True)
@@ -74,10 +79,25 @@ def recognize_form(
     k: Annotated[
         int, Form(ge=1, description="how many distinct (object, viewpoint) answers", examples=[5])
     ] = 5,
+    max_detections: Annotated[
+        int,
+        Form(ge=1, le=MAX_DETECTIONS, description="a frame without u and v: at most this many objects found"),
+    ] = 10,
+    min_confidence: Annotated[
+        float | None,
+        Form(
+            ge=0,
+            le=1,
+            description="a frame without u and v: report the objects found with at least this confidence "
+            "(default: those the model's open-set calibration accepts as registered objects)",
+        ),
+    ] = None,
 ) -> RecognizeForm:
     """The form of `/recognize`, a dependency of each route that takes it (`KnownFieldsDep` reads its
     fields through it)."""
-    fields = Query(None, None, depth_scale, fx, fy, cx, cy, u, v, distance_mm, k)
+    fields = Query(
+        None, None, depth_scale, fx, fy, cx, cy, u, v, distance_mm, k, max_detections, min_confidence
+    )
     return RecognizeForm(rgb, depth, fields)
 
 
@@ -112,11 +132,11 @@ RecognizeFormDep = Annotated[RecognizeForm, Depends(recognize_form)]
 async def recognize(state: StateDep, form: RecognizeFormDep) -> RecognizeOut:
     async with state.recognition_gate:  # bounds the memory of decoded images; waiting ones stay spooled
         q = await form.query()
+        if q.finds:
+            found = await asyncio.wrap_future(state.recognizer.submit(detect, state, q))
+            return found_out(found)
         result = await asyncio.wrap_future(state.recognizer.submit(recognise, state, q))
-    matches = [
-        MatchOut(**m.__dict__, confidence=c, **pose_fields(m, result.ray, origin))
-        for m, c, origin in zip(result.matches, result.confidences, result.origins_mm, strict=True)
-    ]
+    matches = matches_out(result)
     return RecognizeOut(
         matches=matches,
         best=None if result.reason else matches[0],
@@ -124,6 +144,32 @@ async def recognize(state: StateDep, form: RecognizeFormDep) -> RecognizeOut:
         score=result.score,
         timings_ms=result.timings_ms,
         model=result.model,
+    )
+
+
+def matches_out(result: Result) -> list[MatchOut]:
+    """A result's matches as the API answers them, each with its confidence and pose."""
+    return [
+        MatchOut(**m.__dict__, confidence=c, **pose_fields(m, result.ray, origin))
+        for m, c, origin in zip(result.matches, result.confidences, result.origins_mm, strict=True)
+    ]
+
+
+def found_out(found: Found) -> RecognizeOut:
+    """The answer to a frame without a centre: the detections, and the first one's answer at the top."""
+    detections = []
+    for x in found.detections:
+        matches = matches_out(x.result)
+        detections.append(DetectionOut(u=x.u, v=x.v, box=list(x.box), best=matches[0], matches=matches))
+    first = detections[0] if detections else None
+    return RecognizeOut(
+        matches=first.matches if first else [],
+        best=first.best if first else None,
+        reason=None if first else NOTHING_FOUND,
+        score=found.detections[0].result.score if found.detections else "local",
+        timings_ms=found.timings_ms,
+        model=found.model,
+        detections=detections,
     )
 
 
@@ -161,28 +207,35 @@ async def recognize_draw(
 
 
 def drawing(state: AppState, q: Query, draw_k: int) -> bytes:
-    """The PNG `POST /recognize/draw` answers, made on a recognition thread (never the render thread)."""
+    """The PNG `POST /recognize/draw` answers, made on a recognition thread (never the render thread): a
+    frame without a centre with each object found drawn at its best answer."""
+    if q.finds:
+        check(q)
     d = decode(state, q)
-    result = recognise_decoded(state, q, d)
+    if q.finds:
+        answers = [(x.result, 1) for x in detect_decoded(state, q, d).detections]
+    else:
+        answers = [(recognise_decoded(state, q, d), draw_k)]
     if d.rgb is not None:
         image = d.rgb
     else:
         assert d.depth is not None  # `decode` refuses a query without images
         image = grey_to_rgb(d.depth)
     if q.fx is None:  # a patch: its answers are in the patch camera, at the distance it was cut at
-        image, K = patch_view(image, d.embedder.info.spec, result.distance_mm)
+        image, K = patch_view(image, d.embedder.info.spec, answers[0][0].distance_mm)
     else:
         K = np.array([[q.fx, 0.0, q.cx], [0.0, q.fy, q.cy], [0.0, 0.0, 1.0]])
     state.draw_meshes.prune(state.store.snapshot.objects.keys())
     drawn = []
-    best = slice(draw_k)
-    for m, c, origin in zip(
-        result.matches[best], result.confidences[best], result.origins_mm[best], strict=True
-    ):
-        mesh = state.draw_meshes.get(m.object_id)
-        if mesh is not None:  # deleted since
-            R, t = match_pose(m, result.ray, origin)
-            drawn.append((mesh, Drawn(m.name, c, R, t, rejected=result.reason is not None)))
+    for result, n in answers:
+        best = slice(n)
+        for m, c, origin in zip(
+            result.matches[best], result.confidences[best], result.origins_mm[best], strict=True
+        ):
+            mesh = state.draw_meshes.get(m.object_id)
+            if mesh is not None:  # deleted since
+                R, t = match_pose(m, result.ray, origin)
+                drawn.append((mesh, Drawn(m.name, c, R, t, rejected=result.reason is not None)))
     ok, png = cv2.imencode(".png", cv2.cvtColor(draw_answers(image, drawn, K), cv2.COLOR_RGB2BGR))
     assert ok  # a uint8 RGB image always encodes
     return png.tobytes()

@@ -30,16 +30,19 @@ def test_a_file_in_other_units_is_refused_in_mm_and_read_in_its_own(tmp_path, l_
     small = l_shape.copy()
     small.apply_scale(scale)
     path = export(small, tmp_path / "m.ply", "ply")
-    with pytest.raises(MeshError, match=f"too small for the 200 mm patch window.* in {units} it is "):
-        load_mesh(path, window_mm=200)
-    assert diameter(load_mesh(path, units=units, window_mm=200)) == pytest.approx(diameter(l_shape), rel=1e-3)
-    load_mesh(path)  # without a window, the size is not checked (BOP meshes, stored meshes)
+    for said in ("mm", None):  # given as mm, or not given
+        with pytest.raises(MeshError, match=rf"too small \(20-2,000 mm register\).* in {units} it is "):
+            load_mesh(path, units=said, check_size=True)
+    assert diameter(load_mesh(path, units=units, check_size=True)) == pytest.approx(
+        diameter(l_shape), rel=1e-3
+    )
+    load_mesh(path)  # unasked, the size is not checked (BOP meshes, stored meshes)
 
 
 def test_a_mesh_in_mm_read_as_metres_is_too_large(tmp_path, l_shape):
     path = export(l_shape, tmp_path / "m.ply", "ply")
     with pytest.raises(MeshError, match="too large.*read in mm it is 1"):
-        load_mesh(path, units="m", window_mm=200)
+        load_mesh(path, units="m", check_size=True)
 
 
 def test_gltf_must_be_self_contained(l_shape):

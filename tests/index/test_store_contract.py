@@ -213,3 +213,18 @@ def test_readers_never_see_half_an_object(open_store):
         t.join()
     assert errors == []
     assert len(store.snapshot.objects) == 8
+
+
+def test_a_snapshot_within_some_objects_searches_theirs_only(open_store):
+    """A window class's search (`Snapshot.within`): the nearest templates of those objects, however near
+    the others' are, and only their records; the whole snapshot is unchanged."""
+    store = open_store(MODELS)
+    near, far, farther = add(store, "near", 1.0), add(store, "far", 5.0), add(store, "farther", 9.0)
+    snap = store.snapshot
+    q = np.full((1, 4), 1.0, np.float32)
+    within = snap.within(frozenset({far, farther}))
+    assert set(within.objects) == {far, farther} and within.size("rgb") == 10
+    found = within.answers("rgb", q, 10)
+    assert {m.object_id for m in found} == {far, farther} and found[0].object_id == far
+    assert len(found) == 10  # every viewpoint of the two, none of the nearest object's
+    assert snap.answers("rgb", q, 1)[0].object_id == near and snap.size("rgb") == 15

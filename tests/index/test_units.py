@@ -1,37 +1,40 @@
-"""The units check: which objects fit the patch window, and which units the hint suggests."""
+"""The units check: which object sizes register, which units the hint suggests, and when units not given
+are asked for."""
 
 from pathlib import Path
 
 import pytest
 
-from index.units import LARGEST, SMALLEST, UNIT_SCALE, UNITS, fits, size_problem
+from index.units import LARGEST_MM, ORDINARY_MM, SMALLEST_MM, UNIT_SCALE, UNITS, fits, size_problem
 
 
-def test_the_window_bounds():
-    assert fits(150, 200) and fits(200 * SMALLEST, 200) and fits(200 * LARGEST, 200)
-    assert not fits(200 * SMALLEST * 0.99, 200) and not fits(200 * LARGEST * 1.01, 200)
-    # a file read in units 10 times off never fits: cm as mm, mm as cm
-    assert LARGEST / SMALLEST <= 10
+def test_the_size_bounds():
+    assert fits(SMALLEST_MM) and fits(LARGEST_MM) and fits(150.0)
+    assert not fits(SMALLEST_MM * 0.99) and not fits(LARGEST_MM * 1.01)
+    # taken for mm without units: no other unit of a file reads as ordinary too
+    assert ORDINARY_MM[1] / ORDINARY_MM[0] <= 10
 
 
 @pytest.mark.parametrize("size_mm", [60.0, 89.0, 150.0, 300.0])
 @pytest.mark.parametrize("true_units", ["cm", "m", "inch"])
-def test_the_hint_suggests_units_that_fit_and_the_true_ones(size_mm, true_units):
+def test_without_units_a_file_in_others_is_refused_with_them(size_mm, true_units):
     said = size_mm / UNIT_SCALE[true_units]  # the numbers in the file
-    problem = size_problem(said, "mm", 200.0)
-    if fits(said, 200.0):  # e.g. 300 mm in inch is 11.8 "mm": possible, not refused
-        assert problem is None
-        return
+    problem = size_problem(said, None)
     assert problem is not None and "\n" not in problem
-    suggested = [u for u in UNITS if f" {u} it is " in problem]
-    assert true_units in suggested
-    assert all(fits(said * UNIT_SCALE[u], 200.0) for u in suggested)
-    assert f"in {true_units} it is {size_mm:.3g} mm" in problem
+    assert f"{true_units} {size_mm:.3g} mm" in problem or f"in {true_units} it is {size_mm:.3g} mm" in problem
+    assert size_problem(said * UNIT_SCALE[true_units], true_units) is None  # given, it registers
+
+
+def test_given_units_are_believed_over_the_whole_range():
+    assert size_problem(25.0, "mm") is None and size_problem(1500.0, "m") is None
+    assert size_problem(1500.0, None) is None  # no other unit makes it ordinary
+    asked = size_problem(25.0, None)  # 25 mm, or 250 mm in cm?
+    assert asked is not None and "in cm 250 mm" in asked and "units=mm or units=cm" in asked
 
 
 def test_a_centimetre_mesh_is_not_told_to_use_metres():
-    # the issue: an 89 mm object in a file in cm, read as mm, was told "use units=m" (8.9 m)
-    problem = size_problem(8.9, "mm", 200.0)
+    # the issue: an 8.9 mm object in a file in cm, read as mm, was told "use units=m" (8.9 m)
+    problem = size_problem(8.9, "mm")
     assert problem is not None
     assert "read in cm it is 89 mm" in problem and " m it is" not in problem
     readme = " ".join((Path(__file__).resolve().parents[2] / "README.md").read_text().split())
@@ -39,5 +42,5 @@ def test_a_centimetre_mesh_is_not_told_to_use_metres():
 
 
 def test_no_units_fit():
-    problem = size_problem(1e-5, "mm", 200.0)
-    assert problem is not None and "no units of mm, cm, m, inch make it fit" in problem
+    problem = size_problem(1e-5, "mm")
+    assert problem is not None and f"no units of {', '.join(UNITS)} make it fit" in problem

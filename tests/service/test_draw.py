@@ -83,7 +83,7 @@ def test_draw_k_draws_more_answers(client, shot):
     [
         ({}, {}, "send an `rgb` image, a `depth` image, or both"),
         ({"rgb": ("f.png", b"not a png")}, {}, "rgb"),
-        ("frame", {"fx": "572.4"}, "a full frame needs fx, fy, cx, cy, u and v"),
+        ("frame", {"fx": "572.4"}, "missing: fy, cx, cy"),
         ("frame", {"k": "2", "draw_k": "3"}, "draw_k: at most k (2)"),
         ("frame", {"draw_k": "0"}, "draw_k"),
         ("frame", {"image": "x"}, "unexpected form field `image`; this endpoint takes rgb, depth, "),
@@ -99,4 +99,4 @@ def test_bad_input_is_a_json_422(client, shot, files, data, message):
 
 def test_the_misnamed_field_message_lists_draw_k_last(client, shot):
     r = client.post("/recognize/draw", files={"rgb": ("f.png", png(shot))}, data={"image": "x"})
-    assert r.json()["detail"].endswith("u, v, distance_mm, k, draw_k")
+    assert r.json()["detail"].endswith("u, v, distance_mm, k, max_detections, min_confidence, draw_k")

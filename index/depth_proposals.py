@@ -1,0 +1,374 @@
+"""Where objects may be in a depth frame: candidate centres, distances and boxes, no model needed.
+
+The frame is back-projected to points (every stride-th pixel), the large planes the objects stand on
+(and the floor or walls behind them) are found by RANSAC and removed, and what is left is cut into
+segments where neighbouring pixels' depths jump, at three thresholds (objects that touch often meet at a
+small step only). Each segment of a plausible size becomes a proposal; the few largest standing on the
+support are also cut into object-sized parts by k-means. Everything is in mm, OpenCV camera axes (x
+right, y down, z forward); `depth` holds z, 0 where the sensor measured nothing.
+
+Measured by scripts/depth_proposals_eval.py (docs/results/depth_proposals.json): on the real Kinect frame
+of LM-O 5 of its 6 instances with visib_fract >= 0.5 in the first 30 proposals, all 6 in the first 50.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+# Pixels are taken STRIDE apart on a 640-wide frame (wider frames proportionally more): a 20 mm object at
+# 2 m is still 3 samples across, and a 640 x 480 frame costs 76,800 points instead of 307,200.
+STRIDE_WIDTH = 320
+# A point lies on a plane within PLANE_TOL_MM + PLANE_TOL_REL * z: the Kinect's depth steps (z^2 / 348,000
+# mm: 3 mm at 1 m, 6.5 mm at 1.5 m) and noise (sigma 1.2 + 1.9 (z/m - 0.4)^2 mm: 2 mm at 1 m), with room
+# for a board lying on the table.
+PLANE_TOL_MM, PLANE_TOL_REL = 4.0, 0.008
+RANSAC_SAMPLE = 1024  # points the hypotheses are scored on
+RANSAC_HYPOTHESES = 128  # a plane holding 20 % of the points is hit by a triple with chance 1 - 0.992^128
+MAX_PLANES = 3  # the table, the floor beyond it, a wall
+# A plane is a support (or background) only when it holds this share of the measured points and covers
+# this area: larger than any face of a tabletop object (LineMOD's largest, the driller, is 261 mm across),
+# so an object's flat side seen alone is not taken for the table.
+SUPPORT_MIN_SHARE = 0.08
+SUPPORT_MIN_AREA_MM2 = 0.1e6
+# Of a plane after the first (the support) only connected pieces this large are removed: a plane through
+# the table's far side also passes through the tops of objects standing nearer, which must stay.
+PIECE_MIN_AREA_MM2 = 0.03e6
+# Neighbouring pixels belong to one segment while their depths differ by less than this share of the depth:
+# the loose level keeps an object whole over its own creases and slants, the tight ones part objects that
+# touch at a small step (on the real frame the egg box under the toy car parts at 0.005 only; a 0.04 level
+# added nothing, 0.02/0.01/0.005 lost two instances; 0.005 is about the Kinect's quantisation step at 1.2 m).
+STEP_LEVELS = (0.015, 0.008, 0.005)
+MIN_SEGMENT_PX = 10  # sampled pixels; fewer is sensor noise or a sliver
+# Proposals that overlap this much (box IoU) with a better one, centres within a quarter box, are dropped
+# (0.7 kept the same recall with 10 more proposals).
+SAME_IOU = 0.5
+# A segment larger than two typical objects, standing on the support, may be objects that touch without a
+# step between them: the MAX_SPLIT largest such are also cut into up to MAX_PARTS parts by k-means on their
+# points, proposed with their score times PART_WEIGHT (guesses: on the real frame none was needed).
+MAX_SPLIT, MAX_PARTS, PART_WEIGHT = 4, 4, 0.5
+KMEANS_SAMPLE, KMEANS_ROUNDS = 500, 6
+BELOW_SUPPORT = 0.5  # score factor of segments wholly beneath the support (beyond the table's edge)
+AT_BORDER = 0.6  # and of segments the image's border cuts off
+
+
+@dataclass(frozen=True)
+class Proposal:
+    """A candidate object. u, v: where its centre projects (px); distance_mm: camera to the centre;
+    box: x0, y0, x1, y1 px of its visible surface; score: higher is more object-like (0..1)."""
+
+    u: float
+    v: float
+    distance_mm: float
+    box: tuple[float, float, float, float]
+    score: float
+
+
+@dataclass(frozen=True)
+class _Frame:
+    points: np.ndarray  # (h * w, 3) of the sampled pixels, row-major
+    shape: tuple[int, int]  # h, w sampled
+    stride: int
+    K: np.ndarray
+    support: _Plane | None
+
+
+@dataclass(frozen=True)
+class _Found:
+    """Proposals as arrays: uv (N, 2), distance (N,), box (N, 4), score (N,); and the segments too large
+    for one object: (flat pixel indices, size mm)."""
+
+    uv: np.ndarray
+    distance: np.ndarray
+    box: np.ndarray
+    score: np.ndarray
+    large: list[tuple[np.ndarray, float]]
+
+    @staticmethod
+    def empty() -> _Found:
+        return _Found(np.zeros((0, 2)), np.zeros(0), np.zeros((0, 4)), np.zeros(0), [])
+
+    @staticmethod
+    def concat(parts: list[_Found]) -> _Found:
+        return _Found(
+            np.concatenate([f.uv for f in parts]),
+            np.concatenate([f.distance for f in parts]),
+            np.concatenate([f.box for f in parts]),
+            np.concatenate([f.score for f in parts]),
+            [],
+        )
+
+
+@dataclass(frozen=True)
+class _Plane:
+    normal: np.ndarray  # (3,), facing the camera
+    offset: float  # normal . X = offset on the plane (negative: the camera is on the normal's side)
+
+    def height(self, points: np.ndarray) -> np.ndarray:
+        """Signed distance of points (..., 3) from the plane, positive on the camera's side."""
+        return points @ self.normal - self.offset
+
+
+def depth_proposals(
+    depth: np.ndarray,
+    K: np.ndarray,
+    *,
+    min_size_mm: float = 20.0,
+    max_size_mm: float = 2000.0,
+    limit: int = 30,
+) -> list[Proposal]:
+    """Candidate objects in a depth frame, best first, at most `limit`.
+
+    depth: (H, W) mm, 0 (or not finite) = no measurement; K: (3, 3) OpenCV intrinsics. An object's size
+    is the largest extent of its visible surface; segments outside [min_size_mm, max_size_mm] are not
+    proposed (larger ones are split into parts)."""
+    depth = np.asarray(depth)
+    K = np.asarray(K, float)
+    if depth.ndim != 2 or depth.shape[0] < 2 or depth.shape[1] < 2:
+        raise ValueError(f"depth must be an (H, W) image, got shape {depth.shape}")
+    if K.shape != (3, 3) or K[0, 0] <= 0 or K[1, 1] <= 0:
+        raise ValueError("K must be 3 x 3 intrinsics with positive focal lengths")
+    if not 0 < min_size_mm < max_size_mm:
+        raise ValueError(f"need 0 < min_size_mm < max_size_mm, got {min_size_mm}, {max_size_mm}")
+    stride = max(1, round(depth.shape[1] / STRIDE_WIDTH))
+    z = np.nan_to_num(depth[::stride, ::stride].astype(np.float32), nan=0.0, posinf=0.0, neginf=0.0)
+    z[z < 0] = 0.0
+    valid = z > 0
+    if valid.sum() < MIN_SEGMENT_PX or limit < 1:
+        return []
+    points = _back_project(z, K, stride)
+    planes, on_plane = _planes(points, z, valid, K, stride)
+    frame = _Frame(points.reshape(-1, 3), z.shape, stride, K, planes[0] if planes else None)
+    sizes = (min_size_mm, max_size_mm)
+    found = []
+    for level in STEP_LEVELS:
+        found.append(_describe(frame, _segments(z, valid & ~on_plane, level), sizes))
+        if found[-1].large:
+            found.append(_describe(frame, _parts(frame, found[-1].large, sizes), sizes, PART_WEIGHT))
+    return _distinct(_Found.concat(found), limit)
+
+
+def _back_project(z: np.ndarray, K: np.ndarray, stride: int) -> np.ndarray:
+    """Camera-frame points of the sampled pixels. Shape: (h, w) -> (h, w, 3)."""
+    h, w = z.shape
+    u = np.arange(w, dtype=np.float32) * stride
+    v = np.arange(h, dtype=np.float32) * stride
+    x = (u[None, :] - K[0, 2]) / K[0, 0] * z
+    y = (v[:, None] - K[1, 2]) / K[1, 1] * z
+    return np.stack([x, y, z], axis=-1)
+
+
+def _tolerance(z: np.ndarray) -> np.ndarray:
+    return PLANE_TOL_MM + PLANE_TOL_REL * z
+
+
+def _planes(
+    points: np.ndarray, z: np.ndarray, valid: np.ndarray, K: np.ndarray, stride: int
+) -> tuple[list[_Plane], np.ndarray]:
+    """The large planes (largest first) and the mask of sampled pixels on any of them."""
+    rng = np.random.default_rng(0)  # the same frame gives the same proposals
+    on = np.zeros(z.shape, bool)
+    planes: list[_Plane] = []
+    n_valid = int(valid.sum())
+    tol = _tolerance(z)
+    # the area a sampled pixel covers facing the camera (mm^2), and its ray's length per mm of depth
+    pixel_area = (stride * z / K[0, 0]) * (stride * z / K[1, 1])
+    ray_length = np.linalg.norm(points, axis=2) / np.maximum(z, 1e-6)
+    for _ in range(MAX_PLANES):
+        left = valid & ~on
+        where = np.flatnonzero(left)
+        if len(where) < SUPPORT_MIN_SHARE * n_valid:
+            break
+        pick = where[rng.integers(0, len(where), RANSAC_SAMPLE)]  # repeats do no harm
+        plane = _ransac(points.reshape(-1, 3)[pick], tol.ravel()[pick], rng)
+        if plane is None:
+            break
+        inliers = left & (np.abs(plane.height(points)) < tol)
+        if planes:
+            inliers = _large_pieces(inliers, pixel_area)
+        # a plane seen at a slant covers more than its pixels' area facing the camera (up to 5 times)
+        cos = np.abs(points[inliers] @ plane.normal) / (z[inliers] * ray_length[inliers])
+        area = float((pixel_area[inliers] / np.maximum(cos, 0.2)).sum())
+        if inliers.sum() < SUPPORT_MIN_SHARE * n_valid or area < SUPPORT_MIN_AREA_MM2:
+            break
+        planes.append(plane)
+        on |= inliers
+    return planes, on
+
+
+def _large_pieces(mask: np.ndarray, pixel_area: np.ndarray) -> np.ndarray:
+    """The connected parts of `mask` covering at least PIECE_MIN_AREA_MM2 facing the camera."""
+    n, labels = cv2.connectedComponents(mask.astype(np.uint8), connectivity=8, ltype=cv2.CV_32S)
+    area = np.bincount(labels.ravel(), weights=pixel_area.ravel(), minlength=n)
+    big = area >= PIECE_MIN_AREA_MM2
+    big[0] = False
+    return big[labels]
+
+
+def _ransac(sample: np.ndarray, sample_tol: np.ndarray, rng: np.random.Generator) -> _Plane | None:
+    """The plane through most of the points `sample` (N, 3) within `sample_tol` (N,), refined by least
+    squares."""
+    triples = sample[rng.integers(0, len(sample), (RANSAC_HYPOTHESES, 3))]
+    normals = np.cross(triples[:, 1] - triples[:, 0], triples[:, 2] - triples[:, 0])
+    norms = np.linalg.norm(normals, axis=1)
+    ok = norms > 1e-6
+    if not ok.any():
+        return None
+    normals = normals[ok] / norms[ok, None]
+    offsets = np.einsum("ij,ij->i", normals, triples[ok, 0])
+    counts = (
+        np.abs(sample @ normals.T.astype(np.float32) - offsets.astype(np.float32)) < sample_tol[:, None]
+    ).sum(axis=0)
+    best = int(np.argmax(counts))
+    normal, offset = normals[best], offsets[best]
+    for _ in range(2):  # least squares on the inliers, twice (the inlier set moves with the plane)
+        near = np.abs(sample @ normal - offset) < sample_tol
+        if near.sum() < 3:
+            return None
+        centre = sample[near].mean(axis=0, dtype=np.float64)
+        normal = np.linalg.svd(sample[near] - centre, full_matrices=False)[2][2]
+        offset = float(normal @ centre)
+    if offset > 0:  # face the camera (at the origin): offset < 0
+        normal, offset = -normal, -offset
+    return _Plane(normal, float(offset))
+
+
+def _segments(z: np.ndarray, free: np.ndarray, level: float) -> np.ndarray:
+    """Labels (h, w) int32 of the connected parts of `free` (0: none) where neighbours' depths differ by
+    less than `level` * z. At a larger step the farther pixel is cut, so the nearer surface stays whole."""
+    cut = np.zeros(z.shape, bool)
+    for a, b, cut_a, cut_b in (
+        (z[:-1], z[1:], cut[:-1], cut[1:]),
+        (z[:, :-1], z[:, 1:], cut[:, :-1], cut[:, 1:]),
+    ):
+        step = (a > 0) & (b > 0) & (np.abs(a - b) > level * np.minimum(a, b))
+        cut_a |= step & (a > b)
+        cut_b |= step & (b > a)
+    _, labels = cv2.connectedComponents((free & ~cut).astype(np.uint8), connectivity=4, ltype=cv2.CV_32S)
+    return labels
+
+
+def _describe(frame: _Frame, labels: np.ndarray, sizes: tuple[float, float], weight: float = 1.0) -> _Found:
+    """The proposals of every segment of `labels` ((h, w) int, 0: none) that may be an object, and the
+    segments too large for one (their flat pixel indices)."""
+    flat = labels.ravel()
+    idx = np.flatnonzero(flat)
+    lab = flat[idx]
+    order = np.argsort(lab, kind="stable")
+    idx, lab = idx[order], lab[order]
+    if not len(idx):
+        return _Found.empty()
+    starts = np.flatnonzero(np.r_[True, lab[1:] != lab[:-1]])
+    counts = np.diff(np.r_[starts, len(lab)])
+    P = frame.points[idx]
+    lo, hi = np.minimum.reduceat(P, starts), np.maximum.reduceat(P, starts)
+    size = (hi - lo).max(axis=1)
+    rows, cols = np.divmod(idx, frame.shape[1])
+    r0, r1 = np.minimum.reduceat(rows, starts), np.maximum.reduceat(rows, starts)
+    c0, c1 = np.minimum.reduceat(cols, starts), np.maximum.reduceat(cols, starts)
+    # The object's origin (its bounding-box centre) lies behind the visible surface: along the ray through
+    # the middle of the surface's extent, half the largest extent across the ray (the likely depth) behind
+    # the surface's nearest point, but no lower than half its height above the support (measured against
+    # other estimates: scripts/depth_proposals_eval.py's docstring).
+    mid = (lo + hi) / 2
+    ray = mid / np.linalg.norm(mid, axis=1, keepdims=True)
+    seg = np.repeat(np.arange(len(starts)), counts)
+    near = np.minimum.reduceat(np.einsum("ij,ij->i", P, ray[seg]), starts)
+    reach = near + (hi - lo)[:, :2].max(axis=1) / 2
+    if frame.support is not None:
+        h = frame.support.height(P)
+        h_lo, h_hi = np.minimum.reduceat(h, starts), np.maximum.reduceat(h, starts)
+        descent = ray @ frame.support.normal  # < 0: the ray goes down towards the support
+        with np.errstate(divide="ignore", invalid="ignore"):
+            half_height = (h_hi / 2 + frame.support.offset) / descent
+        reach = np.where(descent < -0.1, np.maximum(near, np.minimum(reach, half_height)), reach)
+    centre = ray * reach[:, None]
+    # score: a typical size, a box the segment fills, enough points, not beneath the support
+    spread = np.log(sizes[1] / sizes[0]) / 4
+    score = np.exp(-0.5 * (np.log(np.maximum(size, 1e-3) / _typical(sizes)) / spread) ** 2)
+    fill = counts / ((r1 - r0 + 1) * (c1 - c0 + 1))
+    score *= (0.5 + 0.5 * fill) * (1.0 - np.exp(-counts / 40.0))
+    keep = (counts >= MIN_SEGMENT_PX) & (size >= sizes[0]) & (size <= sizes[1])
+    if frame.support is not None:
+        keep &= ~((h_hi < sizes[0]) & (h_lo > -sizes[0]))  # lying flat on it: table, paper
+        score *= np.where(h_hi < -sizes[0], BELOW_SUPPORT, 1.0)
+    h_, w_ = frame.shape
+    cut_off = (r0 == 0) | (c0 == 0) | (r1 == h_ - 1) | (c1 == w_ - 1)
+    score *= np.where(cut_off, AT_BORDER, 1.0)
+    s = frame.stride
+    box = np.stack([c0 * s, r0 * s, (c1 + 1) * s - 1, (r1 + 1) * s - 1], axis=1).astype(float)
+    uv = (frame.K @ centre.T).T
+    # split: segments larger than two typical objects, on the support (touching objects), a few largest
+    large = (counts >= MIN_SEGMENT_PX) & ((size > 2 * _typical(sizes)) | (size > sizes[1]))
+    if frame.support is not None:
+        large &= (h_lo < sizes[0]) & (h_hi > sizes[0])
+    large &= counts >= np.sort(np.where(large, counts, 0))[-MAX_SPLIT:][0]
+    ends = starts + counts
+    return _Found(
+        uv[keep, :2] / uv[keep, 2:],
+        np.linalg.norm(centre[keep], axis=1),
+        box[keep],
+        score[keep] * weight,
+        [(idx[a:b], float(sz)) for a, b, sz, big in zip(starts, ends, size, large, strict=True) if big],
+    )
+
+
+def _typical(sizes: tuple[float, float]) -> float:
+    """The size the score likes best: the geometric middle of the range (200 mm for 20-2000 mm)."""
+    return float(np.sqrt(sizes[0] * sizes[1]))
+
+
+def _parts(frame: _Frame, large: list[tuple[np.ndarray, float]], sizes: tuple[float, float]) -> np.ndarray:
+    """Labels (h, w) of the segments larger than one object cut into k object-sized parts each by k-means
+    on their points, k from the ratio of their size to a typical object's."""
+    labels = np.zeros(frame.shape, np.int32)
+    flat = labels.reshape(-1)
+    rng = np.random.default_rng(0)
+    next_label = 1
+    for idx, size in large:
+        p = frame.points[idx]
+        k = int(np.clip(np.ceil(size / _typical(sizes)), 2, MAX_PARTS))
+        sub = p[rng.choice(len(p), min(len(p), KMEANS_SAMPLE), replace=False)]
+        centres = sub[rng.choice(len(sub), k, replace=False)]
+        for _ in range(KMEANS_ROUNDS):
+            nearest = np.argmin(((sub[:, None] - centres[None]) ** 2).sum(-1), axis=1)
+            centres = np.array(
+                [sub[nearest == j].mean(0) if (nearest == j).any() else centres[j] for j in range(k)]
+            )
+        flat[idx] = next_label + np.argmin(((p[:, None] - centres[None]) ** 2).sum(-1), axis=1)
+        next_label += k
+    return labels
+
+
+def _distinct(found: _Found, limit: int) -> list[Proposal]:
+    """The best `limit` proposals, dropping any that repeats a better one: its box overlapping with IoU
+    above SAME_IOU and its centre within a quarter of its box's side."""
+    x0, y0, x1, y1 = found.box.T
+    uv = found.uv
+    area = (x1 - x0) * (y1 - y0)
+    w = np.clip(np.minimum(x1[:, None], x1[None]) - np.maximum(x0[:, None], x0[None]), 0, None)
+    h = np.clip(np.minimum(y1[:, None], y1[None]) - np.maximum(y0[:, None], y0[None]), 0, None)
+    iou = w * h / np.maximum(area[:, None] + area[None] - w * h, 1e-9)
+    side = np.maximum(x1 - x0, y1 - y0)
+    near = np.linalg.norm(uv[:, None] - uv[None], axis=2) < side[:, None] / 4
+    same = (iou > SAME_IOU) & near
+    score = found.score
+    order = np.argsort(-score, kind="stable")
+    kept: list[int] = []
+    for i in order:
+        if not same[i, kept].any():
+            kept.append(int(i))
+            if len(kept) == limit:
+                break
+    return [
+        Proposal(
+            float(uv[i, 0]),
+            float(uv[i, 1]),
+            float(found.distance[i]),
+            (float(x0[i]), float(y0[i]), float(x1[i]), float(y1[i])),
+            float(score[i]),
+        )
+        for i in kept
+    ]

@@ -1,0 +1,212 @@
+"""Whole-frame object proposals: where an object's origin projects and how large its window is there.
+
+A small class-agnostic network (trained by `training/objectness.py`, shipped as
+`models/posedesc-objectness.onnx`) maps a frame to a grid of cells, one every `stride` px, each with a
+centre score, the centre's offset from the cell and the log sizes of two things around the centre: the
+object's 200 mm window (`window_px = fx * 200 / distance`, what the verifier crops) and its projected
+diameter (`extent_px = fx * diameter / distance`, which needs no knowledge of which object it is). The head
+only knows windows of about `reference_px` (a factor of 1.6 either way), so the frame is run at a pyramid of
+scales (`levels`, half-octave steps) and each object is found at the levels where its window fits; peaks of
+every level are merged by a non-maximum suppression across levels.
+
+Conventions: pixel coordinates are OpenCV's (pixel centres at integers); a level is the frame resized to
+`round(W * s) x round(H * s)` with INTER_AREA, its pixel x at frame pixel `(x + 0.5) / sx - 0.5`, and cell
+(i, j) of a level sits at level pixel `(stride * j + (stride - 1) / 2, stride * i + (stride - 1) / 2)`.
+No torch here: the service imports it.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+import onnx
+import onnxruntime as ort
+
+from index.bop import Instance
+
+OBJECTNESS_FILE = "posedesc-objectness.onnx"  # its file in a models dir, beside the descriptor models
+INPUT = "rgb"  # (1, 3, H, W) float32 pixel values 0-255, H and W multiples of `PAD_TO`
+OUTPUT = "cells"  # (1, 5, H / stride, W / stride): score 0-1, dx, dy (cells), log window, log extent
+PAD_TO = 16  # the deepest map is at stride 16: a level is padded (black, bottom and right) to a multiple
+WINDOW_MM = 200.0  # the window that `window_px` spans: the shipped descriptors' window
+# Peaks under this score are dropped before the suppression. An all-black frame scores under 0.01.
+MIN_SCORE = 0.02
+MAX_PEAKS_PER_LEVEL = 200
+# Two proposals are one object when their centres are within this share of the larger window and their
+# windows within this ratio: the same object found at two levels lands within a few px and ~10 %, and two
+# LM-O objects standing side by side are half a window or more apart.
+SUPPRESS_RADIUS = 0.25
+SUPPRESS_RATIO = 1.5
+
+
+@dataclass(frozen=True)
+class Proposal:
+    """A place where the network sees an object's origin. Pixel units of the frame given to `propose`."""
+
+    u: float
+    v: float
+    window_px: float  # the object's 200 mm window at its distance: fx * 200 / distance
+    score: float  # the network's centre score, 0..1
+    extent_px: float  # its projected diameter: fx * diameter / distance (distance = fx * diameter / this)
+
+
+Run = Callable[[np.ndarray], np.ndarray]  # (1, 3, H, W) float32 -> (5, H / stride, W / stride)
+
+
+class ObjectnessNet:
+    """The ONNX proposal network with its metadata. Thread-safe (onnxruntime sessions are)."""
+
+    def __init__(self, path: str | Path, threads: int = 1):
+        self.path = Path(path)
+        opts = ort.SessionOptions()
+        opts.intra_op_num_threads, opts.inter_op_num_threads = threads, 1
+        try:
+            model = onnx.load(str(self.path))
+            self.session = ort.InferenceSession(
+                model.SerializeToString(), opts, providers=["CPUExecutionProvider"]
+            )
+        except Exception as e:
+            first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+            raise ValueError(f"cannot load ONNX model {self.path}: {first}") from None
+        self.metadata = {p.key: p.value for p in model.metadata_props}
+        if self.metadata.get("kind") != "objectness":
+            raise ValueError(f"not an objectness model: {self.path} (metadata kind is not 'objectness')")
+        self.stride = int(self.metadata["stride"])
+        self.reference_px = float(self.metadata["reference_px"])
+        self.levels = tuple(float(s) for s in json.loads(self.metadata["levels"]))
+
+    def __call__(self, x: np.ndarray) -> np.ndarray:
+        return self.session.run([OUTPUT], {INPUT: x})[0][0]
+
+
+def level_input(rgb: np.ndarray, scale: float) -> tuple[np.ndarray, float, float]:
+    """The frame resized by `scale`, padded to `PAD_TO`, as the network's input, and the scales that
+    were really applied (sx, sy). Shape: (H, W, 3) uint8 -> (1, 3, H', W') float32."""
+    h, w = rgb.shape[:2]
+    lw, lh = max(1, round(w * scale)), max(1, round(h * scale))
+    img = cv2.resize(rgb, (lw, lh), interpolation=cv2.INTER_AREA) if (lw, lh) != (w, h) else rgb
+    x = np.zeros((1, 3, -(-lh // PAD_TO) * PAD_TO, -(-lw // PAD_TO) * PAD_TO), np.float32)
+    x[0, :, :lh, :lw] = img.transpose(2, 0, 1)
+    return x, lw / w, lh / h
+
+
+def decode(
+    cells: np.ndarray, sx: float, sy: float, stride: int, reference_px: float, min_score: float = MIN_SCORE
+) -> list[Proposal]:
+    """The peaks (3 x 3 local maxima over `min_score`) of one level's output, in frame pixels."""
+    score = np.ascontiguousarray(cells[0], np.float32)
+    peaks = (score >= cv2.dilate(score, np.ones((3, 3), np.uint8))) & (score >= min_score)
+    i, j = np.nonzero(peaks)
+    order = np.argsort(-score[i, j])[:MAX_PEAKS_PER_LEVEL]
+    i, j = i[order], j[order]
+    half = (stride - 1) / 2
+    u = (stride * (j + cells[1, i, j]) + half + 0.5) / sx - 0.5
+    v = (stride * (i + cells[2, i, j]) + half + 0.5) / sy - 0.5
+    s = (sx + sy) / 2
+    window = reference_px * np.exp(cells[3, i, j]) / s
+    extent = reference_px * np.exp(cells[4, i, j]) / s
+    return [
+        Proposal(float(a), float(b), float(c), float(d), float(e))
+        for a, b, c, d, e in zip(u, v, window, score[i, j], extent, strict=True)
+    ]
+
+
+def suppress(proposals: Sequence[Proposal], limit: int) -> list[Proposal]:
+    """Best first, each kept unless a better one is the same object (`SUPPRESS_RADIUS`, `SUPPRESS_RATIO`)."""
+    kept: list[Proposal] = []
+    for p in sorted(proposals, key=lambda p: -p.score):
+        if len(kept) >= limit:
+            break
+        if not any(
+            np.hypot(p.u - k.u, p.v - k.v) < SUPPRESS_RADIUS * max(p.window_px, k.window_px)
+            and max(p.window_px, k.window_px) < SUPPRESS_RATIO * min(p.window_px, k.window_px)
+            for k in kept
+        ):
+            kept.append(p)
+    return kept
+
+
+def propose_with(
+    run: Run,
+    rgb: np.ndarray,
+    levels: Sequence[float],
+    stride: int,
+    reference_px: float,
+    limit: int = 30,
+    min_score: float = MIN_SCORE,
+) -> list[Proposal]:
+    """`propose` with any runner of the network (training validates its torch module through this)."""
+    found: list[Proposal] = []
+    for s in levels:
+        x, sx, sy = level_input(rgb, s)
+        if min(x.shape[2:]) < PAD_TO:
+            continue  # a level smaller than one deepest cell sees nothing
+        found += decode(run(x), sx, sy, stride, reference_px, min_score)
+    return suppress(found, limit)
+
+
+def propose(
+    net: ObjectnessNet, rgb: np.ndarray, limit: int = 30, levels: Sequence[float] | None = None
+) -> list[Proposal]:
+    """Up to `limit` proposals in a frame of any size, best first. Shape: rgb (H, W, 3) uint8."""
+    if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
+        raise ValueError(f"propose takes an (H, W, 3) uint8 RGB frame, not {rgb.shape} {rgb.dtype}")
+    if limit < 1:
+        raise ValueError(f"limit must be 1 or more, not {limit}")
+    return propose_with(net, rgb, levels or net.levels, net.stride, net.reference_px, limit)
+
+
+@dataclass(frozen=True)
+class Truth:
+    """An annotated object of a frame: where its origin projects, its window and extent (px)."""
+
+    u: float
+    v: float
+    window_px: float
+    extent_px: float
+    diameter_mm: float
+
+
+def truth_of(inst: Instance, diameter_mm: float) -> Truth:
+    """An annotated BOP instance as a `Truth` (its distance: the origin's, as the verifier's)."""
+    d = float(np.linalg.norm(inst.t))
+    f = (inst.K[0, 0] + inst.K[1, 1]) / 2
+    return Truth(*inst.centre_uv, f * WINDOW_MM / d, f * diameter_mm / d, diameter_mm)
+
+
+def hit_rank(
+    proposals: Sequence[Proposal], t: Truth, centre: float, scale: float, by_extent: bool = False
+) -> int | None:
+    """The rank (0 = best) of the first proposal within `centre` * window of the truth's origin whose
+    window is within `scale` (relative) of the truth's; None if none is. `by_extent`: the window read from
+    the extent and the true object's diameter, as the service does for each registered object."""
+    for r, p in enumerate(proposals):
+        w = p.extent_px * WINDOW_MM / t.diameter_mm if by_extent else p.window_px
+        if np.hypot(p.u - t.u, p.v - t.v) <= centre * t.window_px and abs(w / t.window_px - 1) <= scale:
+            return r
+    return None
+
+
+RECALL_KS = (5, 10, 20, 30)
+# (name, centre tolerance as a share of the window, relative window tolerance): the verifier names the
+# right object 97 % of the time at w/16 and 6 %, and falls to 10 % at w/8 or 12 %
+TOLERANCES = (("w/16, 6%", 1 / 16, 0.06), ("w/8, 12%", 1 / 8, 0.12), ("w/4, 25%", 1 / 4, 0.25))
+
+
+def recall(
+    frames: Sequence[tuple[Sequence[Proposal], Sequence[Truth]]], by_extent: bool = False
+) -> dict[str, dict[str, float]]:
+    """Share of the truths with a hit among the top k proposals of their frame, per tolerance and k."""
+    n = sum(len(ts) for _, ts in frames)
+    out: dict[str, dict[str, float]] = {}
+    for name, c, s in TOLERANCES:
+        ranks = [hit_rank(ps, t, c, s, by_extent) for ps, ts in frames for t in ts]
+        out[name] = {
+            f"top{k}": round(sum(r is not None and r < k for r in ranks) / max(n, 1), 4) for k in RECALL_KS
+        }
+    return out

@@ -1,0 +1,152 @@
+"""Train, export and measure the whole-frame objectness network (training/objectness.py).
+
+    scripts/train_objectness.py train --data /work/shared/data/lmo --out /work/runs/objectness --minutes 35
+    scripts/train_objectness.py export --run /work/runs/objectness --out models/posedesc-objectness.onnx
+    scripts/train_objectness.py measure --model models/posedesc-objectness.onnx --split val \
+        --json docs/results/objectness-val.json
+
+`measure` runs the exported ONNX model through `index.objectness.propose` (no torch) on the frames of one
+split and writes recall at the top 5/10/20/30 proposals and the median time of one `propose` call on a
+640 x 480 frame (one thread)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import os
+import shlex
+import subprocess
+import sys
+import time
+from dataclasses import fields
+from pathlib import Path
+
+import numpy as np
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+
+def _commit() -> str:
+    here = Path(__file__).resolve().parent.parent
+    try:
+        sha = subprocess.run(
+            ["git", "-C", str(here), "rev-parse", "--short", "HEAD"],
+            capture_output=True,
+            text=True,
+            check=True,
+        ).stdout.strip()
+        dirty = subprocess.run(
+            ["git", "-C", str(here), "status", "--porcelain", "--untracked-files=no"],
+            capture_output=True,
+            text=True,
+            check=True,
+        ).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
+    return sha + ("+changes" if dirty else "")
+
+
+def _train(args: argparse.Namespace) -> int:
+    from training.objectness import ObjectnessConfig, train
+
+    cfg = ObjectnessConfig(minutes=args.minutes, seed=args.seed, batch=args.batch, val_every=args.val_every)
+    args.out.mkdir(parents=True, exist_ok=True)
+    (args.out / "command.txt").write_text(
+        json.dumps({"command": shlex.join(["scripts/train_objectness.py", *sys.argv[1:]]), "code": _commit()})
+    )
+    state = train(args.data, args.out, cfg, args.cache, threads=args.threads)
+    print(json.dumps({"best_step": state["step"], "val": state["val"]}, indent=1))
+    return 0
+
+
+def _export(args: argparse.Namespace) -> int:
+    from training.objectness import export, load_checkpoint
+
+    net, cfg, state = load_checkpoint(args.run / args.checkpoint)
+    run = json.loads((args.run / "command.txt").read_text()) if (args.run / "command.txt").is_file() else {}
+    extra = {
+        "command": run.get("command", "unknown"),
+        "code": run.get("code", "unknown"),
+        "step": str(state["step"]),
+        "checkpoint": "best on validation frames (recall of lmo/000002 val frames, top 20)",
+        "validation": json.dumps(state["val"]),
+        "split_frames": "training/splits.py defaults on lmo/000002: trained on train frames only",
+    }
+    path = export(net, cfg, args.out, extra)
+    print(f"{path}: {path.stat().st_size / 1e6:.2f} MB")
+    return 0
+
+
+def _measure(args: argparse.Namespace) -> int:
+    from index.objectness import ObjectnessNet, propose, recall
+    from training.objectness import load_frames
+
+    net = ObjectnessNet(args.model, threads=1)
+    frames = load_frames(args.data, args.split)
+    pairs = [(propose(net, f.rgb, limit=30), f.truths(0.5)) for f in frames]
+    frame = frames[0].rgb
+    propose(net, frame)
+    times = []
+    for _ in range(args.repeats):
+        t = time.perf_counter()
+        propose(net, frame)
+        times.append(time.perf_counter() - t)
+    result = {
+        "split": args.split,
+        "frames": len(frames),
+        "instances": sum(len(t) for _, t in pairs),
+        "min_visib": 0.5,
+        "recall_by_window": recall(pairs),
+        "recall_by_extent_and_true_diameter": recall(pairs, by_extent=True),
+        "propose_ms_640x480_median": round(1000 * float(np.median(times)), 1),
+        "threads": 1,
+        "repeats": args.repeats,
+        "model": str(args.model),
+        "model_step": net.metadata.get("step"),
+        "command": shlex.join(["scripts/train_objectness.py", *sys.argv[1:]]),
+        "code": _commit(),
+    }
+    text = json.dumps(result, indent=1)
+    print(text)
+    if args.json:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(text + "\n")
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    from training.objectness import ObjectnessConfig
+
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    sub = p.add_subparsers(dest="cmd", required=True)
+    t = sub.add_parser("train")
+    t.add_argument("--data", type=Path, default=Path("/work/shared/data/lmo"))
+    t.add_argument("--out", type=Path, required=True)
+    t.add_argument("--cache", type=Path, default=Path("/work/runs/objectness-cache"))
+    t.add_argument("--minutes", type=float, default=35.0)
+    t.add_argument("--threads", type=int, default=2)
+    t.add_argument("--seed", type=int, default=0)
+    names = {f.name: f.default for f in fields(ObjectnessConfig)}
+    t.add_argument("--batch", type=int, default=names["batch"])
+    t.add_argument("--val-every", type=int, default=names["val_every"])
+    e = sub.add_parser("export")
+    e.add_argument("--run", type=Path, required=True)
+    e.add_argument("--checkpoint", default="best.pt")
+    e.add_argument("--out", type=Path, default=Path("models/posedesc-objectness.onnx"))
+    m = sub.add_parser("measure")
+    m.add_argument("--model", type=Path, default=Path("models/posedesc-objectness.onnx"))
+    m.add_argument("--data", type=Path, default=Path("/work/shared/data/lmo"))
+    m.add_argument("--split", choices=("val", "test"), default="val")
+    m.add_argument("--json", type=Path)
+    m.add_argument("--repeats", type=int, default=20)
+    args = p.parse_args(argv)
+    for path in [getattr(args, k) for k in ("data", "model", "run") if getattr(args, k, None) is not None]:
+        if not path.exists():
+            p.error(f"{path} does not exist")
+    return {"train": _train, "export": _export, "measure": _measure}[args.cmd](args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,191 @@
+"""Every registered object in a whole frame: what `POST /recognize` answers for a frame sent with its
+intrinsics and no centre.
+
+Proposals first (`service.proposals`: where an object may be and how large it looks, from the colour by
+the objectness network, from depth by segmenting what stands on the support), then the verifier on each:
+the model's whole pipeline (`service.pipeline`) cut at the proposal's centre and distance, which names the
+object, gives its pose and the open-set verdict. A verified answer's box is its mesh projected at its
+pose; answers whose boxes overlap a more confident one are the same object found twice (non-maximum
+suppression); what the open-set verdict rejects is not one of the registered objects and is not
+reported (unless `min_confidence` says otherwise)."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from index.draw import project
+from service.errors import ApiError
+from service.pipeline.answer import Result
+from service.pipeline.query import Decoded, Query, decode
+from service.poses import match_pose
+from service.proposals import Proposal, propose, windows_of
+from service.state import AppState
+
+#: boxes overlapping by more than this (intersection over union) are one object found twice: the more
+#: confident stays. 0.5 is the detection's own criterion (`posedesc evaluate --protocol detect`): two
+#: boxes that would both count as the same instance cannot both be right.
+NMS_IOU = 0.5
+
+
+@dataclass(frozen=True)
+class Detection:
+    """One object found: where its origin projects (`u`, `v`, px), its extent (`box`: x0, y0, x1, y1 px,
+    the mesh at the answered pose, clipped to the frame), the best answer's `confidence`, and the
+    verifier's whole answer at (u, v) (`result`: its matches, their confidences and poses)."""
+
+    u: float
+    v: float
+    box: tuple[float, float, float, float]
+    confidence: float
+    result: Result
+
+
+@dataclass(frozen=True)
+class Found:
+    """The detections, most confident first, the milliseconds each step took, how many proposals were
+    verified and the model that verified them."""
+
+    detections: tuple[Detection, ...]
+    timings_ms: dict[str, float]
+    proposals: int
+    model: str
+
+
+def detect(state: AppState, q: Query) -> Found:
+    """The registered objects in the frame of `q` (a frame with fx, fy, cx, cy and no u, v): at most
+    `q.max_detections`, each with a confidence of at least `q.min_confidence` (None: accepted by the
+    model's open-set verdict)."""
+    t0 = time.perf_counter()
+    check(q)
+    d = decode(state, q)
+    return detect_decoded(state, q, d, time.perf_counter() - t0)
+
+
+def check(q: Query) -> None:
+    """Refuses, with what is missing, a frame query that cannot be searched whole."""
+    missing = [f for f in ("fx", "fy", "cx", "cy") if getattr(q, f) is None]
+    if missing:
+        raise ApiError(
+            422, f"a frame needs fx, fy, cx and cy to find objects in it; missing: {', '.join(missing)}"
+        )
+    if q.distance_mm is not None:
+        raise ApiError(422, "distance_mm is the distance of the object at (u, v): send u and v with it")
+
+
+def detect_decoded(state: AppState, q: Query, d: Decoded, decode_s: float = 0.0) -> Found:
+    """`detect` after decoding (`service.pipeline.query.decode`): the proposals, each verified, the boxes
+    suppressed and the floor applied. `decode_s`: the seconds decoding took, reported and counted in total."""
+    t0 = time.perf_counter()
+    ms: dict[str, float] = {"decode": decode_s}
+    K = np.array([[q.fx, 0.0, q.cx], [0.0, q.fy, q.cy], [0.0, 0.0, 1.0]])
+    windows = windows_of(state.store.snapshot, d.embedder.info.window_mm)
+    proposals = propose(d, K, state.colour_proposals, windows, state.settings.detect_proposals)
+    ms["propose"] = time.perf_counter() - t0
+    t = time.perf_counter()
+    found = [det for p in proposals if (det := _verify(state, q, d, p, K)) is not None]
+    ms["verify"] = time.perf_counter() - t
+    kept = suppress(sorted(found, key=lambda x: -x.confidence))
+    floor = q.min_confidence
+    reported = [x for x in kept if (x.result.reason is None if floor is None else x.confidence >= floor)]
+    ms["total"] = time.perf_counter() - t0 + decode_s
+    return Found(
+        tuple(reported[: q.max_detections]),
+        {k: round(v * 1000, 2) for k, v in ms.items()},
+        len(proposals),
+        d.embedder.path.stem,
+    )
+
+
+def _verify(state: AppState, q: Query, d: Decoded, p: Proposal, K: np.ndarray) -> Detection | None:
+    """The verifier's answer at a proposal: screened at its shifts (`_centred`), then the whole pipeline
+    cut at the best of them; None when nothing there can be answered."""
+    w, h = d.size
+    at = _centred(state, replace(q, k=max(q.k, 1)), d, p, (w, h))
+    if at is None:
+        return None
+    try:
+        result = state.pipelines[d.modality](at, d, state.store.snapshot)
+    except ApiError:  # nothing measurable there (an empty depth patch): not an object
+        return None
+    if not result.matches:
+        return None
+    best = result.matches[0]
+    mesh = state.draw_meshes.get(best.object_id)
+    R, t = match_pose(best, result.ray, result.origins_mm[0])
+    box = _box(mesh.vertices if mesh is not None else None, R, t, K, (w, h), p)
+    assert at.u is not None and at.v is not None  # `_centred` gives a centre
+    return Detection(at.u, at.v, box, float(result.confidences[0] or 0.0), result)
+
+
+def _centred(state: AppState, q: Query, d: Decoded, p: Proposal, size: tuple[int, int]) -> Query | None:
+    """The query cut at the proposal's centre or at one of its shifts (`Settings.detect_shift` of its
+    window's side in x and y), whichever the screening pipeline (`AppState.screens`) is most confident
+    at; None when no shift can be answered (outside the frame, no depth there)."""
+    w, h = size
+    side = p.box[2] - p.box[0]  # the proposal's window, px
+    if p.distance_mm is not None:
+        side = float(q.fx or 0.0) * d.embedder.info.window_mm / p.distance_mm
+    step = state.settings.detect_shift * side
+    shifts = [(0.0, 0.0)] + (
+        [(i * step, j * step) for i in (-1, 0, 1) for j in (-1, 0, 1) if i or j] if step else []
+    )
+    screen = state.screens[d.modality]
+    best: tuple[float, float, Query] | None = None
+    for du, dv in shifts:
+        u, v = p.u + du, p.v + dv
+        if not (0 <= u < w and 0 <= v < h):
+            continue
+        at = replace(q, u=u, v=v, distance_mm=p.distance_mm, k=1)
+        try:
+            r = screen(at, d, state.store.snapshot)
+        except ApiError:  # no depth there
+            continue
+        if not r.matches:
+            continue
+        key = (float(r.confidences[0] or 0.0), -r.matches[0].distance)
+        if best is None or key > best[:2]:
+            best = (*key, replace(at, k=q.k))
+    return None if best is None else best[2]
+
+
+def _box(
+    vertices: np.ndarray | None,
+    R: np.ndarray,
+    t: np.ndarray,
+    K: np.ndarray,
+    size: tuple[int, int],
+    p: Proposal,
+) -> tuple[float, float, float, float]:
+    """The mesh's extent at the pose in the frame (clipped to it); without a mesh, the proposal's."""
+    w, h = size
+    if vertices is not None:
+        px, z = project(vertices, R, t, K)
+        px = px[z > 0]
+        if len(px):
+            x0, y0 = px.min(axis=0)
+            x1, y1 = px.max(axis=0)
+            return (float(max(x0, 0)), float(max(y0, 0)), float(min(x1, w)), float(min(y1, h)))
+    return p.box
+
+
+def iou(a: Sequence[float], b: Sequence[float]) -> float:
+    """Intersection over union of two boxes (x0, y0, x1, y1)."""
+    ix = max(0.0, min(a[2], b[2]) - max(a[0], b[0]))
+    iy = max(0.0, min(a[3], b[3]) - max(a[1], b[1]))
+    inter = ix * iy
+    union = (a[2] - a[0]) * (a[3] - a[1]) + (b[2] - b[0]) * (b[3] - b[1]) - inter
+    return inter / union if union > 0 else 0.0
+
+
+def suppress(ordered: Sequence[Detection]) -> list[Detection]:
+    """Non-maximum suppression: each detection (most confident first) kept unless its box overlaps a kept
+    one by more than `NMS_IOU`."""
+    kept: list[Detection] = []
+    for x in ordered:
+        if all(iou(x.box, k.box) <= NMS_IOU for k in kept):
+            kept.append(x)
+    return kept

@@ -1,0 +1,94 @@
+"""`POST /recognize` with a whole frame and no centre: every registered object found in it
+(`service.detection`). Errors with the test models (no objectness model); finding objects in a rendered
+depth frame and in a colour frame with the shipped models."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from fastapi.testclient import TestClient
+from service_helpers import K, depth_png, frame, png, register, service_settings, wait_ready
+
+from index.pose import View
+from service.detection import iou
+from service.main import create_app
+
+VIEW = View(azimuth=37.0, elevation=28.0, inplane=0.0, distance=600.0)
+UV = (400.0, 220.0)
+CAMERA = {"fx": str(K[0, 0]), "fy": str(K[1, 1]), "cx": str(K[0, 2]), "cy": str(K[1, 2])}
+
+
+@pytest.fixture(scope="module")
+def client(tmp_path_factory, posedesc_models, l_shape):
+    with TestClient(create_app(service_settings(tmp_path_factory.mktemp("data"), posedesc_models))) as c:
+        wait_ready(c)
+        c.ids = {"L": register(c, l_shape, "L")["object_id"]}
+        yield c
+
+
+@pytest.fixture(scope="module")
+def l_frame(renderer, l_shape):
+    return frame(renderer, l_shape, VIEW, UV, wall_mm=1500.0)
+
+
+def test_a_colour_frame_without_an_objectness_model_says_what_to_send(client, l_frame):
+    r = client.post("/recognize", files={"rgb": ("f.png", png(l_frame[0]))}, data=CAMERA)
+    assert r.status_code == 422, r.text
+    detail = r.json()["detail"]
+    assert "objectness" in detail and "send u and v" in detail
+
+
+def test_a_frame_without_its_whole_camera_names_what_is_missing(client, l_frame):
+    r = client.post("/recognize", files={"rgb": ("f.png", png(l_frame[0]))}, data={"fx": "572.4"})
+    assert r.status_code == 422, r.text
+    assert "missing: fy, cx, cy" in r.json()["detail"]
+
+
+def test_a_distance_without_a_centre_is_refused(client, l_frame):
+    data = {**CAMERA, "distance_mm": "600"}
+    r = client.post("/recognize", files={"depth": ("d.png", depth_png(l_frame[1]))}, data=data)
+    assert r.status_code == 422, r.text
+    assert "send u and v" in r.json()["detail"]
+
+
+@pytest.mark.parametrize("field, value", [("max_detections", "0"), ("min_confidence", "1.5")])
+def test_detection_fields_out_of_range_are_refused(client, l_frame, field, value):
+    r = client.post(
+        "/recognize", files={"depth": ("d.png", depth_png(l_frame[1]))}, data={**CAMERA, field: value}
+    )
+    assert r.status_code == 422, r.text
+    assert field in r.text
+
+
+def test_a_depth_frame_is_searched_whole(client, l_frame):
+    """The object before a wall, found from depth alone: its detection at its centre, its box around it;
+    the top-level answer is the first detection's. The test models are untrained: the floor is 0, so
+    what is found is reported whatever its confidence."""
+    data = {**CAMERA, "min_confidence": "0", "k": "2"}
+    r = client.post("/recognize", files={"depth": ("d.png", depth_png(l_frame[1]))}, data=data)
+    assert r.status_code == 200, r.text
+    body = r.json()
+    assert body["model"] == "posedesc-depth"
+    dets = body["detections"]
+    assert dets, body
+    near = [x for x in dets if np.hypot(x["u"] - UV[0], x["v"] - UV[1]) < 25]
+    assert near, [(x["u"], x["v"]) for x in dets]
+    x = near[0]
+    assert x["best"]["name"] == "L" and len(x["matches"]) <= 2
+    x0, y0, x1, y1 = x["box"]
+    assert x0 < UV[0] < x1 and y0 < UV[1] < y1
+    assert body["best"] == dets[0]["best"] and body["matches"] == dets[0]["matches"]
+    assert {"decode", "propose", "verify", "total"} <= set(body["timings_ms"])
+
+
+def test_a_frame_with_a_centre_has_no_detections(client, l_frame):
+    data = {**CAMERA, "u": str(UV[0]), "v": str(UV[1])}
+    r = client.post("/recognize", files={"depth": ("d.png", depth_png(l_frame[1]))}, data=data)
+    assert r.status_code == 200, r.text
+    assert r.json()["detections"] is None
+
+
+def test_iou():
+    assert iou((0, 0, 10, 10), (0, 0, 10, 10)) == 1.0
+    assert iou((0, 0, 10, 10), (10, 0, 20, 10)) == 0.0
+    assert iou((0, 0, 10, 10), (5, 0, 15, 10)) == pytest.approx(50 / 150)
