@@ -52,7 +52,9 @@ from index.embed import Embedder
 from index.register import register, template_views
 from index.render import Renderer
 from index.shapes import demo_shapes, random_shape
-from service.pipeline.query import Query
+from service.detection import Detection, detect
+from service.errors import ApiError
+from service.pipeline.context import Query
 from service.poses import match_pose
 from service.settings import Settings
 from service.state import AppState, close_state, load_state
@@ -114,7 +116,7 @@ def evaluate_detect(cfg: DetectConfig) -> dict:
     symmetries = {o: dataset.symmetry(o) for o in obj_ids}
     seconds: dict[str, float] = {}
     with tempfile.TemporaryDirectory(prefix="posedesc-detect-") as tmp:
-        settings = Settings(data_dir=Path(tmp) / "objects", demo_objects=False)
+        settings = service_settings(cfg.model, Path(tmp) / "objects")
         embedder = Embedder(cfg.model, settings.threads)  # as the service loads it
         kind = served_data(embedder.modality, instances, None)
         state = load_state(settings, {embedder.modality: embedder})
@@ -183,6 +185,13 @@ def evaluate_detect(cfg: DetectConfig) -> dict:
     }
 
 
+def service_settings(model: Path, data_dir: Path) -> Settings:
+    """The service's settings (`POSEDESC_*`) with a fresh `data_dir`, no demo objects, and the model's
+    folder as the models dir: the objectness model that makes colour proposals sits beside the
+    descriptor model (`index.objectness.OBJECTNESS_FILE`)."""
+    return Settings(data_dir=data_dir, demo_objects=False, models_dir=model.parent)
+
+
 def _frames(
     dataset: BopDataset,
     instances: Sequence[Instance],
@@ -232,8 +241,6 @@ def ask_service(
     state: AppState, frames: Sequence[Frame], dataset_ids: Mapping[int, int], cfg: DetectConfig
 ) -> Asked:
     """Every frame through the service's detector (floor 0, `ALL` detections); see the module's docstring."""
-    from service.detection import detect
-
     ranked: list[Hit] = []
     floor: list[Hit] = []
     frame_ms: list[float] = []
@@ -242,7 +249,10 @@ def ask_service(
         for frame in frames:
             q = replace(frame_query(frame), max_detections=ALL, min_confidence=0.0)
             t0 = time.perf_counter()
-            found = detect(state, q)
+            try:
+                found = detect(state, q)
+            except ApiError as e:  # e.g. a colour frame and no objectness model beside the model
+                raise ValueError(f"the service refused frame {frame.key[1]}: {e.detail}") from None
             frame_ms.append(1000 * (time.perf_counter() - t0))
             for k, v in found.timings_ms.items():
                 stage_ms.setdefault(k, []).append(v)
@@ -253,18 +263,18 @@ def ask_service(
     return Asked(ranked, floor, frame_ms, stage_ms)
 
 
-def at_floor(detection, min_confidence: float | None) -> bool:
+def at_floor(detection: Detection, min_confidence: float | None) -> bool:
     """Whether the detector reports a detection at this floor (None: the open-set verdict accepts it)."""
     if min_confidence is None:
         return detection.result.reason is None
     return detection.confidence >= min_confidence
 
 
-def _hit(frame: tuple[int, int], d, dataset_ids: Mapping[int, int]) -> Hit:
+def _hit(frame: tuple[int, int], d: Detection, dataset_ids: Mapping[int, int]) -> Hit:
     """A `service.detection.Detection` as a hit: its best answer's object (dataset id) and pose."""
     best = d.result.matches[0]
     R, t = match_pose(best, d.result.ray, d.result.origins_mm[0])
-    return Hit(frame, dataset_ids.get(best.object_id, -1), float(d.confidence), tuple(d.box), R, t)
+    return Hit(frame, dataset_ids.get(best.object_id, -1), float(d.confidence), d.box, R, t)
 
 
 def _views(state: AppState, embedder: Embedder, symmetries: Mapping[int, str]) -> dict:
@@ -352,7 +362,7 @@ def unknown_shapes(seed: int = 0) -> dict[str, trimesh.Trimesh]:
 def false_alarms(cfg: DetectConfig, folder: Path, embedder: Embedder, frames: Sequence[Frame]) -> dict:
     """Detections per frame with only `unknown_shapes` registered (every one is false)."""
     shapes = unknown_shapes(cfg.seed)
-    settings = Settings(data_dir=folder, demo_objects=False)
+    settings = service_settings(cfg.model, folder)
     state = load_state(settings, {embedder.modality: embedder})
     try:
         with bar(len(shapes), "register unknown shapes", "object") as b:
