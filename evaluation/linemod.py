@@ -59,14 +59,22 @@ def _pad(img: np.ndarray) -> np.ndarray:
 class LineModIndex:
     """Templates of several objects in one LineMOD detector; `search` ranks them for a test patch."""
 
-    def __init__(self, modality: str, window_mm: float, size: int = 64, threshold: float = 50.0):
+    def __init__(
+        self,
+        modality: str,
+        window_mm: float,
+        size: int = 64,
+        threshold: float = 50.0,
+        features: tuple[int, int] = (COLOUR_FEATURES, DEPTH_FEATURES),
+    ):
+        """`features`: how many colour-gradient and depth-normal features a template has."""
         self.modality = modality
         self.threshold = threshold
         mods: list[cv2.linemod.Modality] = []
         if modality in ("rgb", "rgbd"):
-            mods.append(cv2.linemod.ColorGradient.create(10.0, COLOUR_FEATURES, 55.0))
+            mods.append(cv2.linemod.ColorGradient.create(10.0, features[0], 55.0))
         if modality in ("depth", "rgbd"):
-            mods.append(cv2.linemod.DepthNormal.create(10_000, 50, DEPTH_FEATURES, 2))
+            mods.append(cv2.linemod.DepthNormal.create(10_000, 50, features[1], 2))
         self.detector = cv2.linemod.Detector(mods, list(T_PYRAMID))
         # LineMOD computes normals from depth with a fixed focal length in mind, but a patch's pixel spans
         # window/size mm whatever the object's distance. Shifting every patch's depth so the object
@@ -117,6 +125,11 @@ class LineModIndex:
         self._count += len(obj_ids)
         if progress:
             progress(len(obj_ids) % 100)
+
+    def placed(self, class_id: str) -> tuple[int, tuple[int, int]]:
+        """A LineMOD class's template: our index, and the top-left of its features in its padded image
+        (where a match's x, y lands: the padded image's centre is the template's centre)."""
+        return self._index[class_id], self._place[class_id]
 
     def similarities(
         self, rgb: np.ndarray | None, depth: np.ndarray | None, nominal_mm: float

@@ -48,7 +48,8 @@ class Instance:
     depth_path: Path | None
     depth_scale: float
     visib_fract: float  # 1.0 where scene_gt_info.json is absent
-    bbox_visib: tuple[int, int, int, int] | None
+    bbox_visib: tuple[int, int, int, int] | None  # [x, y, w, h] px of the visible part (scene_gt_info)
+    bbox_obj: tuple[int, int, int, int] | None = None  # [x, y, w, h] px of the whole object, hidden parts too
 
     @property
     def view(self) -> View:
@@ -145,7 +146,7 @@ def scene_instances(scene_dir: Path, min_visib: float = 0.0) -> Iterator[Instanc
             visib = float(info.get("visib_fract", 1.0))
             if visib < min_visib:
                 continue
-            bbox = info.get("bbox_visib")
+            bbox, whole = info.get("bbox_visib"), info.get("bbox_obj")
             yield Instance(
                 scene_id=scene_id,
                 frame_id=frame,
@@ -159,6 +160,7 @@ def scene_instances(scene_dir: Path, min_visib: float = 0.0) -> Iterator[Instanc
                 depth_scale=float(cam.get("depth_scale", 1.0)),
                 visib_fract=visib,
                 bbox_visib=(int(bbox[0]), int(bbox[1]), int(bbox[2]), int(bbox[3])) if bbox else None,
+                bbox_obj=(int(whole[0]), int(whole[1]), int(whole[2]), int(whole[3])) if whole else None,
             )
 
 

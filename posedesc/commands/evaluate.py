@@ -16,7 +16,7 @@ from pathlib import Path
 from posedesc.cli import UserError
 
 METHODS = ("ours", "hog", "linemod")
-PROTOCOLS = ("service", "paper", "full")
+PROTOCOLS = ("service", "paper", "full", "detect")
 SPLITS = ("train", "val", "test")
 
 
@@ -91,7 +91,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "known object', by POSEDESC_REJECT_ABOVE or the model's calibration, is a miss; the "
                    "figures with it off beside them). paper: patch cut at the true centre and rectified by "
                    "the true in-plane angle, viewing-direction error. full: true centre and distance, "
-                   "templates with in-plane variants over the whole turn, 3-D rotation error")  # fmt: skip
+                   "templates with in-plane variants over the whole turn, 3-D rotation error. detect: every "
+                   "frame sent whole with its intrinsics only to the service's detector; recall, precision, "
+                   "AP50, poses within 20 deg, distance errors, per object (evaluation/detect_run.py)")  # fmt: skip
     p.add_argument("--methods", default=",".join(METHODS), help="comma-separated: ours,hog,linemod")
     p.add_argument("--unseen", default="", help="ids of objects the model never saw (reported apart)")
     p.add_argument("--frames", default=None,
@@ -130,7 +132,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--seed", type=int, default=0, help="seed of synthetic scenes and of the pictures' samples"
     )
-    p.add_argument("--json", type=Path, required=True,
+    p.add_argument("--max-detections", type=int, default=None,
+                   help="detect protocol: detections reported per frame (default 10)")  # fmt: skip
+    p.add_argument("--min-confidence", type=float, default=None,
+                   help="detect protocol: the confidence a detection needs (default: the model's open-set "
+                   "verdict decides)")  # fmt: skip
+    p.add_argument("--linemod", action="store_true",
+                   help="detect protocol: OpenCV's LineMOD over a frame pyramid beside it")  # fmt: skip
+    p.add_argument("--false-alarms", action="store_true",
+                   help="detect protocol: also the same frames with only objects not in them registered "
+                   "(the demo shapes and generated shapes): detections per frame")  # fmt: skip
+    p.add_argument("--json", "--out", type=Path, required=True,
                    help="where to write the results (the service protocol adds a 'bop' block: MSSD, MSPD, "
                    "ADD(-S), te, re of each instance's best answer; AR_MSSD, AR_MSPD, AR, ADD(-S) and "
                    "5 deg 5 cm recalls)")  # fmt: skip
@@ -161,6 +173,13 @@ def run(args: argparse.Namespace) -> int:
     embedder = Embedder(args.model, threads=2)
     if embedder.modality != args.modality:
         raise UserError(f"{args.model} is a {embedder.modality} model, not {args.modality}")
+    detect_only = {"--max-detections": args.max_detections is not None,
+                   "--min-confidence": args.min_confidence is not None,
+                   "--linemod": args.linemod, "--false-alarms": args.false_alarms}  # fmt: skip
+    if args.protocol == "detect":
+        return _detect(args, embedder)
+    if given := [k for k, v in detect_only.items() if v]:
+        raise UserError(f"{', '.join(given)}: only with --protocol detect")
     if args.inplane_step is not None and not (0 <= args.inplane_step <= 180):
         raise UserError("--inplane-step must be in [0, 180]")
     if args.protocol == "full" and args.inplane_step == 0:
@@ -223,4 +242,48 @@ def run(args: argparse.Namespace) -> int:
         f"{summary['n_samples']} {summary['test_data']} test patches, {summary['n_templates']} templates, "
         f"{time.perf_counter() - t0:.0f} s{calls} -> {where}"
     )
+    return 0
+
+
+def _detect(args: argparse.Namespace, embedder) -> int:
+    """`--protocol detect`: the JSON and a table (`evaluation.detect_run`)."""
+    from evaluation.detect_run import DetectConfig, evaluate_detect, table
+
+    if args.max_detections is not None and not (1 <= args.max_detections <= 100):
+        raise UserError("--max-detections must be in 1..100")
+    if args.min_confidence is not None and not (0.0 <= args.min_confidence <= 1.0):
+        raise UserError("--min-confidence must be in [0, 1]")
+    ignored = [f"--{k.replace('_', '-')}" for k in ("methods", "unseen", "rolls", "bop_csv", "report")
+               if getattr(args, k) not in (None, "", ",".join(METHODS))]  # fmt: skip
+    if args.min_visib != 0.5:
+        raise UserError("--min-visib: the detect protocol's targets are the instances at least 0.5 visible")
+    if args.oracle_mask or args.synthetic or ignored:
+        raise UserError(
+            f"{', '.join(ignored + ['--oracle-mask'] * args.oracle_mask + ['--synthetic'] * args.synthetic)}: "
+            "not with --protocol detect"
+        )
+    cfg = DetectConfig(
+        dataset=args.dataset,
+        model=args.model,
+        scene=args.scene,
+        frames=_frames(args, embedder),
+        objects=parse_ids(args.objects) if args.objects else None,
+        max_detections=args.max_detections or 10,
+        min_confidence=args.min_confidence,
+        linemod=args.linemod,
+        false_alarms=args.false_alarms,
+        seed=args.seed,
+    )
+    t0 = time.perf_counter()
+    try:
+        summary = evaluate_detect(cfg)
+    except ValueError as e:  # no frames, or a scene without scene_gt_info.json
+        raise UserError(str(e).splitlines()[0]) from None
+    summary["command"] = "posedesc evaluate " + shlex.join(
+        sys.argv[2:] if sys.argv[1:2] == ["evaluate"] else []
+    )
+    args.json.parent.mkdir(parents=True, exist_ok=True)
+    args.json.write_text(json.dumps(summary, indent=1))
+    print(table(summary))
+    print(f"{len(summary['frames'])} frames, {time.perf_counter() - t0:.0f} s -> {args.json}")
     return 0

@@ -1,0 +1,61 @@
+"""`posedesc evaluate --protocol detect` on two real LM-O frames with the shipped colour model (the JSON
+contract, posedesc and LineMOD beside it, false alarms), and its one-line errors."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from index.objectness import OBJECTNESS_FILE
+from posedesc.cli import main
+
+ROOT = Path(__file__).resolve().parents[2]
+MODEL = ROOT / "models" / "posedesc-rgb.onnx"
+FIGURES = {"recall", "precision", "ap50", "rotation_within_20", "median_relative_distance_error"}
+
+
+def _base(lmo: Path, out: Path) -> list[str]:
+    return ["evaluate", "--dataset", str(lmo), "--modality", "rgb", "--model", str(MODEL), "--out", str(out)]
+
+
+@pytest.mark.slow
+def test_detect_protocol_on_two_lmo_frames(lmo, tmp_path, capsys):
+    if not (MODEL.parent / OBJECTNESS_FILE).is_file():
+        pytest.skip(f"no {OBJECTNESS_FILE} beside the shipped colour model: colour frames need it")
+    out = tmp_path / "detect.json"
+    args = [*_base(lmo, out), "--protocol", "detect", "--frames", "224,243", "--linemod", "--false-alarms"]
+    assert main(args) == 0
+    s = json.loads(out.read_text())
+    assert s["protocol"] == "detect" and s["frames"] == [224, 243] and s["test_data"] == "real"
+    assert s["targets"] == 12  # LM-O frames 224 and 243: 14 instances, 2 of them less than half visible
+    for method in ("posedesc", "linemod"):
+        block = s[method]
+        assert set(block["all"]) >= FIGURES and block["all"]["targets"] == 12
+        assert set(block["per_object"]) >= {str(o) for o in s["objects"]}
+        assert sum(b["targets"] for b in block["per_object"].values()) == 12
+        assert block["all"]["hits"] <= 2 * s["settings"]["max_detections"]
+        assert block["frame_ms"]["median"] > 0
+        assert s["false_alarms"][method]["detections_per_frame"] >= 0
+    assert s["posedesc"]["all"]["recall"] > 0  # the shipped model finds some of them (not a benchmark)
+    assert set(s["false_alarms"]["objects"]) >= {"mug", "lamp", "robot", "duck"}
+    text = capsys.readouterr().out
+    assert "posedesc all" in text and "linemod all" in text and "false detections a frame" in text
+
+
+def test_bad_detect_options_are_one_line(lmo, tmp_path, capsys):
+    if not MODEL.is_file():
+        pytest.skip("no shipped colour model")
+    base = [*_base(lmo, tmp_path / "x.json"), "--protocol", "detect"]
+    for extra, said in (
+        (["--max-detections", "0"], "--max-detections must be in 1..100"),
+        (["--min-confidence", "1.5"], "--min-confidence must be in [0, 1]"),
+        (["--report", str(tmp_path)], "--report: not with --protocol detect"),
+        (["--frames", "5000"], "no instance of scene 2"),
+    ):
+        assert main([*base, *extra]) == 2
+        err = capsys.readouterr().err.strip()
+        assert said in err and len(err.splitlines()) == 1, err
+    assert main([*_base(lmo, tmp_path / "x.json"), "--protocol", "service", "--linemod"]) == 2
+    assert "only with --protocol detect" in capsys.readouterr().err
