@@ -128,32 +128,56 @@ def _verify(
 
 
 def _centred(state: AppState, snapshot: Snapshot, q: Query, d: Decoded, p: Proposal) -> Query | None:
-    """The query cut at the proposal's centre or at one of its shifts (`Settings.detect_shift` of its
-    window's side in x and y), whichever the screening pipeline (`AppState.screens`) is most confident
-    at; None when no shift can be answered (outside the frame, no depth there)."""
+    """Where around the proposal the screening pipeline (`AppState.screens`) is most confident: a 3 x 3
+    grid of centres `Settings.detect_shift` of its window's side apart around the proposal's (and, for
+    `detect_grids` > 1, grids of half the step around the best), then (a colour proposal) its distance
+    nearer and farther by `detect_scale`; at most `detect_screens` screenings. None when nothing there can
+    be answered (outside the frame, no depth there)."""
+    cfg = state.settings
     w, h = d.size
     side = p.box[2] - p.box[0]  # the proposal's window (colour) or the segment's extent (depth), px
-    step = state.settings.detect_shift * side
-    shifts = [(0.0, 0.0)] + (
-        [(i * step, j * step) for i in (-1, 0, 1) for j in (-1, 0, 1) if i or j] if step else []
-    )
     screen = state.screens[d.modality]
-    best: tuple[float, float, Query] | None = None
-    for du, dv in shifts:
-        u, v = p.u + du, p.v + dv
-        if not (0 <= u < w and 0 <= v < h):
-            continue
-        at = replace(q, u=u, v=v, distance_mm=p.distance_mm, k=1)
-        try:
-            r = screen(at, d, snapshot)
-        except ApiError:  # no depth there
-            continue
-        if not r.matches:
-            continue
-        key = (float(r.confidences[0] or 0.0), -r.matches[0].distance)
-        if best is None or key > best[:2]:
-            best = (*key, replace(at, k=q.k))
-    return None if best is None else best[2]
+    seen: dict[tuple[float, float, float], tuple[float, float]] = {}
+
+    def score(u: float, v: float, log_d: float | None) -> tuple[float, float] | None:
+        key = (round(u, 1), round(v, 1), round(log_d, 4) if log_d is not None else 0.0)
+        if key not in seen:
+            if not (0 <= u < w and 0 <= v < h) or len(seen) >= cfg.detect_screens:
+                return None
+            distance = None if log_d is None else float(np.exp(log_d))
+            try:
+                r = screen(replace(q, u=u, v=v, distance_mm=distance, k=1), d, snapshot)
+            except ApiError:  # no depth there
+                seen[key] = (-1.0, 0.0)
+            else:
+                seen[key] = (
+                    (float(r.confidences[0] or 0.0), -r.matches[0].distance) if r.matches else (-1.0, 0.0)
+                )
+        return seen[key]
+
+    u, v = p.u, p.v
+    log_d = None if p.distance_mm is None else float(np.log(p.distance_mm))
+    best = score(u, v, log_d)
+    if best is None:
+        return None
+    step = cfg.detect_shift * side
+    for _ in range(cfg.detect_grids if step > 0 else 0):  # 3 x 3 around the best so far, each step halved
+        grid = [(u + i * step, v + j * step) for i in (-1, 0, 1) for j in (-1, 0, 1) if i or j]
+        for gu, gv in grid:
+            s = score(gu, gv, log_d)
+            if s is not None and s > best:
+                best, cu, cv = s, gu, gv
+                u, v = cu, cv
+        step /= 2
+    if log_d is not None and cfg.detect_scale > 1:  # then nearer and farther, at the centre found
+        centre_log = log_d
+        for dl in (np.log(cfg.detect_scale), -np.log(cfg.detect_scale)):
+            s = score(u, v, centre_log + dl)
+            if s is not None and s > best:
+                best, log_d = s, centre_log + dl
+    if best[0] < 0:
+        return None
+    return replace(q, u=u, v=v, distance_mm=None if log_d is None else float(np.exp(log_d)))
 
 
 def _box(

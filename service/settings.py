@@ -149,13 +149,25 @@ class Settings(BaseSettings):
         description="a frame without u and v: how many proposals of each source are verified",
     )
 
-    # A proposal's centre is a few px off and the re-ranking's cells are 4 px of a 64 px patch: the
-    # verifier named the right object on 97 % of validation instances at their true centre and 39 % a
-    # window's eighth off (docs/experiments.md). So each proposal is screened at a grid of shifts first
+    # A proposal's centre and distance are a few px and per cent off, and the re-ranking's cells are 4 px
+    # of a 64 px patch: the verifier named the right object on 97 % of validation instances at their true
+    # centre and distance and 39 % a window's eighth and 12 % off (docs/experiments.md). So each proposal
+    # is moved first, by a pattern search on the screening pipeline's confidence
     detect_shift: float = Field(
-        1 / 12, ge=0, le=0.5, description="a frame without u and v: each proposal is screened at its centre "
-        "and this share of its window's side away in x and y (0: at its centre only)",
+        1 / 12, ge=0, le=0.5, description="a frame without u and v: each proposal is screened at a 3 x 3 "
+        "grid of centres this share of its window's side apart (0: at its centre only)",
     )  # fmt: skip
+    detect_grids: int = Field(
+        1, ge=1, le=4, description="a frame without u and v: grids screened, each around the best of the "
+        "last with half its step",
+    )  # fmt: skip
+    detect_scale: float = Field(
+        1.0, ge=1, le=2, description="a frame without u and v, colour: each proposal is also screened this "
+        "factor nearer and farther at the centre found (1: at the distance the proposal gives only)",
+    )  # fmt: skip
+    detect_screens: int = Field(
+        40, ge=1, le=200, description="a frame without u and v: screenings each proposal may take"
+    )
     detect_screen_rerank: int = Field(
         60, ge=1, le=1000, description="a frame without u and v: the answers the screening re-ranks"
     )
