@@ -32,7 +32,7 @@ import cv2
 import numpy as np
 import trimesh
 
-from evaluation.detection import Hit, Truth, match, scores
+from evaluation.detection import IOU, MIN_VISIB, ROTATION_OK_DEG, Hit, Truth, match, scores
 from evaluation.linemod_frames import (
     CANDIDATE_SIMILARITY,
     FEATURES,
@@ -148,7 +148,7 @@ def evaluate_detect(cfg: DetectConfig) -> dict:
             out["false_alarms"] = false_alarms(cfg, Path(tmp) / "unknown", embedder, frames)
             seconds["false_alarms"] = time.perf_counter() - t0
     h, w = _frame_size(frames[0])
-    return {
+    summary: dict = {
         "protocol": "detect",
         "dataset": str(cfg.dataset),
         "scene": cfg.scene,
@@ -162,27 +162,27 @@ def evaluate_detect(cfg: DetectConfig) -> dict:
             "max_detections": cfg.max_detections,
             "min_confidence": cfg.min_confidence,
             "floor": "the model's open-set verdict" if cfg.min_confidence is None else "confidence",
-            "iou": 0.5,
-            "min_visib": 0.5,
-            "rotation_within_deg": 20.0,
+            "iou": IOU,
+            "min_visib": MIN_VISIB,
+            "rotation_within_deg": ROTATION_OK_DEG,
             "ap": "AP50: one ranking pooled over frames and objects (floor 0, max_detections a frame), "
             "all-point interpolation (VOC 2010+)",
             "n_templates": n_templates,
-            "linemod": {
-                "windows_px": [
-                    round(float(x), 1)
-                    for x in window_sizes(min(h, w), cfg.smallest_window_px, cfg.window_step)
-                ],
-                "candidate_similarity": CANDIDATE_SIMILARITY,
-                "nms_iou": NMS_IOU,
-                "features": {"colour": FEATURES[0], "depth": FEATURES[1]},
-                "templates": "the service's template views of each object (viewpoints and in-plane "
-                "variants), rendered by the service's renderer, one LineMOD class each",
-            },
-        },  # fmt: skip
+        },
         **out,
         "seconds": {k: round(v, 1) for k, v in seconds.items()},
     }
+    if cfg.linemod:
+        summary["settings"]["linemod"] = {
+            "windows_px": [round(float(x), 1) for x in window_sizes(min(h, w), cfg.smallest_window_px,
+                                                                    cfg.window_step)],
+            "candidate_similarity": CANDIDATE_SIMILARITY,
+            "nms_iou": NMS_IOU,
+            "features": {"colour": FEATURES[0], "depth": FEATURES[1]},
+            "templates": "the service's template views of each object (viewpoints and in-plane variants), "
+            "rendered by the service's renderer, one LineMOD class each",
+        }  # fmt: skip
+    return summary
 
 
 def service_settings(model: Path, data_dir: Path) -> Settings:
