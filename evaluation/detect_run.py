@@ -12,8 +12,8 @@ than half visible are neither targets nor errors (`evaluation.detection`).
 
 Each frame is asked once with the floor at 0 and room for `ALL` detections: the ranking AP50 is
 measured on (its `max_detections` most confident); the figures at the floor are the same answers with
-the floor applied as the detector applies it (`at_floor`: None, the open-set verdict, `result.reason is
-None`; else the confidence), then cut to `max_detections`, which is what a call with that floor returns.
+the floor applied as the detector applies it (`service.detection.reported`), then cut to
+`max_detections`, which is what a call with that floor returns.
 
 False alarms: the same frames with only objects that are not in them registered (the service's four demo
 shapes, `index.shapes.demo_shapes`, and `GENERATED` shapes of `index.shapes.random_shape`): each detection
@@ -52,7 +52,7 @@ from index.embed import Embedder
 from index.register import register, template_views
 from index.render import Renderer
 from index.shapes import demo_shapes, random_shape
-from service.detection import Detection, detect
+from service.detection import Detection, detect, reported
 from service.errors import ApiError
 from service.pipeline.context import Query
 from service.poses import match_pose
@@ -161,7 +161,9 @@ def evaluate_detect(cfg: DetectConfig) -> dict:
         "settings": {
             "max_detections": cfg.max_detections,
             "min_confidence": cfg.min_confidence,
-            "floor": "the model's open-set verdict" if cfg.min_confidence is None else "confidence",
+            "floor": "the detector's default (service.detection.reported)"
+            if cfg.min_confidence is None
+            else "confidence",
             "iou": IOU,
             "min_visib": MIN_VISIB,
             "rotation_within_deg": ROTATION_OK_DEG,
@@ -258,16 +260,10 @@ def ask_service(
                 stage_ms.setdefault(k, []).append(v)
             hits = [(d, _hit(frame.key, d, dataset_ids)) for d in found.detections]
             ranked += [h for _, h in hits[: cfg.max_detections]]
-            floor += [h for d, h in hits if at_floor(d, cfg.min_confidence)][: cfg.max_detections]
+            at_floor = [h for d, h in hits if reported(d, cfg.min_confidence, state.settings.detect_floor)]
+            floor += at_floor[: cfg.max_detections]
             b.update()
     return Asked(ranked, floor, frame_ms, stage_ms)
-
-
-def at_floor(detection: Detection, min_confidence: float | None) -> bool:
-    """Whether the detector reports a detection at this floor (None: the open-set verdict accepts it)."""
-    if min_confidence is None:
-        return detection.result.reason is None
-    return detection.confidence >= min_confidence
 
 
 def _hit(frame: tuple[int, int], d: Detection, dataset_ids: Mapping[int, int]) -> Hit:
