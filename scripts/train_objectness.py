@@ -64,6 +64,8 @@ def _export(args: argparse.Namespace) -> int:
     from training.objectness import export, load_checkpoint
 
     net, cfg, state = load_checkpoint(args.run / args.checkpoint)
+    if args.levels:
+        cfg.levels = tuple(float(x) for x in args.levels.split(","))
     run = json.loads((args.run / "command.txt").read_text()) if (args.run / "command.txt").is_file() else {}
     extra = {
         "command": run.get("command", "unknown"),
@@ -135,6 +137,9 @@ def main(argv: list[str] | None = None) -> int:
     e.add_argument("--run", type=Path, required=True)
     e.add_argument("--checkpoint", default="best.pt")
     e.add_argument("--out", type=Path, default=Path("models/posedesc-objectness.onnx"))
+    e.add_argument(
+        "--levels", help="pyramid scales propose runs by default, comma-separated (default: trained)"
+    )
     m = sub.add_parser("measure")
     m.add_argument("--model", type=Path, default=Path("models/posedesc-objectness.onnx"))
     m.add_argument("--data", type=Path, default=Path("/work/shared/data/lmo"))

@@ -25,6 +25,7 @@ import threading
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
@@ -257,8 +258,8 @@ def make_sample(
         for r in rows:
             r[0] = c - 1 - r[0]
     img = colour_jitter(np.ascontiguousarray(img), rng, 1.0)
-    if rng.random() < 0.3:
-        img = cv2.GaussianBlur(img, (0, 0), rng.uniform(0.3, 1.2))
+    if rng.random() < 0.3:  # a camera's focus and motion
+        img = np.asarray(cv2.GaussianBlur(img, (0, 0), rng.uniform(0.3, 1.2)), np.uint8)
     return Sample(img, *_targets(np.array(rows, np.float64).reshape(-1, 5), cfg))
 
 
@@ -319,9 +320,11 @@ class ObjectnessHead(nn.Module):
         # dilations 1, 2, 4, 1 add 16 cells (128 px at stride 8) of receptive field
         self.body = nn.Sequential(block(32 + 64, 1), block(width, 2), block(width, 4), block(width, 1))
         self.out = nn.Conv2d(width, 5, 1)
-        nn.init.constant_(self.out.bias, 0.0)
+        bias = self.out.bias
+        assert bias is not None  # Conv2d's default
         with torch.no_grad():
-            self.out.bias[0] = -4.6  # a prior of 1 % centres: the focal loss starts calm (RetinaNet)
+            bias.zero_()
+            bias[0] = -4.6  # a prior of 1 % centres: the focal loss starts calm (RetinaNet)
 
     def forward(self, d8: torch.Tensor, d16: torch.Tensor) -> torch.Tensor:
         up = F.interpolate(d16, scale_factor=2.0, mode="nearest")
@@ -331,6 +334,9 @@ class ObjectnessHead(nn.Module):
 class ObjectnessNet(nn.Module):
     """Frozen pretrained stages and the trained head. Shape: (B, 3, H, W) RGB 0-255, H and W multiples
     of 16 -> (B, 5, H/8, W/8) (raw: a logit in channel 0)."""
+
+    mean: torch.Tensor
+    std: torch.Tensor
 
     def __init__(self, width: int = 64, pretrained: bool = True):
         super().__init__()
@@ -500,7 +506,8 @@ def train(data: Path, out: Path, cfg: ObjectnessConfig, cache_dir: Path, threads
 
 def load_checkpoint(path: Path) -> tuple[ObjectnessNet, ObjectnessConfig, dict]:
     state = torch.load(path, map_location="cpu", weights_only=False)
-    cfg = ObjectnessConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in state["cfg"].items()})
+    saved: dict[str, Any] = {k: tuple(v) if isinstance(v, list) else v for k, v in state["cfg"].items()}
+    cfg = ObjectnessConfig(**saved)
     net = ObjectnessNet(cfg.width)
     net.head.load_state_dict(state["head"])
     return net.eval(), cfg, state
@@ -511,7 +518,7 @@ def export(net: ObjectnessNet, cfg: ObjectnessConfig, out: Path, extra: dict[str
     out.parent.mkdir(parents=True, exist_ok=True)
     h, w = torch.export.Dim("h16", min=1, max=256), torch.export.Dim("w16", min=1, max=256)
     torch.onnx.export(
-        Scored(net.eval()),
+        Scored(net).eval(),
         (torch.zeros(1, 3, 96, 128),),
         str(out),
         input_names=[INPUT],
