@@ -75,6 +75,11 @@ def _export(args: argparse.Namespace) -> int:
         "validation": json.dumps(state["val"]),
         "split_frames": "training/splits.py defaults on lmo/000002: trained on train frames only",
     }
+    if args.val_json:  # the figures `measure` wrote for the exported model, on the validation frames
+        figures = json.loads(args.val_json.read_text())
+        extra["val_figures"] = json.dumps(
+            {k: figures[k] for k in ("recall_by_window", "propose_ms_640x480_median")}
+        )
     path = export(net, cfg, args.out, extra)
     print(f"{path}: {path.stat().st_size / 1e6:.2f} MB")
     return 0
@@ -139,6 +144,9 @@ def main(argv: list[str] | None = None) -> int:
     e.add_argument("--out", type=Path, default=Path("models/posedesc-objectness.onnx"))
     e.add_argument(
         "--levels", help="pyramid scales propose runs by default, comma-separated (default: trained)"
+    )
+    e.add_argument(
+        "--val-json", type=Path, help="measure's JSON of the validation frames, kept in the metadata"
     )
     m = sub.add_parser("measure")
     m.add_argument("--model", type=Path, default=Path("models/posedesc-objectness.onnx"))
