@@ -91,19 +91,21 @@ def _measure(args: argparse.Namespace) -> int:
 
     net = ObjectnessNet(args.model, threads=1)
     frames = load_frames(args.data, args.split)
-    pairs = [(propose(net, f.rgb, limit=30), f.truths(0.5)) for f in frames]
+    levels = tuple(float(x) for x in args.levels.split(",")) if args.levels else net.levels
+    pairs = [(propose(net, f.rgb, limit=30, levels=levels), f.truths(0.5)) for f in frames]
     frame = frames[0].rgb
-    propose(net, frame)
+    propose(net, frame, levels=levels)
     times = []
     for _ in range(args.repeats):
         t = time.perf_counter()
-        propose(net, frame)
+        propose(net, frame, levels=levels)
         times.append(time.perf_counter() - t)
     result = {
         "split": args.split,
         "frames": len(frames),
         "instances": sum(len(t) for _, t in pairs),
         "min_visib": 0.5,
+        "levels": list(levels),
         "recall_by_window": recall(pairs),
         "recall_by_extent_and_true_diameter": recall(pairs, by_extent=True),
         "propose_ms_640x480_median": round(1000 * float(np.median(times)), 1),
@@ -154,6 +156,7 @@ def main(argv: list[str] | None = None) -> int:
     m.add_argument("--split", choices=("val", "test"), default="val")
     m.add_argument("--json", type=Path)
     m.add_argument("--repeats", type=int, default=20)
+    m.add_argument("--levels", help="pyramid scales, comma-separated (default: the model's)")
     args = p.parse_args(argv)
     for path in [getattr(args, k) for k in ("data", "model", "run") if getattr(args, k, None) is not None]:
         if not path.exists():
