@@ -64,15 +64,13 @@ def _export(args: argparse.Namespace) -> int:
     from training.objectness import export, load_checkpoint
 
     net, cfg, state = load_checkpoint(args.run / args.checkpoint)
-    if args.levels:
-        cfg.levels = tuple(float(x) for x in args.levels.split(","))
     run = json.loads((args.run / "command.txt").read_text()) if (args.run / "command.txt").is_file() else {}
     extra = {
         "command": run.get("command", "unknown"),
         "code": run.get("code", "unknown"),
         "step": str(state["step"]),
         "checkpoint": "best on validation frames (recall of lmo/000002 val frames, top 20)",
-        "validation": json.dumps(state["val"]),
+        "validation_in_training": json.dumps(state["val"]),  # its 5 levels, before suppression fused
         "split_frames": "training/splits.py defaults on lmo/000002: trained on train frames only",
     }
     if args.val_json:  # the figures `measure` wrote for the exported model, on the validation frames
@@ -80,7 +78,8 @@ def _export(args: argparse.Namespace) -> int:
         extra["val_figures"] = json.dumps(
             {k: figures[k] for k in ("recall_by_window", "propose_ms_640x480_median")}
         )
-    path = export(net, cfg, args.out, extra)
+    levels = tuple(float(x) for x in args.levels.split(",")) if args.levels else None
+    path = export(net, cfg, args.out, extra, levels)
     print(f"{path}: {path.stat().st_size / 1e6:.2f} MB")
     return 0
 

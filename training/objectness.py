@@ -513,8 +513,15 @@ def load_checkpoint(path: Path) -> tuple[ObjectnessNet, ObjectnessConfig, dict]:
     return net.eval(), cfg, state
 
 
-def export(net: ObjectnessNet, cfg: ObjectnessConfig, out: Path, extra: dict[str, str]) -> Path:
-    """The network as one ONNX file (dynamic H, W) with what `index.objectness.ObjectnessNet` reads."""
+def export(
+    net: ObjectnessNet,
+    cfg: ObjectnessConfig,
+    out: Path,
+    extra: dict[str, str],
+    levels: tuple[float, ...] | None = None,
+) -> Path:
+    """The network as one ONNX file (dynamic H, W) with what `index.objectness.ObjectnessNet` reads.
+    `levels`: the pyramid `propose` runs by default (default: the one validated in training)."""
     out.parent.mkdir(parents=True, exist_ok=True)
     h, w = torch.export.Dim("h16", min=1, max=256), torch.export.Dim("w16", min=1, max=256)
     torch.onnx.export(
@@ -533,7 +540,7 @@ def export(net: ObjectnessNet, cfg: ObjectnessConfig, out: Path, extra: dict[str
         "stride": str(STRIDE),
         "reference_px": f"{cfg.reference_px:g}",
         "window_mm": f"{WINDOW_MM:g}",
-        "levels": json.dumps(list(cfg.levels)),
+        "levels": json.dumps(list(levels or cfg.levels)),
         "input": "rgb (1, 3, H, W) float32 0-255, H and W multiples of 16",
         "output": "cells (1, 5, H/8, W/8): centre score 0-1, dx, dy (cells), log(window_px/reference_px), log(extent_px/reference_px)",
         "config": json.dumps(asdict(cfg)),
