@@ -50,12 +50,14 @@ def _commit() -> str:
 def _train(args: argparse.Namespace) -> int:
     from training.objectness import ObjectnessConfig, train
 
-    cfg = ObjectnessConfig(minutes=args.minutes, seed=args.seed, batch=args.batch, val_every=args.val_every)
+    cfg = ObjectnessConfig(
+        minutes=args.minutes, seed=args.seed, batch=args.batch, val_every=args.val_every, lr=args.lr
+    )
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "command.txt").write_text(
         json.dumps({"command": shlex.join(["scripts/train_objectness.py", *sys.argv[1:]]), "code": _commit()})
     )
-    state = train(args.data, args.out, cfg, args.cache, threads=args.threads)
+    state = train(args.data, args.out, cfg, args.cache, threads=args.threads, init=args.init)
     print(json.dumps({"best_step": state["step"], "val": state["val"]}, indent=1))
     return 0
 
@@ -139,6 +141,8 @@ def main(argv: list[str] | None = None) -> int:
     names = {f.name: f.default for f in fields(ObjectnessConfig)}
     t.add_argument("--batch", type=int, default=names["batch"])
     t.add_argument("--val-every", type=int, default=names["val_every"])
+    t.add_argument("--lr", type=float, default=names["lr"])
+    t.add_argument("--init", type=Path, help="a checkpoint (best.pt) whose head this run goes on training")
     e = sub.add_parser("export")
     e.add_argument("--run", type=Path, required=True)
     e.add_argument("--checkpoint", default="best.pt")

@@ -442,9 +442,12 @@ def score_of(figures: dict) -> float:
     return (w["w/16, 6%"]["top20"] + w["w/8, 12%"]["top20"]) / 2
 
 
-def train(data: Path, out: Path, cfg: ObjectnessConfig, cache_dir: Path, threads: int = 2) -> dict:
+def train(
+    data: Path, out: Path, cfg: ObjectnessConfig, cache_dir: Path, threads: int = 2, init: Path | None = None
+) -> dict:
     """Trains for `cfg.minutes`, validating every `cfg.val_every` steps; keeps the best checkpoint
-    (`out/best.pt`) and the last (`out/last.pt`), and a log of the validations (`out/log.jsonl`)."""
+    (`out/best.pt`) and the last (`out/last.pt`), and a log of the validations (`out/log.jsonl`).
+    `init`: a checkpoint whose head this run goes on training (with this run's schedule)."""
     torch.manual_seed(cfg.seed)
     torch.set_num_threads(threads)
     out.mkdir(parents=True, exist_ok=True)
@@ -452,6 +455,8 @@ def train(data: Path, out: Path, cfg: ObjectnessConfig, cache_dir: Path, threads
     log.info("%d train frames, %d val frames", len(train_frames), len(val_frames))
     shapes = shape_renders(cfg, cache_dir)
     net = ObjectnessNet(cfg.width)
+    if init is not None:
+        net.head.load_state_dict(torch.load(init, map_location="cpu", weights_only=False)["head"])
     opt = torch.optim.AdamW(net.head.parameters(), lr=cfg.lr, weight_decay=1e-4)
     q: queue.Queue = queue.Queue(maxsize=3)
     stop = threading.Event()
