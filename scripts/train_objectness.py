@@ -16,7 +16,6 @@ import json
 import logging
 import os
 import shlex
-import subprocess
 import sys
 import time
 from dataclasses import fields
@@ -28,23 +27,9 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 
 def _commit() -> str:
-    here = Path(__file__).resolve().parent.parent
-    try:
-        sha = subprocess.run(
-            ["git", "-C", str(here), "rev-parse", "--short", "HEAD"],
-            capture_output=True,
-            text=True,
-            check=True,
-        ).stdout.strip()
-        dirty = subprocess.run(
-            ["git", "-C", str(here), "status", "--porcelain", "--untracked-files=no"],
-            capture_output=True,
-            text=True,
-            check=True,
-        ).stdout.strip()
-    except (OSError, subprocess.CalledProcessError):
-        return "unknown"
-    return sha + ("+changes" if dirty else "")
+    from posedesc.commands.train import _code_version  # the one reading of the code's commit
+
+    return _code_version() or "unknown"
 
 
 def _train(args: argparse.Namespace) -> int:
