@@ -34,13 +34,16 @@ INPUT = "rgb"  # (1, 3, H, W) float32 pixel values 0-255, H and W multiples of `
 OUTPUT = "cells"  # (1, 5, H / stride, W / stride): score 0-1, dx, dy (cells), log window, log extent
 PAD_TO = 16  # the deepest map is at stride 16: a level is padded (black, bottom and right) to a multiple
 WINDOW_MM = 200.0  # the window that `window_px` spans: the shipped descriptors' window
-# Peaks under this score are dropped before the suppression. An all-black frame scores under 0.01.
-MIN_SCORE = 0.02
+# Peaks under this score are dropped before the suppression. An all-black frame's peaks score 0.04-0.055
+# (6 are left over 0.05); on the validation frames the 20th proposal scores 0.16-0.26, and 0.06 already
+# lost a hit (w/16, 6 %) from the top 30.
+MIN_SCORE = 0.05
 MAX_PEAKS_PER_LEVEL = 200
 # Two proposals are one object when their centres are within this share of the larger window and their
 # windows within this ratio: the same object found at two levels lands within a few px and ~10 %, and two
-# LM-O objects standing side by side are half a window or more apart.
-SUPPRESS_RADIUS = 0.25
+# LM-O objects standing side by side are half a window or more apart. Validation frames (the shipped model,
+# 9 levels): 0.15, 0.2 and 0.25 gave 46 % within w/16 and 6 % in the top 20 alike, 83-82 % within w/8, 12 %.
+SUPPRESS_RADIUS = 0.2
 SUPPRESS_RATIO = 1.5
 
 
@@ -117,18 +120,34 @@ def decode(
 
 
 def suppress(proposals: Sequence[Proposal], limit: int) -> list[Proposal]:
-    """Best first, each kept unless a better one is the same object (`SUPPRESS_RADIUS`, `SUPPRESS_RATIO`)."""
-    kept: list[Proposal] = []
+    """One proposal per object, best first: each peak joins the best one before it that is the same object
+    (`SUPPRESS_RADIUS`, `SUPPRESS_RATIO`) or leads a new one. A proposal keeps its leader's score and the
+    score-weighted mean of its members' centres and (log) sizes: one object seen at several levels gives
+    several estimates, and their mean is nearer the truth than the best-scored one (on the validation
+    frames, +5 points of objects within w/16 and 6 %)."""
+    groups: list[list[Proposal]] = []
     for p in sorted(proposals, key=lambda p: -p.score):
-        if len(kept) >= limit:
-            break
-        if not any(
-            np.hypot(p.u - k.u, p.v - k.v) < SUPPRESS_RADIUS * max(p.window_px, k.window_px)
-            and max(p.window_px, k.window_px) < SUPPRESS_RATIO * min(p.window_px, k.window_px)
-            for k in kept
-        ):
-            kept.append(p)
-    return kept
+        for g in groups:
+            k = g[0]
+            big, small = max(p.window_px, k.window_px), min(p.window_px, k.window_px)
+            if np.hypot(p.u - k.u, p.v - k.v) < SUPPRESS_RADIUS * big and big < SUPPRESS_RATIO * small:
+                g.append(p)
+                break
+        else:
+            if len(groups) < limit:
+                groups.append([p])
+    return [_fused(g) for g in groups]
+
+
+def _fused(group: Sequence[Proposal]) -> Proposal:
+    if len(group) == 1:
+        return group[0]
+    w = np.array([p.score for p in group], np.float64)
+    w /= w.sum()
+    u, v, lw, le = (
+        np.array([[p.u, p.v, np.log(p.window_px), np.log(p.extent_px)] for p in group]).T @ w
+    ).tolist()
+    return Proposal(u, v, float(np.exp(lw)), group[0].score, float(np.exp(le)))
 
 
 def propose_with(

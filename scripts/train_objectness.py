@@ -16,7 +16,6 @@ import json
 import logging
 import os
 import shlex
-import subprocess
 import sys
 import time
 from dataclasses import fields
@@ -28,34 +27,22 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 
 def _commit() -> str:
-    here = Path(__file__).resolve().parent.parent
-    try:
-        sha = subprocess.run(
-            ["git", "-C", str(here), "rev-parse", "--short", "HEAD"],
-            capture_output=True,
-            text=True,
-            check=True,
-        ).stdout.strip()
-        dirty = subprocess.run(
-            ["git", "-C", str(here), "status", "--porcelain", "--untracked-files=no"],
-            capture_output=True,
-            text=True,
-            check=True,
-        ).stdout.strip()
-    except (OSError, subprocess.CalledProcessError):
-        return "unknown"
-    return sha + ("+changes" if dirty else "")
+    from posedesc.commands.train import _code_version  # the one reading of the code's commit
+
+    return _code_version() or "unknown"
 
 
 def _train(args: argparse.Namespace) -> int:
     from training.objectness import ObjectnessConfig, train
 
-    cfg = ObjectnessConfig(minutes=args.minutes, seed=args.seed, batch=args.batch, val_every=args.val_every)
+    cfg = ObjectnessConfig(
+        minutes=args.minutes, seed=args.seed, batch=args.batch, val_every=args.val_every, lr=args.lr
+    )
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "command.txt").write_text(
         json.dumps({"command": shlex.join(["scripts/train_objectness.py", *sys.argv[1:]]), "code": _commit()})
     )
-    state = train(args.data, args.out, cfg, args.cache, threads=args.threads)
+    state = train(args.data, args.out, cfg, args.cache, threads=args.threads, init=args.init)
     print(json.dumps({"best_step": state["step"], "val": state["val"]}, indent=1))
     return 0
 
@@ -70,10 +57,16 @@ def _export(args: argparse.Namespace) -> int:
         "code": run.get("code", "unknown"),
         "step": str(state["step"]),
         "checkpoint": "best on validation frames (recall of lmo/000002 val frames, top 20)",
-        "validation": json.dumps(state["val"]),
+        "validation_in_training": json.dumps(state["val"]),  # its 5 levels, before suppression fused
         "split_frames": "training/splits.py defaults on lmo/000002: trained on train frames only",
     }
-    path = export(net, cfg, args.out, extra)
+    if args.val_json:  # the figures `measure` wrote for the exported model, on the validation frames
+        figures = json.loads(args.val_json.read_text())
+        extra["val_figures"] = json.dumps(
+            {k: figures[k] for k in ("recall_by_window", "propose_ms_640x480_median")}
+        )
+    levels = tuple(float(x) for x in args.levels.split(",")) if args.levels else None
+    path = export(net, cfg, args.out, extra, levels)
     print(f"{path}: {path.stat().st_size / 1e6:.2f} MB")
     return 0
 
@@ -84,19 +77,21 @@ def _measure(args: argparse.Namespace) -> int:
 
     net = ObjectnessNet(args.model, threads=1)
     frames = load_frames(args.data, args.split)
-    pairs = [(propose(net, f.rgb, limit=30), f.truths(0.5)) for f in frames]
+    levels = tuple(float(x) for x in args.levels.split(",")) if args.levels else net.levels
+    pairs = [(propose(net, f.rgb, limit=30, levels=levels), f.truths(0.5)) for f in frames]
     frame = frames[0].rgb
-    propose(net, frame)
+    propose(net, frame, levels=levels)
     times = []
     for _ in range(args.repeats):
         t = time.perf_counter()
-        propose(net, frame)
+        propose(net, frame, levels=levels)
         times.append(time.perf_counter() - t)
     result = {
         "split": args.split,
         "frames": len(frames),
         "instances": sum(len(t) for _, t in pairs),
         "min_visib": 0.5,
+        "levels": list(levels),
         "recall_by_window": recall(pairs),
         "recall_by_extent_and_true_diameter": recall(pairs, by_extent=True),
         "propose_ms_640x480_median": round(1000 * float(np.median(times)), 1),
@@ -131,16 +126,25 @@ def main(argv: list[str] | None = None) -> int:
     names = {f.name: f.default for f in fields(ObjectnessConfig)}
     t.add_argument("--batch", type=int, default=names["batch"])
     t.add_argument("--val-every", type=int, default=names["val_every"])
+    t.add_argument("--lr", type=float, default=names["lr"])
+    t.add_argument("--init", type=Path, help="a checkpoint (best.pt) whose head this run goes on training")
     e = sub.add_parser("export")
     e.add_argument("--run", type=Path, required=True)
     e.add_argument("--checkpoint", default="best.pt")
     e.add_argument("--out", type=Path, default=Path("models/posedesc-objectness.onnx"))
+    e.add_argument(
+        "--levels", help="pyramid scales propose runs by default, comma-separated (default: trained)"
+    )
+    e.add_argument(
+        "--val-json", type=Path, help="measure's JSON of the validation frames, kept in the metadata"
+    )
     m = sub.add_parser("measure")
     m.add_argument("--model", type=Path, default=Path("models/posedesc-objectness.onnx"))
     m.add_argument("--data", type=Path, default=Path("/work/shared/data/lmo"))
     m.add_argument("--split", choices=("val", "test"), default="val")
     m.add_argument("--json", type=Path)
     m.add_argument("--repeats", type=int, default=20)
+    m.add_argument("--levels", help="pyramid scales, comma-separated (default: the model's)")
     args = p.parse_args(argv)
     for path in [getattr(args, k) for k in ("data", "model", "run") if getattr(args, k, None) is not None]:
         if not path.exists():

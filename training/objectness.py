@@ -25,6 +25,7 @@ import threading
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
@@ -257,7 +258,7 @@ def make_sample(
         for r in rows:
             r[0] = c - 1 - r[0]
     img = colour_jitter(np.ascontiguousarray(img), rng, 1.0)
-    if rng.random() < 0.3:
+    if rng.random() < 0.3:  # a camera's focus and motion
         img = np.asarray(cv2.GaussianBlur(img, (0, 0), rng.uniform(0.3, 1.2)), np.uint8)
     return Sample(img, *_targets(np.array(rows, np.float64).reshape(-1, 5), cfg))
 
@@ -320,9 +321,9 @@ class ObjectnessHead(nn.Module):
         self.body = nn.Sequential(block(32 + 64, 1), block(width, 2), block(width, 4), block(width, 1))
         self.out = nn.Conv2d(width, 5, 1)
         bias = self.out.bias
-        assert bias is not None  # a Conv2d has a bias unless told not to
-        nn.init.constant_(bias, 0.0)
+        assert bias is not None  # Conv2d's default
         with torch.no_grad():
+            bias.zero_()
             bias[0] = -4.6  # a prior of 1 % centres: the focal loss starts calm (RetinaNet)
 
     def forward(self, d8: torch.Tensor, d16: torch.Tensor) -> torch.Tensor:
@@ -334,6 +335,9 @@ class ObjectnessNet(nn.Module):
     """Frozen pretrained stages and the trained head. Shape: (B, 3, H, W) RGB 0-255, H and W multiples
     of 16 -> (B, 5, H/8, W/8) (raw: a logit in channel 0)."""
 
+    mean: torch.Tensor
+    std: torch.Tensor
+
     def __init__(self, width: int = 64, pretrained: bool = True):
         super().__init__()
         self.trunk, self.deep = Trunk(pretrained), DeepStages(pretrained)
@@ -342,8 +346,7 @@ class ObjectnessNet(nn.Module):
         self.head = ObjectnessHead(width)
 
     def features(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        mean, std = self.get_buffer("mean"), self.get_buffer("std")
-        return self.deep(self.trunk((x - mean) / std))
+        return self.deep(self.trunk((x - self.mean) / self.std))
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         return self.head(*self.features(x))
@@ -439,9 +442,12 @@ def score_of(figures: dict) -> float:
     return (w["w/16, 6%"]["top20"] + w["w/8, 12%"]["top20"]) / 2
 
 
-def train(data: Path, out: Path, cfg: ObjectnessConfig, cache_dir: Path, threads: int = 2) -> dict:
+def train(
+    data: Path, out: Path, cfg: ObjectnessConfig, cache_dir: Path, threads: int = 2, init: Path | None = None
+) -> dict:
     """Trains for `cfg.minutes`, validating every `cfg.val_every` steps; keeps the best checkpoint
-    (`out/best.pt`) and the last (`out/last.pt`), and a log of the validations (`out/log.jsonl`)."""
+    (`out/best.pt`) and the last (`out/last.pt`), and a log of the validations (`out/log.jsonl`).
+    `init`: a checkpoint whose head this run goes on training (with this run's schedule)."""
     torch.manual_seed(cfg.seed)
     torch.set_num_threads(threads)
     out.mkdir(parents=True, exist_ok=True)
@@ -449,6 +455,8 @@ def train(data: Path, out: Path, cfg: ObjectnessConfig, cache_dir: Path, threads
     log.info("%d train frames, %d val frames", len(train_frames), len(val_frames))
     shapes = shape_renders(cfg, cache_dir)
     net = ObjectnessNet(cfg.width)
+    if init is not None:
+        net.head.load_state_dict(torch.load(init, map_location="cpu", weights_only=False)["head"])
     opt = torch.optim.AdamW(net.head.parameters(), lr=cfg.lr, weight_decay=1e-4)
     q: queue.Queue = queue.Queue(maxsize=3)
     stop = threading.Event()
@@ -503,19 +511,26 @@ def train(data: Path, out: Path, cfg: ObjectnessConfig, cache_dir: Path, threads
 
 def load_checkpoint(path: Path) -> tuple[ObjectnessNet, ObjectnessConfig, dict]:
     state = torch.load(path, map_location="cpu", weights_only=False)
-    fields: dict = {k: tuple(v) if isinstance(v, list) else v for k, v in state["cfg"].items()}
-    cfg = ObjectnessConfig(**fields)
+    saved: dict[str, Any] = {k: tuple(v) if isinstance(v, list) else v for k, v in state["cfg"].items()}
+    cfg = ObjectnessConfig(**saved)
     net = ObjectnessNet(cfg.width)
     net.head.load_state_dict(state["head"])
     return net.eval(), cfg, state
 
 
-def export(net: ObjectnessNet, cfg: ObjectnessConfig, out: Path, extra: dict[str, str]) -> Path:
-    """The network as one ONNX file (dynamic H, W) with what `index.objectness.ObjectnessNet` reads."""
+def export(
+    net: ObjectnessNet,
+    cfg: ObjectnessConfig,
+    out: Path,
+    extra: dict[str, str],
+    levels: tuple[float, ...] | None = None,
+) -> Path:
+    """The network as one ONNX file (dynamic H, W) with what `index.objectness.ObjectnessNet` reads.
+    `levels`: the pyramid `propose` runs by default (default: the one validated in training)."""
     out.parent.mkdir(parents=True, exist_ok=True)
     h, w = torch.export.Dim("h16", min=1, max=256), torch.export.Dim("w16", min=1, max=256)
     torch.onnx.export(
-        Scored(net.eval()),
+        Scored(net).eval(),
         (torch.zeros(1, 3, 96, 128),),
         str(out),
         input_names=[INPUT],
@@ -530,7 +545,7 @@ def export(net: ObjectnessNet, cfg: ObjectnessConfig, out: Path, extra: dict[str
         "stride": str(STRIDE),
         "reference_px": f"{cfg.reference_px:g}",
         "window_mm": f"{WINDOW_MM:g}",
-        "levels": json.dumps(list(cfg.levels)),
+        "levels": json.dumps(list(levels or cfg.levels)),
         "input": "rgb (1, 3, H, W) float32 0-255, H and W multiples of 16",
         "output": "cells (1, 5, H/8, W/8): centre score 0-1, dx, dy (cells), log(window_px/reference_px), log(extent_px/reference_px)",
         "config": json.dumps(asdict(cfg)),
