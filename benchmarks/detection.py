@@ -5,9 +5,9 @@ The state is built as `posedesc serve` builds it (`service.state.load_state` wit
 `POSEDESC_*` overrides included, the benchmark's models dir as the models dir: the objectness model
 `posedesc-objectness.onnx` beside the descriptor models gives the colour proposals), in a temporary data
 dir. Objects are registered by the service's own registration (`index.register.register`, the window
-following each object's size): the LM-O meshes first, then generated shapes (`benchmarks.objects.shapes`,
-80-300 mm across, so some fall in the windows one step either side of the model's) up to each count. Each
-registration's seconds are kept by window class.
+following each object's size): the LM-O meshes first, then generated shapes (`index.shapes.random_shape`)
+up to each count, `shape_fill` of the model's window across. Each registration's seconds are kept by
+window class.
 
 Colour rows: LM-O test frames of scene 2 (real 640x480 PNGs as stored, the camera of
 `scene_camera.json`), `frames` of them spread over the scene, each detected `repeats` times after
@@ -32,13 +32,13 @@ import numpy as np
 import trimesh
 from tqdm import tqdm
 
-from benchmarks.objects import shapes
 from benchmarks.timing import ROOT
 from index.bop import BopDataset
 from index.embed import MODEL_FILES, fingerprint, load_models
 from index.objectness import OBJECTNESS_FILE
 from index.register import register
-from index.windows import WINDOW_KEY
+from index.shapes import random_shape
+from index.windows import FILL_HIGH, FILL_LOW, WINDOW_KEY
 from service.detection import detect
 from service.pipeline.query import Query
 from service.settings import Settings
@@ -74,6 +74,12 @@ class DetectConfig:
     lmo: Path = LMO
     lmo_depth: Path = LMO_DEPTH
     scene: int = 2
+    # The generated shapes' diameters, in the rgb model's windows: the band of its window class
+    # (`index.windows`), so every object is seen through LM-O's window. A colour proposal is verified once
+    # per window class among the registered objects: shapes 80-300 mm across (random_shape's default) put
+    # 18 of 100 in the classes either side of 200 mm, and a frame took 60 proposals and 7.3 s, against 40
+    # and 4.3 s at 8 objects, one of them in another class (docs/results/bench-detect-mixed-windows.json)
+    shape_fill: tuple[float, float] = (FILL_LOW, FILL_HIGH)
 
 
 @dataclass(frozen=True)
@@ -126,6 +132,7 @@ def run(cfg: DetectConfig, models_dir: Path, level: int = 3, seed: int = 0) -> d
             "size": "640x480",
         },
         "runs": {"warmup": cfg.warmup, "repeats": cfg.repeats, "rgbd_repeats": cfg.rgbd_repeats},
+        "shape_fill": list(cfg.shape_fill),
         "by_objects": {},
         "notes": [],
         "capped": [],
@@ -140,7 +147,8 @@ def run(cfg: DetectConfig, models_dir: Path, level: int = 3, seed: int = 0) -> d
             data_dir=Path(tmp) / "data", demo_objects=False, models_dir=models_dir, level=level
         )
         out["settings"] = {k: getattr(settings, k) for k in (*DETECT_SETTINGS, "level")}
-        things = objects(dataset, max(counts), seed, settings.max_faces)
+        sizes = tuple(f * embedders["rgb"].info.window_mm for f in cfg.shape_fill)
+        things = objects(dataset, max(counts), seed, settings.max_faces, (sizes[0], sizes[1]))
         state = load_state(settings, embedders)
         try:
             if state.colour_proposals is None:
@@ -201,14 +209,17 @@ def _K(cam: dict) -> np.ndarray:
     return np.asarray(cam["cam_K"], float).reshape(3, 3)
 
 
-def objects(dataset: BopDataset, n: int, seed: int, max_faces: int) -> list[tuple[str, trimesh.Trimesh, str]]:
+def objects(
+    dataset: BopDataset, n: int, seed: int, max_faces: int, diameter_mm: tuple[float, float]
+) -> list[tuple[str, trimesh.Trimesh, str]]:
     """The first `n` objects to register: (name, mesh in mm, symmetry), the dataset's meshes first (loaded
-    as `POST /objects` loads a mesh: simplified to `max_faces`), then generated shapes."""
+    as `POST /objects` loads a mesh: simplified to `max_faces`), then generated shapes `diameter_mm` across."""
     from evaluation.templates import service_symmetry
 
     lmo = dataset.obj_ids[:n]
     out = [(f"obj_{o:06d}", dataset.mesh(o, max_faces), service_symmetry(dataset.symmetry(o))) for o in lmo]
-    return out + [(f"shape_{i}", m, "none") for i, m in enumerate(shapes(n - len(lmo), seed))]
+    rng = np.random.default_rng(seed)
+    return out + [(f"shape_{i}", random_shape(rng, diameter_mm), "none") for i in range(n - len(lmo))]
 
 
 def _register(state: AppState, todo: Sequence[tuple[str, trimesh.Trimesh, str]]) -> list[tuple[float, float]]:
