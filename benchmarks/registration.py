@@ -5,7 +5,8 @@ demo robot), uploaded as binary PLY; the service registers it for every model it
 settings, into the benchmark's store (so "store" includes rewriting indexes of that size). The first
 registration (shader compilation on the service's render thread) is reported apart as `cold_s`; each
 object is deleted again, so every repetition meets the same store. The split comes from the response:
-render and embed overlap (chunks), so they add up to more than the total."""
+render and embed overlap (chunks), so they add up to more than the total. The window the service chose
+for the mesh's size (`index.windows`) and the diameter it read are reported with the times."""
 
 from __future__ import annotations
 
@@ -16,7 +17,7 @@ import httpx
 from tqdm import tqdm
 
 
-def _register(c: httpx.Client, ply: bytes) -> tuple[float, dict[str, float]]:
+def _register(c: httpx.Client, ply: bytes) -> tuple[float, dict[str, float], dict]:
     t0 = time.perf_counter()
     r = c.post(
         "/objects",
@@ -30,11 +31,13 @@ def _register(c: httpx.Client, ply: bytes) -> tuple[float, dict[str, float]]:
         if body["status"] != "done":
             raise RuntimeError(f"registration failed: {body}")
         wall, timings, oid = time.perf_counter() - t0, {}, body["object_id"]
+        body = body.get("result") or {}  # what a 201 would have answered
     else:
         r.raise_for_status()
-        wall, timings, oid = time.perf_counter() - t0, r.json()["timings"], r.json()["object_id"]
+        body = r.json()
+        wall, timings, oid = time.perf_counter() - t0, body["timings"], body["object_id"]
     c.delete(f"/objects/{oid}").raise_for_status()
-    return wall, timings
+    return wall, timings, body
 
 
 def run(url: str, repeats: int) -> dict:
@@ -45,8 +48,8 @@ def run(url: str, repeats: int) -> dict:
     assert isinstance(ply, bytes)  # binary PLY
     with httpx.Client(base_url=url, timeout=600) as c:
         ready = c.get("/readyz").json()
-        cold, cold_split = _register(c, ply)
-        runs = [_register(c, ply) for _ in tqdm(range(repeats), desc="HTTP: POST /objects", disable=None)]
+        cold, cold_split, created = _register(c, ply)
+        runs = [_register(c, ply)[:2] for _ in tqdm(range(repeats), desc="HTTP: POST /objects", disable=None)]
     walls = [w for w, _ in runs]
     stages = sorted({k for _, t in runs for k in t})
     out: dict = {
@@ -60,6 +63,9 @@ def run(url: str, repeats: int) -> dict:
         "cold_split_s": cold_split,  # the first one's render / embed / store / total
         "wall_s": statistics.median(walls),
         "wall_min_s": min(walls),
+        # the window the mesh's size chose (the model's for a mesh about its size) and its diameter, mm
+        "window_mm": created.get("window_mm"),
+        "diameter_mm": created.get("diameter_mm"),
     }
     for k in stages:
         vals = [t[k] for _, t in runs if k in t]

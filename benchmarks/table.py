@@ -150,6 +150,59 @@ def _stages(ro: dict) -> list[str]:
     return lines
 
 
+def _detect(de: dict) -> list[str]:
+    """The detect section: a row per object count and frame kind (p50 / p90 of the detector's total, the
+    median of each stage, the proposals verified), then the registrations by window class."""
+    rows = []
+    for n, row in de["by_objects"].items():
+        for kind, label in (("colour", "colour (rgb)"), ("rgbd", "Kinect RGB-D")):
+            if (r := row.get(kind)) is None:
+                continue
+            st = r["stages_median_ms"]
+            rows.append(
+                [
+                    n,
+                    label,
+                    str(r["runs"]),
+                    _num(r["proposals_median"], 0),
+                    _num(r["p50_ms"]),
+                    _num(r["p90_ms"]),
+                    *(_num(st.get(k)) for k in ("decode", "propose", "verify")),
+                    _num(r["verify_ms_per_proposal"]),
+                ]
+            )
+    if not rows:
+        return []
+    fr = de["frames"]["colour"]
+    lines = _table(
+        f"objects found in a whole 640x480 frame in-process (service.detection.detect); colour: LM-O scene "
+        f"{fr['scene']} frames {', '.join(map(str, fr['frames']))}; ms",
+        [
+            "objects",
+            "frame",
+            "runs",
+            "proposals",
+            "p50",
+            "p90",
+            "decode",
+            "propose",
+            "verify",
+            "per proposal",
+        ],
+        rows,
+    )
+    reg = de["register"]
+    if reg["objects"]:
+        by = ", ".join(
+            f"{w} mm: {b['objects']} at {b['median_s']:.2f} s" for w, b in reg["by_window_mm"].items()
+        )
+        lines.append(
+            f"registrations (index.register, the window following the size): median {reg['median_s']:.2f} s "
+            f"of {reg['objects']}; by window: {by}"
+        )
+    return lines
+
+
 def render(result: dict) -> str:
     m, th, sec = result["machine"], result["threads"], result["sections"]
     lines = [
@@ -242,8 +295,9 @@ def render(result: dict) -> str:
             rows,
         )  # fmt: skip
     if g := sec.get("register"):
+        window = f" ({g['window_mm']:g} mm window for its size)" if g.get("window_mm") else ""
         lines += _table(
-            f"POST /objects, {g['faces']:,}-face mesh, models {', '.join(g['models'])}, store of "
+            f"POST /objects, {g['faces']:,}-face mesh{window}, models {', '.join(g['models'])}, store of "
             f"{g['store_objects_before']} objects (median of {g['repeats']}; first one {g['cold_s']:.2f} s)",
             ["request s", "render s", "embed s", "store s", "in service s"],
             [
@@ -285,6 +339,8 @@ def render(result: dict) -> str:
         )  # fmt: skip
     if gd := sec.get("guards"):
         lines += _guards(gd)
+    if de := sec.get("detect"):
+        lines += _detect(de)
     if (pr := (sec.get("milvus") or {}).get("propagation")) is not None:
         lines += _table(
             f"replicas: two stores on one Milvus and one shared directory (each polls every "

@@ -3,10 +3,11 @@
 Every figure beside its baseline in the same run: a table, and JSON for the README.
 
 The default run: descriptor, recognition (8 and 100 objects), knn, http, register, roll (the shipped
-model), train and guards (the times of the service's refusals): 7.5 minutes on this project's 2-core
-machine (measured at load 1-1.6; the roll section is 4.8 of them). --all adds recognition at 1,000
-objects, the roll section's untrained stand-in model and the milvus section (a Milvus server, replica
-propagation): 20-30 minutes. --quick: every section at tiny sizes, a few minutes (the tests').
+model), train, guards (the times of the service's refusals) and detect (LM-O frames searched whole at 8
+objects): 7.5 minutes on this project's 2-core machine before detect (measured at load 1-1.6; the roll
+section is 4.8 of them), detect ~2 more. --all adds recognition at 1,000 objects, the roll section's
+untrained stand-in model, detection at 100 objects and the milvus section (a Milvus server, replica
+propagation): 25-35 minutes. --quick: every section at tiny sizes, a few minutes (the tests').
 """
 
 from __future__ import annotations
@@ -39,14 +40,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--only",
         default=None,
-        help="comma-separated sections: descriptor,recognition,knn,http,register,roll,train,guards,milvus "
+        help="comma-separated sections: descriptor,recognition,knn,http,register,roll,train,guards,detect,"
+        "milvus "
         "(default: all but milvus)",
     )
     p.add_argument(
         "--all",
         action="store_true",
         help="also what the default leaves out for time: recognition at 1,000 objects, the roll section's "
-        "untrained model, the milvus section",
+        "untrained model, detection at 100 objects, the milvus section",
     )
     p.add_argument("--models", type=Path, default=Path("models"), help="folder of posedesc-*.onnx models")
     p.add_argument("--modality", choices=("rgb", "depth", "rgbd"), default="rgb", help="the model measured")
@@ -77,6 +79,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--roll-objects", type=int, default=None, help="objects in the roll section's stores (100)"
+    )
+    p.add_argument(
+        "--detect-objects",
+        default=None,
+        help="objects registered in the detect section (LM-O meshes, then generated shapes; 8; --all: 8,100)",
     )
     p.add_argument("--query-turns", default=None, help="query turns of the roll section (1,2,3)")
     p.add_argument(
@@ -152,6 +159,8 @@ def configure(args: argparse.Namespace) -> BenchConfig:
         if args.roll_objects <= 0:
             raise UserError(f"--roll-objects {args.roll_objects}: must be positive")
         cfg = replace(cfg, roll=replace(cfg.roll, objects=args.roll_objects))
+    if args.detect_objects:
+        cfg = replace(cfg, detect=replace(cfg.detect, counts=_ints(args.detect_objects)))
     if args.query_turns:
         turns = _ints(args.query_turns)
         if max(turns) > 36:
