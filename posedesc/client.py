@@ -129,7 +129,9 @@ class Client:
     ) -> dict:
         """`POST /recognize`: a colour and/or depth image (a path or the file's bytes): a patch centred on
         the object, or a full frame with `fx fy cx cy` and the object's centre `u v` (`distance_mm` for a
-        colour-only frame). `fields`: any other form field, as the service documents it."""
+        colour-only frame), or a full frame without `u v`: every registered object found in it (the
+        answer's `detections`). `fields`: any other form field (`max_detections`, `min_confidence`, ...),
+        as the service documents it."""
         files = {}
         if rgb is not None:
             files["rgb"] = _file(rgb, "rgb.png")

@@ -65,8 +65,10 @@ def test_the_curl_examples(server):
     assert r.returncode == 0, r.stdout[-2000:] + r.stderr
     out = r.stdout
     assert '"detail":"' not in out  # no error answered (errors are {"detail": "..."})
-    # the three recognitions of the demo robot's frame and patch
-    assert out.count('"best":{"object_id":3,"name":"robot"') == 3, out[:3000]
+    # the three recognitions of the demo robot's frame and patch, and the frame searched whole: its first
+    # detection's best is the answer's best too
+    assert out.count('"best":{"object_id":3,"name":"robot"') == 5, out[:3000]
+    assert '"detections":[{"u":' in out
     assert '"name":"part"' in out and re.search(r"\}204\n", out)  # registered, shown, then deleted
     assert "posedesc_requests_total" in out  # the metrics
     drawn = ROOT / "out" / "answer.png"  # the drawing, where the example writes it
@@ -88,6 +90,7 @@ def test_the_python_example(server):
     assert "'name': 'part'" in lines[1] and "'part'" in lines[1].rsplit("[", 1)[1]  # registered, then listed
     assert "404" in lines[2] or "no object" in lines[2], lines[2]  # the second delete: an ApiError
     assert "'status': 'ready'" in lines[3]  # health
+    assert lines[4].startswith("[('robot', ["), lines[4]  # the frame searched whole: the robot first
     assert names(server) == DEMO
     assert float(registrations(server)) == before + 1
 
