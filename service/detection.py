@@ -87,7 +87,10 @@ def detect_decoded(state: AppState, q: Query, d: Decoded, decode_s: float = 0.0)
     K = np.array([[q.fx, 0.0, q.cx], [0.0, q.fy, q.cy], [0.0, 0.0, 1.0]])
     snapshot = state.store.snapshot  # every proposal verified against the same store
     windows = window_classes(snapshot.objects, d.embedder.info.window_mm)
-    proposals = propose(d, K, state.colour_proposals, windows, state.settings.detect_proposals)
+    cfg = state.settings
+    proposals = propose(
+        d, K, state.colour_proposals, windows, cfg.detect_proposals, cfg.detect_depth_proposals
+    )
     ms["propose"] = time.perf_counter() - t0
     t = time.perf_counter()
     found = [det for p in proposals if (det := _verify(state, snapshot, q, d, p, K)) is not None]

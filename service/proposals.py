@@ -58,16 +58,21 @@ class Proposal:
 
 
 def propose(
-    d: Decoded, K: np.ndarray, colour: Colour | None, windows: Mapping[float, frozenset[int]], limit: int
+    d: Decoded,
+    K: np.ndarray,
+    colour: Colour | None,
+    windows: Mapping[float, frozenset[int]],
+    limit: int,
+    depth_limit: int,
 ) -> list[Proposal]:
-    """At most `limit` proposals of each source for the decoded frame, best first. `windows`: the window
-    classes (mm) among the registered objects, and their objects (`index.windows.window_classes`);
-    `colour` None when the service has no objectness model."""
+    """At most `limit` colour proposals and `depth_limit` depth ones for the decoded frame, best first.
+    `windows`: the window classes (mm) among the registered objects, and their objects
+    (`index.windows.window_classes`); `colour` None when the service has no objectness model."""
     out: list[Proposal] = []
     if d.depth is not None:
         out += [
             Proposal(p.u, p.v, None, p.box, p.score, "depth")
-            for p in depth_proposals(d.depth, K, limit=limit)
+            for p in depth_proposals(d.depth, K, limit=depth_limit)
         ]
     if d.rgb is not None:
         if colour is None:

@@ -148,13 +148,21 @@ class Settings(BaseSettings):
         10,
         ge=1,
         le=500,
-        description="a frame without u and v: how many proposals of each source are verified",
+        description="a frame without u and v: how many colour proposals are verified",
+    )
+    # Depth segments rank worse than the network's proposals in clutter (the real Kinect frame: 5 of its 6
+    # instances in the first 30 segments, 1 in the first 10; docs/results/depth_proposals.json)
+    detect_depth_proposals: int = Field(
+        30,
+        ge=0,
+        le=500,
+        description="a frame without u and v, with depth: how many depth segments are verified",
     )
 
     # A proposal's centre and distance are a few px and per cent off, and the re-ranking's cells are 4 px
     # of a 64 px patch: the verifier named the right object on 97 % of validation instances at their true
     # centre and distance and 39 % a window's eighth and 12 % off (docs/experiments.md). So each proposal
-    # is moved first, by a pattern search on the screening pipeline's confidence
+    # is screened around its centre first, and verified where the screening was most confident
     detect_shift: float = Field(
         1 / 12, ge=0, le=0.5, description="a frame without u and v: each proposal is screened at a 3 x 3 "
         "grid of centres this share of its window's side apart (0: at its centre only)",
