@@ -1,4 +1,4 @@
-"""`posedesc evaluate --protocol detect` on two real LM-O frames with the shipped colour model (the JSON
+"""`posedesc evaluate --protocol detect` on a real LM-O frame with the shipped colour model (the JSON
 contract, posedesc and LineMOD beside it, false alarms), and its one-line errors."""
 
 from __future__ import annotations
@@ -21,21 +21,21 @@ def _base(lmo: Path, out: Path) -> list[str]:
 
 
 @pytest.mark.slow
-def test_detect_protocol_on_two_lmo_frames(lmo, tmp_path, capsys):
+def test_detect_protocol_on_an_lmo_frame(lmo, tmp_path, capsys):
     if not (MODEL.parent / OBJECTNESS_FILE).is_file():
         pytest.skip(f"no {OBJECTNESS_FILE} beside the shipped colour model: colour frames need it")
     out = tmp_path / "detect.json"
-    args = [*_base(lmo, out), "--protocol", "detect", "--frames", "224,243", "--linemod", "--false-alarms"]
+    args = [*_base(lmo, out), "--protocol", "detect", "--frames", "224", "--linemod", "--false-alarms"]
     assert main(args) == 0
     s = json.loads(out.read_text())
-    assert s["protocol"] == "detect" and s["frames"] == [224, 243] and s["test_data"] == "real"
-    assert s["targets"] == 12  # LM-O frames 224 and 243: 14 instances, 2 of them less than half visible
+    assert s["protocol"] == "detect" and s["frames"] == [224] and s["test_data"] == "real"
+    assert s["targets"] == 6  # LM-O frame 224: 7 instances, 1 of them less than half visible
     for method in ("posedesc", "linemod"):
         block = s[method]
-        assert set(block["all"]) >= FIGURES and block["all"]["targets"] == 12
+        assert set(block["all"]) >= FIGURES and block["all"]["targets"] == 6
         assert set(block["per_object"]) >= {str(o) for o in s["objects"]}
-        assert sum(b["targets"] for b in block["per_object"].values()) == 12
-        assert block["all"]["hits"] <= 2 * s["settings"]["max_detections"]
+        assert sum(b["targets"] for b in block["per_object"].values()) == 6
+        assert block["all"]["hits"] <= s["settings"]["max_detections"]
         assert block["frame_ms"]["median"] > 0
         assert s["false_alarms"][method]["detections_per_frame"] >= 0
     assert s["posedesc"]["all"]["recall"] > 0  # the shipped model finds some of them (not a benchmark)
