@@ -36,7 +36,6 @@ from benchmarks.timing import ROOT
 from index.bop import BopDataset
 from index.embed import MODEL_FILES, fingerprint, load_models
 from index.objectness import OBJECTNESS_FILE
-from index.register import register
 from index.shapes import random_shape
 from index.windows import FILL_HIGH, FILL_LOW, WINDOW_KEY
 from service.detection import detect
@@ -227,8 +226,7 @@ def _register(state: AppState, todo: Sequence[tuple[str, trimesh.Trimesh, str]])
     out = []
     for name, mesh, symmetry in tqdm(todo, desc="detect: register", unit="object", disable=None):
         t0 = time.perf_counter()
-        reg = register(mesh, name, symmetry, worker=state.worker, embedders=state.embedders, store=state.store,
-                       cfg=state.templates, pool=state.embed_pool)  # fmt: skip  # as `POST /objects` calls it
+        reg = state.register_mesh(mesh, name, symmetry)  # as `POST /objects` registers it
         out.append((float(reg.record.extra[WINDOW_KEY]), time.perf_counter() - t0))  # type: ignore[arg-type]
     return out
 

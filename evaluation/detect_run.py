@@ -49,7 +49,7 @@ from evaluation.served import register_objects
 from evaluation.templates import service_symmetry
 from index.bop import BopDataset, Instance
 from index.embed import Embedder
-from index.register import register, template_views
+from index.register import template_views
 from index.render import Renderer
 from index.shapes import demo_shapes, random_shape
 from service.detection import Detection, detect, reported
@@ -364,16 +364,7 @@ def false_alarms(cfg: DetectConfig, folder: Path, embedder: Embedder, frames: Se
         with bar(len(shapes), "register unknown shapes", "object") as b:
             ids: dict[int, int] = {}
             for name, mesh in shapes.items():
-                reg = register(
-                    mesh,
-                    name,
-                    "none",
-                    worker=state.worker,
-                    embedders=state.embedders,
-                    store=state.store,
-                    cfg=state.templates,
-                    pool=state.embed_pool,
-                )
+                reg = state.register_mesh(mesh, name, "none")
                 ids[reg.record.object_id] = -1 - len(ids)  # no dataset object
                 b.update()
         ours = ask_service(state, frames, ids, cfg)

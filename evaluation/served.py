@@ -52,7 +52,7 @@ from index.bop import BopDataset, Instance
 from index.embed import Embedder
 from index.pose import View, view_to_pose
 from index.pose_error import rotation_errors, view_errors
-from index.register import register, template_views
+from index.register import template_views
 from index.render import Renderer
 from index.symmetry import Symmetry
 from service.errors import ApiError
@@ -206,16 +206,7 @@ def register_objects(
     with bar(len(obj_ids), "register", "object") as b:
         for o in obj_ids:
             meshes[o] = dataset.mesh(o, max_faces=state.settings.max_faces)  # as POST /objects loads it
-            reg = register(
-                meshes[o],
-                f"obj_{o:06d}",
-                service_symmetry(dataset.symmetry(o)),
-                worker=state.worker,
-                embedders=state.embedders,
-                store=state.store,
-                cfg=state.templates,
-                pool=state.embed_pool,
-            )
+            reg = state.register_mesh(meshes[o], f"obj_{o:06d}", service_symmetry(dataset.symmetry(o)))
             dataset_ids[reg.record.object_id] = o
             b.update()
     return meshes, dataset_ids

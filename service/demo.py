@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import logging
 
-from index.register import reembed, register
+from index.register import reembed
 from index.store import NameTaken
 from service.state import AppState
 
@@ -53,17 +53,7 @@ def seed(state: AppState) -> None:
         if name in present:
             continue
         try:
-            reg = register(
-                mesh,
-                name,
-                "none",
-                worker=state.worker,
-                embedders=state.embedders,
-                store=store,
-                cfg=state.templates,
-                pool=state.embed_pool,
-                extra={DEMO_KEY: True},
-            )
+            reg = state.register_mesh(mesh, name, "none", extra={DEMO_KEY: True})
         except NameTaken:  # another replica of a shared store seeding at the same time
             continue
         state.metrics.observe_registration(reg.timings)

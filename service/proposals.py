@@ -19,7 +19,6 @@ from typing import Protocol
 import numpy as np
 
 from index.depth_proposals import depth_proposals
-from index.objectness import WINDOW_MM
 from service.errors import ApiError
 from service.pipeline.query import Decoded
 
@@ -95,6 +94,6 @@ def propose(
                 one = len(windows) <= 1
                 out += [
                     Proposal(p.u, p.v, focal * w / p.window_px, box, p.score, "colour", None if one else ids)
-                    for w, ids in (windows.items() or {WINDOW_MM: None}.items())
+                    for w, ids in windows.items()
                 ]
     return out

@@ -6,16 +6,19 @@ import asyncio
 import logging
 import threading
 import time
+from collections.abc import Mapping
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from functools import partial
 from pathlib import Path
 
+import trimesh
+
 from index.draw import DrawMesh, MeshCache
 from index.embed import Embedder, load_models, store_keys
 from index.objectness import OBJECTNESS_FILE, ObjectnessNet
 from index.objectness import propose as propose_objects
-from index.register import TemplateConfig
+from index.register import Progress, Registration, TemplateConfig, register
 from index.render import RenderWorker
 from index.shared_files import SharedFiles
 from index.store import EMBEDDED, TemplateStore, open_store
@@ -100,6 +103,29 @@ class AppState:
             screens = {m: Pipeline.build(light, e, self.templates) for m, e in self.embedders.items()}
             self._screens = built = (self.settings, self.embedders, screens)
         return built[2]
+
+    def register_mesh(
+        self,
+        mesh: trimesh.Trimesh,
+        name: str,
+        symmetry: str,
+        extra: Mapping[str, object] | None = None,
+        progress: Progress | None = None,
+    ) -> Registration:
+        """`mesh` registered into this state's store with its renderer, models and pools, as `POST /objects`
+        registers it (`index.register.register`)."""
+        return register(
+            mesh,
+            name,
+            symmetry,
+            worker=self.worker,
+            embedders=self.embedders,
+            store=self.store,
+            cfg=self.templates,
+            pool=self.embed_pool,
+            extra=extra,
+            progress=progress,
+        )
 
     @property
     def model_names(self) -> dict[str, str]:

@@ -13,7 +13,6 @@ from fastapi import APIRouter, File, Form, Response, UploadFile
 from fastapi.responses import JSONResponse
 
 from index.mesh import FORMATS_TEXT, MeshError, MeshTooLarge, load_mesh
-from index.register import register
 from index.store import NameTaken, StoreError
 from index.units import LARGEST_MM, ORDINARY_MM, SMALLEST_MM, Units
 from index.windows import DIAMETER_KEY, WINDOW_KEY, object_window
@@ -153,17 +152,7 @@ def _register(state: AppState, job: Job, mesh, name: str, symmetry: str) -> None
         state.jobs.save(job)  # where the other replicas read it, with a shared store
 
     try:
-        reg = register(
-            mesh,
-            name,
-            symmetry,
-            worker=state.worker,
-            embedders=state.embedders,
-            store=state.store,
-            cfg=state.templates,
-            pool=state.embed_pool,
-            progress=progress,
-        )
+        reg = state.register_mesh(mesh, name, symmetry, progress=progress)
     except MeshError as e:
         job.fail(422, f"mesh: {e}")
         return

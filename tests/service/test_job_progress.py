@@ -10,12 +10,12 @@ import time
 from fastapi.testclient import TestClient
 from service_helpers import ply_bytes, service_settings, wait_ready
 
+from service import state
 from service.main import create_app
-from service.routes import objects
 
 
 def test_a_registration_job_reports_its_progress(tmp_path, posedesc_models, l_shape, monkeypatch):
-    real = objects.register
+    real = state.register  # what `AppState.register_mesh` calls for `POST /objects`
     job_id: list[str] = []
     answered = threading.Event()  # the 202 is in: the hook knows which job to ask about
     seen: list[dict] = []
@@ -28,7 +28,7 @@ def test_a_registration_job_reports_its_progress(tmp_path, posedesc_models, l_sh
 
         return real(*args, progress=told, **kw)
 
-    monkeypatch.setattr(objects, "register", hooked)
+    monkeypatch.setattr(state, "register", hooked)
     settings = service_settings(tmp_path, posedesc_models, sync_seconds=0.0, level=1)
     with TestClient(create_app(settings)) as c:
         wait_ready(c)
