@@ -6,7 +6,7 @@ BIN := $(VENV)/bin
 # podman & co. build and run deploy/Dockerfile in tests/deploy (no Docker engine on these machines).
 SERVE_APT_PACKAGES := libegl1 libegl-mesa0 libgl1-mesa-dri libgl1 libopengl0 python3-venv
 # curl: the README's examples, run as written by tests/service/test_readme.py
-APT_PACKAGES := $(SERVE_APT_PACKAGES) curl podman buildah uidmap runc debootstrap iptables podman-compose
+APT_PACKAGES := $(SERVE_APT_PACKAGES) curl podman buildah uidmap runc debootstrap iptables podman-compose chromium chromium-driver
 STAMP := $(VENV)/.setup-stamp
 SERVE_STAMP := $(VENV)/.serve-stamp
 # Both compiled from pyproject.toml by `make lock`: every extra (setup, test), and the service's (serve, the image).
