@@ -1,7 +1,8 @@
 """The service protocol scored the BOP way: each target instance's errors of the service's best answer
 (MSSD, MSPD, ADD(-S), te, re, "5°, 5 cm", `index.pose_error`) and the pooled block (AR_MSSD, AR_MSPD, AR,
 `evaluation.bop_recall`; recall of ADD(-S) < 0.1 d and of "5°, 5 cm") that `posedesc evaluate` writes
-under "bop", and the best answers as BOP19 results rows (`evaluation.bop_csv`).
+under "bop", and the best answers as BOP19 results rows (`evaluation.bop_csv`). The detect protocol's block
+(`detections_block`) has the same figures from several scored estimates a frame, matched as BOP matches them.
 
 An instance whose best answer is missing (rejected: "no known object", refused, or none) or names another
 object has no estimate of its object: every error is missing (null in the JSON) and counts as infinitely
@@ -9,14 +10,21 @@ wrong, as BOP counts a target without a matching estimate."""
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 import trimesh
 
 from evaluation.bop_csv import Estimate
-from evaluation.bop_recall import MSPD_THRESHOLDS, MSSD_THRESHOLDS, bop_recall
+from evaluation.bop_recall import (
+    MSPD_REFERENCE_WIDTH,
+    MSPD_THRESHOLDS,
+    MSSD_THRESHOLDS,
+    BopRecall,
+    bop_matches,
+    bop_recall,
+)
 from index.bop import Instance
 from index.pose_error import (
     ADD_FRACTION,
@@ -42,6 +50,14 @@ NO_CONFIDENCE_SCORE = 1.0
 #: BOP19's own targets: instances at least this visible (ours are those the protocol sends).
 BOP_MIN_VISIB = 0.1
 ERRORS = ("mssd", "mspd", "add_s", "te", "re")
+#: How both protocols' "bop" blocks measure, said in the JSON.
+CONVENTIONS = {
+    "model_points": f"mesh vertices, at most {MAX_POINTS} (a sample, seed {POINTS_SEED})",
+    "symmetries": "BOP's models_info.json (index.symmetry.transformations_from_bop); ADD-S for objects "
+    "with symmetries, ADD for the others",
+    "criteria": f"ADD(-S) < {ADD_FRACTION} d; '5 deg, 5 cm': re < {DEG_CM[0]} deg and te < {DEG_CM[1]} "
+    "mm under one symmetric pose; re as BOP defines it (no symmetry forgiven)",
+}
 
 
 @dataclass(frozen=True)
@@ -83,7 +99,9 @@ class Best:
     seconds: float
 
 
-def instance_errors(inst: Instance, best: Best | None, model: ObjectModel) -> dict[str, float | bool | None]:
+def instance_errors(
+    inst: Instance, best: Best | Estimate | None, model: ObjectModel
+) -> dict[str, float | bool | None]:
     """The BOP errors of `best` against `inst`'s ground truth: mssd (mm), mspd (px), add_s (ADD for an
     object without symmetries, ADD-S with), te (mm), re (degrees, BOP's: no symmetry forgiven), deg_cm
     ("5°, 5 cm" under the object's symmetries); None (and deg_cm False) where there is no estimate of
@@ -118,6 +136,19 @@ def pooled(per_instance: Sequence[dict], image_width: float) -> dict:
         d,
         image_width,
     )
+    return figures(
+        r,
+        float(add_s_correct(_missing([p["add_s"] for p in per_instance]), d).mean()),
+        float(np.mean([p["deg_cm"] for p in per_instance])),
+        len(per_instance),
+        int(sum(p["mssd"] is not None for p in per_instance)),
+    )
+
+
+def figures(
+    r: BopRecall, recall_add_s: float, recall_deg_cm: float, n_targets: int, n_estimated: int
+) -> dict:
+    """The figures of a "bop" block, the service and detect protocols alike."""
     return {
         "ar": r.ar,
         "ar_mssd": r.ar_mssd,
@@ -125,10 +156,10 @@ def pooled(per_instance: Sequence[dict], image_width: float) -> dict:
         "ar_vsd": r.ar_vsd,
         "recall_mssd": dict(zip((f"{x:g}d" for x in MSSD_THRESHOLDS), map(float, r.mssd), strict=True)),
         "recall_mspd": dict(zip((f"{x:g}px" for x in MSPD_THRESHOLDS), map(float, r.mspd), strict=True)),
-        "recall_add_s": float(add_s_correct(_missing([p["add_s"] for p in per_instance]), d).mean()),
-        "recall_5deg_5cm": float(np.mean([p["deg_cm"] for p in per_instance])),
-        "n_targets": len(per_instance),
-        "n_estimated": int(sum(p["mssd"] is not None for p in per_instance)),
+        "recall_add_s": recall_add_s,
+        "recall_5deg_5cm": recall_deg_cm,
+        "n_targets": n_targets,
+        "n_estimated": n_estimated,
     }
 
 
@@ -163,11 +194,7 @@ def bop_block(
         ),
         "missing": "no estimate of the instance's object (rejected, refused, or another object named): "
         "errors null, wrong at every threshold, as BOP counts a target without a matching estimate",
-        "model_points": f"mesh vertices, at most {MAX_POINTS} (a sample, seed {POINTS_SEED})",
-        "symmetries": "BOP's models_info.json (index.symmetry.transformations_from_bop); ADD-S for objects "
-        "with symmetries, ADD for the others",
-        "criteria": f"ADD(-S) < {ADD_FRACTION} d; '5 deg, 5 cm': re < {DEG_CM[0]} deg and te < {DEG_CM[1]} "
-        "mm under one symmetric pose; re as BOP defines it (no symmetry forgiven)",
+        **CONVENTIONS,
         "vsd": "not computed (colour has no depth; for depth/rgbd VSD is left to do): AR = mean of AR_MSSD "
         "and AR_MSPD",
         "estimates": "--bop-csv rows: the best answer of each query not rejected, obj_id the object it "
@@ -194,3 +221,93 @@ def estimates(instances: Sequence[Instance], bests: Sequence[Best | None]) -> li
         for inst, best in zip(instances, bests, strict=True)
         if best is not None
     ]
+
+
+def detections_block(
+    instances: Sequence[Instance],
+    ests: Sequence[Estimate],
+    models: Mapping[int, ObjectModel],
+    image_width: float,
+) -> dict:
+    """The detect protocol's "bop" block: several scored estimates an image, matched to the targets as BOP
+    matches them. Targets: the `instances` at least `BOP_MIN_VISIB` visible. Per image and object only
+    its n best-scored estimates count (n: its targets there), and at each threshold they take targets
+    greedily by score (`evaluation.bop_recall.bop_matches`); an estimate of an object with no target in
+    its image costs nothing, as in BOP. The figures pooled over all targets and per object; each target's
+    errors are those of its nearest (by MSSD) counted estimate, the one BOP matches when the image holds
+    one instance of the object (every LM-O image)."""
+    targets = [i for i in instances if i.visib_fract >= BOP_MIN_VISIB]
+    if not targets:
+        raise ValueError("no targets to score")
+    groups: dict[tuple[int, int, int], list[int]] = {}
+    for j, inst in enumerate(targets):
+        groups.setdefault((inst.scene_id, inst.frame_id, inst.obj_id), []).append(j)
+    of_key: dict[tuple[int, int, int], list[Estimate]] = {}
+    for e in ests:
+        of_key.setdefault((e.scene_id, e.im_id, e.obj_id), []).append(e)
+    px = MSPD_THRESHOLDS * image_width / MSPD_REFERENCE_WIDTH
+    found = {
+        k: np.zeros((len(targets), n), bool) for k, n in (("mssd", len(MSSD_THRESHOLDS)), ("mspd", len(px)))
+    }
+    found |= {k: np.zeros((len(targets), 1), bool) for k in ("add_s", "deg_cm")}
+    per_instance: list[dict] = [{} for _ in targets]
+    for key, js in groups.items():
+        model = models[key[2]]
+        top = sorted(of_key.get(key, []), key=lambda e: -e.score)[: len(js)]
+        errors = [[instance_errors(targets[j], e, model) for j in js] for e in top]
+
+        def grid(name: str, errors: list = errors, n: int = len(js)) -> np.ndarray:
+            # deg_cm is a verdict: 0 where right, so that it matches below any positive threshold
+            g = [
+                [(0.0 if r["deg_cm"] else np.inf) if name == "deg_cm" else r[name] for r in row]
+                for row in errors
+            ]
+            return np.array(g, float).reshape(len(errors), n)
+
+        thresholds = {
+            "mssd": model.diameter * MSSD_THRESHOLDS,
+            "mspd": px,
+            "add_s": [ADD_FRACTION * model.diameter],
+            "deg_cm": [1.0],
+        }
+        scores = [e.score for e in top]
+        for name, th in thresholds.items():
+            found[name][js] = bop_matches(scores, grid(name), np.asarray(th, float)).T
+        mssd_grid = grid("mssd")
+        for g, j in enumerate(js):
+            inst = targets[j]
+            near = int(np.argmin(mssd_grid[:, g])) if top else None
+            per_instance[j] = {
+                "scene_id": inst.scene_id,
+                "im_id": inst.frame_id,
+                "obj_id": inst.obj_id,
+                "visib": round(float(inst.visib_fract), 3),
+                "diameter": model.diameter,
+                "add_kind": "ADD-S" if model.symmetric else "ADD",
+                "n_estimates": len(top),
+                "score": None if near is None else top[near].score,
+                **(instance_errors(inst, None, model) if near is None else errors[near][g]),
+            }
+
+    def block(rows: list[int]) -> dict:
+        r = BopRecall(found["mssd"][rows].mean(0), found["mspd"][rows].mean(0))
+        return figures(
+            r,
+            float(found["add_s"][rows].mean()),
+            float(found["deg_cm"][rows].mean()),
+            len(rows),
+            sum(per_instance[j]["n_estimates"] > 0 for j in rows),
+        )
+
+    objects = sorted({t.obj_id for t in targets})
+    return {
+        **block(list(range(len(targets)))),
+        "image_width": image_width,
+        "targets": f"every instance at least {BOP_MIN_VISIB} visible (BOP19's rule; the detection figures' "
+        "targets are those at least half visible)",
+        "matching": "per image and object, its n best-scored estimates (n: its targets there), greedy by "
+        "score at each threshold (bop_toolkit's matching); a target no estimate matches is wrong",
+        **CONVENTIONS,
+        "per_object": {str(o): block([j for j, t in enumerate(targets) if t.obj_id == o]) for o in objects},
+        "per_instance": per_instance,
+    }

@@ -1,5 +1,6 @@
 """The service protocol scored the BOP way (`evaluation.bop_scores`): the assembly on hand-made instances,
-and `posedesc evaluate --protocol service --bop-csv` on two real LM-O frames with the shipped rgb model."""
+and `posedesc evaluate --protocol service --bop-csv` on two real LM-O frames with the shipped rgb model; the
+detect protocol's matching of several scored estimates an image (`detections_block`)."""
 
 from __future__ import annotations
 
@@ -10,9 +11,17 @@ import numpy as np
 import pytest
 import trimesh
 
-from evaluation.bop_csv import read_bop_csv
+from evaluation.bop_csv import Estimate, read_bop_csv
 from evaluation.bop_recall import bop_recall
-from evaluation.bop_scores import MAX_POINTS, Best, bop_block, estimates, model_points, object_model
+from evaluation.bop_scores import (
+    MAX_POINTS,
+    Best,
+    bop_block,
+    detections_block,
+    estimates,
+    model_points,
+    object_model,
+)
 from index.bop import Instance
 from index.pose import View, view_to_pose
 from posedesc.cli import main
@@ -22,9 +31,15 @@ ROOT = Path(__file__).resolve().parents[2]
 RGB_MODEL = ROOT / "models" / "posedesc-rgb.onnx"
 
 
-def instance(obj_id: int, frame_id: int, view: View) -> Instance:
+def instance(obj_id: int, frame_id: int, view: View, visib: float = 0.9) -> Instance:
     R, t = view_to_pose(view)
-    return Instance(2, frame_id, 0, obj_id, R, t, K, None, None, 1.0, 0.9, None)
+    return Instance(2, frame_id, 0, obj_id, R, t, K, None, None, 1.0, visib, None)
+
+
+def guess(inst: Instance, score: float, obj_id: int | None = None, shift_mm: float = 0.0) -> Estimate:
+    """An estimate of `inst`'s pose (`shift_mm` off along x), naming `obj_id` (default: its own)."""
+    t = inst.t + np.array([shift_mm, 0.0, 0.0])
+    return Estimate(inst.scene_id, inst.frame_id, inst.obj_id if obj_id is None else obj_id, score, inst.R, t)
 
 
 @pytest.fixture
@@ -58,6 +73,50 @@ def test_half_right_gives_half_and_the_rows_skip_rejected(models):
     rows = estimates(targets, [None, shifted])
     assert len(rows) == 1 and rows[0].im_id == 5 and rows[0].score == 1.0  # no confidence: 1
     assert rows[0].time == 0.2
+
+
+def test_detections_equal_to_the_truth_score_1_and_another_objects_miss(models):
+    a, b = instance(1, 0, View(30, 40, 10, 700)), instance(2, 0, View(100, 20, -30, 900))
+    c = instance(1, 3, View(200, 30, 0, 800))
+    block = detections_block([a, b, c], [guess(a, 0.9), guess(b, 0.2), guess(c, 0.5)], models, 640)
+    assert block["ar"] == block["ar_mssd"] == block["ar_mspd"] == 1.0 and block["ar_vsd"] is None
+    assert block["recall_add_s"] == block["recall_5deg_5cm"] == 1.0 and block["n_targets"] == 3
+    assert all(p[e] == pytest.approx(0.0, abs=1e-4) for p in block["per_instance"] for e in ("mssd", "mspd"))
+    assert set(block["per_object"]) == {"1", "2"} and block["per_object"]["1"]["n_targets"] == 2
+    # c's estimate names object 2 at c's very pose: no estimate of c's object, so c is missed
+    block = detections_block([a, b, c], [guess(a, 0.9), guess(b, 0.2), guess(c, 0.5, obj_id=2)], models, 640)
+    assert block["ar_mssd"] == pytest.approx(2 / 3) == block["recall_add_s"] and block["n_estimated"] == 2
+    assert block["per_object"]["1"]["ar"] == 0.5 and block["per_object"]["2"]["ar"] == 1.0
+    assert block["per_instance"][2]["mssd"] is None and block["per_instance"][2]["n_estimates"] == 0
+
+
+def test_a_barely_visible_instance_is_no_target(models):
+    seen, hidden = instance(1, 0, View(30, 40, 10, 700)), instance(2, 0, View(100, 20, -30, 900), visib=0.05)
+    block = detections_block([seen, hidden], [guess(seen, 0.9)], models, 640)  # hidden never estimated
+    assert block["n_targets"] == 1 and block["ar"] == 1.0 and set(block["per_object"]) == {"1"}
+    assert [p["obj_id"] for p in block["per_instance"]] == [1]
+    with pytest.raises(ValueError, match="no targets"):
+        detections_block([hidden], [guess(hidden, 0.9)], models, 640)
+
+
+def test_only_the_n_best_scored_estimates_of_an_image_and_object_count(models):
+    a = instance(1, 0, View(30, 40, 10, 700))
+    # one target: a wrong estimate scored above a perfect one hides it
+    block = detections_block([a], [guess(a, 0.3), guess(a, 0.8, shift_mm=200.0)], models, 640)
+    assert block["ar"] == block["recall_add_s"] == block["recall_5deg_5cm"] == 0.0
+    assert block["per_instance"][0]["n_estimates"] == 1 and block["per_instance"][0]["te"] == pytest.approx(
+        200
+    )
+    # ... and below it, it changes nothing; an estimate of an object absent from the image costs nothing
+    block = detections_block(
+        [a], [guess(a, 0.8), guess(a, 0.3, shift_mm=200.0), guess(a, 0.9, 2)], models, 640
+    )
+    assert block["ar"] == 1.0
+    # two instances of object 1 in one frame: the two best-scored count, the third (perfect on b) does not
+    b = instance(1, 0, View(200, 30, 0, 800))
+    two = [guess(a, 0.9), guess(a, 0.5, shift_mm=200.0), guess(b, 0.1)]
+    block = detections_block([a, b], two, models, 640)
+    assert block["ar_mssd"] == block["recall_add_s"] == 0.5 and block["per_instance"][1]["n_estimates"] == 2
 
 
 def test_model_points_are_a_fixed_sample_of_the_vertices():
