@@ -15,6 +15,10 @@ measured on (its `max_detections` most confident); the figures at the floor are 
 the floor applied as the detector applies it (`service.detection.reported`), then cut to
 `max_detections`, which is what a call with that floor returns.
 
+The service's reported detections are also scored the BOP way (the JSON's "bop" block,
+`evaluation.bop_scores.detections_block`: targets at least 0.1 visible, MSSD, MSPD, AR) and returned as
+BOP19 results rows (`bop_estimates`, what `--bop-csv` writes).
+
 False alarms: the same frames with only objects that are not in them registered (the service's four demo
 shapes, `index.shapes.demo_shapes`, and `GENERATED` shapes of `index.shapes.random_shape`): each detection
 the service reports at the floor is false; so is each of LineMOD's, with templates of those shapes."""
@@ -32,6 +36,8 @@ import cv2
 import numpy as np
 import trimesh
 
+from evaluation.bop_csv import Estimate
+from evaluation.bop_scores import BOP_MIN_VISIB, detections_block, object_model
 from evaluation.detection import IOU, MIN_VISIB, ROTATION_OK_DEG, Hit, Truth, match, scores
 from evaluation.linemod_frames import (
     CANDIDATE_SIMILARITY,
@@ -103,8 +109,9 @@ class Asked:
     stage_ms: dict[str, list[float]]
 
 
-def evaluate_detect(cfg: DetectConfig) -> dict:
-    """The JSON of the detect protocol (see the module's docstring)."""
+def evaluate_detect(cfg: DetectConfig) -> tuple[dict, list[Estimate]]:
+    """The JSON of the detect protocol (see the module's docstring) and the service's reported detections
+    as BOP19 results rows (`bop_estimates`)."""
     dataset = BopDataset(cfg.dataset)
     obj_ids = list(cfg.objects) if cfg.objects else dataset.obj_ids
     instances = select_instances(dataset, cfg.scene, 0.0, cfg.frames, obj_ids)
@@ -134,6 +141,8 @@ def evaluate_detect(cfg: DetectConfig) -> dict:
         finally:
             close_state(state)
         out: dict = {"posedesc": _figures(ours, truths, symmetries, len(frames))}
+        rows = bop_estimates(ours, frames)
+        out["bop"] = _bop(dataset, instances, rows, _frame_size(frames[0])[1], embedder.modality)
         n_templates = sum(map(len, views.values()))
         if cfg.linemod:
             t0 = time.perf_counter()
@@ -166,6 +175,7 @@ def evaluate_detect(cfg: DetectConfig) -> dict:
             else "confidence",
             "iou": IOU,
             "min_visib": MIN_VISIB,
+            "bop_min_visib": BOP_MIN_VISIB,
             "rotation_within_deg": ROTATION_OK_DEG,
             "ap": "AP50: one ranking pooled over frames and objects (floor 0, max_detections a frame), "
             "all-point interpolation (VOC 2010+)",
@@ -184,7 +194,38 @@ def evaluate_detect(cfg: DetectConfig) -> dict:
             "templates": "the service's template views of each object (viewpoints and in-plane variants), "
             "rendered by the service's renderer, one LineMOD class each",
         }  # fmt: skip
-    return summary
+    return summary, rows
+
+
+def bop_estimates(asked: Asked, frames: Sequence[Frame]) -> list[Estimate]:
+    """The detections reported at the floor as BOP19 results rows: obj_id the dataset's id of the object
+    of the detection's best answer, score its confidence, R and t that answer's pose, time the frame's
+    seconds (BOP's: the whole image's, the same on each of its rows)."""
+    seconds = {f.key: ms / 1000 for f, ms in zip(frames, asked.frame_ms, strict=True)}
+    return [
+        Estimate(h.frame[0], h.frame[1], h.obj_id, h.score, h.R, h.t, seconds[h.frame])
+        for h in asked.floor
+        if h.R is not None and h.t is not None and h.obj_id >= 0
+    ]
+
+
+def _bop(
+    dataset: BopDataset, instances: Sequence[Instance], rows: Sequence[Estimate], width: int, modality: str
+) -> dict:
+    """The JSON's "bop" block (`evaluation.bop_scores.detections_block`): models from the full meshes and
+    models_info."""
+    models = {o: object_model(dataset.models_info[o], dataset.mesh(o)) for o in {i.obj_id for i in instances}}
+    return {
+        **detections_block(instances, rows, models, width),
+        "estimates": "the detections reported at the floor (the --bop-csv rows): the dataset's object of "
+        "each one's best answer, its confidence as the score, that answer's pose",
+        "vsd": (
+            "not computed: colour frames have no depth, and VSD compares depth maps; AR = mean of AR_MSSD "
+            "and AR_MSPD"
+            if modality == "rgb"
+            else "not computed (left to do for depth and rgbd): AR = mean of AR_MSSD and AR_MSPD"
+        ),
+    }
 
 
 def service_settings(model: Path, data_dir: Path) -> Settings:

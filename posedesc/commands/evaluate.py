@@ -143,12 +143,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="detect protocol: also the same frames with only objects not in them registered "
                    "(the demo shapes and generated shapes): detections per frame")  # fmt: skip
     p.add_argument("--json", "--out", type=Path, required=True,
-                   help="where to write the results (the service protocol adds a 'bop' block: MSSD, MSPD, "
-                   "ADD(-S), te, re of each instance's best answer; AR_MSSD, AR_MSPD, AR, ADD(-S) and "
-                   "5 deg 5 cm recalls)")  # fmt: skip
+                   help="where to write the results (the service and detect protocols add a 'bop' block: "
+                   "MSSD, MSPD, ADD(-S), te, re of each target's estimate; AR_MSSD, AR_MSPD, AR, ADD(-S) "
+                   "and 5 deg 5 cm recalls)")  # fmt: skip
     p.add_argument("--bop-csv", type=Path, default=None,
-                   help="service protocol: also write the best answer of each query not rejected as a "
-                   "BOP19 results file (scene_id,im_id,obj_id,score,R,t,time)")  # fmt: skip
+                   help="also write BOP19 results rows (scene_id,im_id,obj_id,score,R,t,time): service "
+                   "protocol, the best answer of each query not rejected; detect protocol, every detection "
+                   "reported")  # fmt: skip
     p.add_argument("--report", type=Path, default=None, help="folder for report.md and the pictures")
 
 
@@ -223,9 +224,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         ev = evaluate(cfg, embedder)
     except ValidationError as e:  # a service setting out of range (POSEDESC_* or an option)
-        raise UserError(
-            "bad setting: " + "; ".join(f"{x['loc'][0]}: {x['msg']}" for x in e.errors())
-        ) from None
+        raise bad_setting(e) from None
     summary = write_json(ev, args.json)
     if args.bop_csv is not None:
         args.bop_csv.parent.mkdir(parents=True, exist_ok=True)
@@ -245,15 +244,24 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
+def bad_setting(e) -> UserError:
+    """A pydantic ValidationError of the service's settings as one line."""
+    return UserError("bad setting: " + "; ".join(f"{x['loc'][0]}: {x['msg']}" for x in e.errors()))
+
+
 def _detect(args: argparse.Namespace, embedder) -> int:
     """`--protocol detect`: the JSON and a table (`evaluation.detect_run`)."""
+    from pydantic import ValidationError
+
+    from evaluation.bop_csv import write_bop_csv
     from evaluation.detect_run import DetectConfig, evaluate_detect, table
+    from evaluation.report import bop_text
 
     if args.max_detections is not None and not (1 <= args.max_detections <= 100):
         raise UserError("--max-detections must be in 1..100")
     if args.min_confidence is not None and not (0.0 <= args.min_confidence <= 1.0):
         raise UserError("--min-confidence must be in [0, 1]")
-    ignored = [f"--{k.replace('_', '-')}" for k in ("methods", "unseen", "rolls", "bop_csv", "report")
+    ignored = [f"--{k.replace('_', '-')}" for k in ("methods", "unseen", "rolls", "report")
                if getattr(args, k) not in (None, "", ",".join(METHODS))]  # fmt: skip
     if args.min_visib != 0.5:
         raise UserError("--min-visib: the detect protocol's targets are the instances at least 0.5 visible")
@@ -276,7 +284,9 @@ def _detect(args: argparse.Namespace, embedder) -> int:
     )
     t0 = time.perf_counter()
     try:
-        summary = evaluate_detect(cfg)
+        summary, rows = evaluate_detect(cfg)
+    except ValidationError as e:  # a service setting out of range (POSEDESC_*)
+        raise bad_setting(e) from None
     except ValueError as e:  # no frames, or a scene without scene_gt_info.json
         raise UserError(str(e).splitlines()[0]) from None
     summary["command"] = "posedesc evaluate " + shlex.join(
@@ -284,6 +294,11 @@ def _detect(args: argparse.Namespace, embedder) -> int:
     )
     args.json.parent.mkdir(parents=True, exist_ok=True)
     args.json.write_text(json.dumps(summary, indent=1))
+    if args.bop_csv is not None:
+        args.bop_csv.parent.mkdir(parents=True, exist_ok=True)
+        n = write_bop_csv(args.bop_csv, rows)
+        print(f"{n} BOP19 rows (every detection reported) -> {args.bop_csv}")
     print(table(summary))
+    print(bop_text(summary))
     print(f"{len(summary['frames'])} frames, {time.perf_counter() - t0:.0f} s -> {args.json}")
     return 0
