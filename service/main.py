@@ -18,7 +18,7 @@ from service.demo import DEMO_KEY, startup
 from service.deps import host_of, open_writes_refused, public
 from service.limits import BodyLimit
 from service.rejection import stale
-from service.routes import health, jobs, objects, recognize
+from service.routes import health, jobs, objects, page, recognize
 from service.settings import Settings
 from service.state import AppState, close_state, load_state
 
@@ -76,7 +76,7 @@ def create_app(settings: Settings | None = None, url: str | None = None) -> Fast
     app.state.url = url
     errors.install(app)
     openapi.install(app)
-    for r in (recognize.router, objects.router, jobs.router, health.router):
+    for r in (recognize.router, objects.router, jobs.router, health.router, page.router):
         app.include_router(r)
 
     @app.middleware("http")

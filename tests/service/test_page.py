@@ -1,0 +1,237 @@
+"""The web page at `/`, in a real headless browser (Debian's chromium driven by selenium) against `posedesc
+serve` on loopback with the shipped models: the example mesh registered through the page (behind the API key
+the page asks for), the example frame clicked on and its answer drawn and listed, the object deleted; the
+API's errors shown on the page. And, without a browser, what the page is made of: its files served from this
+server only, nothing else of the package reachable through them, all of them shipped by a non-editable
+install."""
+
+from __future__ import annotations
+
+import fnmatch
+import re
+import tomllib
+from pathlib import Path
+
+import httpx
+import pytest
+from fastapi.testclient import TestClient
+from selenium import webdriver
+from selenium.webdriver.chrome.options import Options
+from selenium.webdriver.chrome.service import Service
+from selenium.webdriver.common.action_chains import ActionChains
+from selenium.webdriver.common.by import By
+from selenium.webdriver.remote.webdriver import WebDriver
+from selenium.webdriver.support import expected_conditions as EC
+from selenium.webdriver.support.ui import WebDriverWait
+from service_helpers import ROOT, H, K, Server, W, service_settings
+
+from service.main import create_app
+from service.routes.page import EXAMPLE_FILES, STATIC, STATIC_FILES
+
+CHROMIUM, CHROMEDRIVER = Path("/usr/bin/chromium"), Path("/usr/bin/chromedriver")
+MODELS = ROOT / "models"
+EXAMPLES = ROOT / "service" / "examples"
+API_KEY = "page-test-key"
+HANG = 60.0  # seconds: only stops a wait that would never end, not a measure of speed
+WIDTH = 1024  # the narrowest screen the page is made for
+OBJECT_UV = (380, 250)  # where the demo robot stands in the example frame (README: "Try it")
+CAMERA = dict(zip(("fx", "fy", "cx", "cy"), (K[0, 0], K[1, 1], K[0, 2], K[1, 2]), strict=True))
+
+
+@pytest.fixture(scope="module")
+def server(tmp_path_factory):
+    if not all((MODELS / f"posedesc-{m}.onnx").is_file() for m in ("rgb", "depth", "rgbd")):
+        pytest.skip(f"no shipped models in {MODELS}")
+    # level 1: the example mesh registers in about a second; SYNC_SECONDS 0: POST /objects answers 202 with
+    # a job, so the page follows the job as it does for any mesh that takes longer than a request
+    env = {"POSEDESC_LEVEL": "1", "POSEDESC_SYNC_SECONDS": "0", "POSEDESC_API_KEY": API_KEY}
+    with Server(tmp_path_factory.mktemp("page") / "data", MODELS, env) as s:
+        s.wait_ready()
+        yield s
+        s.stop()
+
+
+def chromium(width: int = WIDTH, height: int = 900) -> WebDriver:
+    """Debian's chromium, headless, its window `width` x `height` px (also for scripts/page_screenshot.py)."""
+    missing = [str(p) for p in (CHROMIUM, CHROMEDRIVER) if not p.is_file()]
+    if missing:
+        pytest.fail(f"{' and '.join(missing)} missing: `make setup` installs chromium", pytrace=False)
+    options = Options()
+    for arg in (
+        "--headless=new",
+        "--no-sandbox",
+        "--disable-dev-shm-usage",
+        f"--window-size={width},{height}",
+    ):
+        options.add_argument(arg)
+    options.binary_location = str(CHROMIUM)
+    # the driver's path given, selenium-manager does not run (it would download a browser and a driver)
+    return webdriver.Chrome(options=options, service=Service(str(CHROMEDRIVER)))
+
+
+@pytest.fixture(scope="module")
+def browser():
+    driver = chromium()
+    yield driver
+    driver.quit()
+
+
+def text(b: WebDriver, element_id: str) -> str:
+    return b.find_element(By.ID, element_id).text
+
+
+def object_names(b: WebDriver) -> list[str]:
+    # in one script: the list may be redrawn between two calls
+    return b.execute_script(
+        "return Array.from(document.querySelectorAll('#objects tbody tr'), r => r.dataset.name)"
+    )
+
+
+def drawn_width(b: WebDriver) -> int:
+    """The drawn answer's width once it is shown and decoded, else 0."""
+    return b.execute_script(
+        "const i = document.getElementById('drawn'); return !i.hidden && i.complete ? i.naturalWidth : 0"
+    )
+
+
+def click_on_frame(b: WebDriver, uv: tuple[float, float]) -> None:
+    """A click on the pixel `uv` of the frame shown, whatever its scale on the page."""
+    frame = b.find_element(By.ID, "frame")
+    # whole in the window: an action's offset counts from the centre of the element's visible part
+    b.execute_script("arguments[0].scrollIntoView({block: 'center'})", frame)
+    size = frame.size
+    dx, dy = ((c / n - 0.5) * s for c, n, s in zip(uv, (W, H), (size["width"], size["height"]), strict=True))
+    ActionChains(b).move_to_element_with_offset(frame, round(dx), round(dy)).click().perform()
+
+
+@pytest.mark.slow  # a real server and a browser: about 15 s
+def test_register_recognise_and_delete_through_the_page(server, browser):
+    b, wait = browser, WebDriverWait(browser, HANG)
+    b.get(f"{server.url}/")
+    wait.until(lambda d: text(d, "objects-note") == "No object is registered yet.")
+    assert not b.find_element(By.ID, "key-section").is_displayed()
+
+    # Registration: the service wants its key, the page asks for it, then follows the job to the end.
+    b.find_element(By.ID, "mesh").send_keys(str(EXAMPLES / "part.ply"))
+    assert b.find_element(By.ID, "name").get_attribute("value") == "part"  # the file's name
+    b.find_element(By.ID, "register").click()
+    wait.until(EC.text_to_be_present_in_element((By.ID, "reg-error"), "401: missing or wrong API key"))
+    assert b.find_element(By.ID, "key-section").is_displayed()
+    b.find_element(By.ID, "api-key").send_keys(API_KEY)
+    b.find_element(By.CSS_SELECTOR, "#key-form button").click()
+    b.find_element(By.ID, "register").click()
+    wait.until(lambda d: object_names(d) == ["part"])
+    assert re.fullmatch(r"Registered part \(id \d+\): \d+ templates in [\d.]+ s\.", text(b, "reg-status"))
+    assert text(b, "reg-error") == ""
+    metrics = httpx.get(f"{server.url}/metrics").text
+    assert 'route="/objects",status="202"} 1.0' in metrics  # through the job, polled by the page
+
+    # The camera is entered once: kept over a reload; the example puts its own back.
+    fx = b.find_element(By.ID, "fx")
+    assert float(fx.get_attribute("value")) == CAMERA["fx"]  # prefilled: the examples' camera
+    fx.clear()
+    fx.send_keys("600\t")
+    b.refresh()
+    assert b.find_element(By.ID, "fx").get_attribute("value") == "600"
+    b.find_element(By.ID, "example-frame").click()
+    wait.until(lambda d: d.execute_script("return document.getElementById('frame').naturalWidth") == W)
+    assert [float(b.find_element(By.ID, n).get_attribute("value")) for n in CAMERA] == list(CAMERA.values())
+
+    # Recognition: a click on the object asks about that point; its answer is drawn and listed.
+    click_on_frame(b, OBJECT_UV)
+    u, v = (float(b.find_element(By.ID, n).get_attribute("value")) for n in ("u", "v"))
+    assert abs(u - OBJECT_UV[0]) <= 2 and abs(v - OBJECT_UV[1]) <= 2  # the frame's pixel, at any scale
+    wait.until(lambda d: drawn_width(d) == W)
+    rows = [r.text for r in b.find_elements(By.CSS_SELECTOR, "#answers tbody tr")]
+    assert len(rows) == 5 and all(r.startswith("part") for r in rows), rows  # k = 5; the only object
+    assert rows[0].startswith(("part (best)", "part (rejected)")) and f"({u:g}, {v:g})" in rows[0]
+    assert text(b, "rec-error") == ""
+
+    # Find objects: the frame searched whole, drawn again, and whatever was found listed (or why not).
+    b.find_element(By.ID, "find").click()  # hides the last drawing at once (the click's handler)
+    assert drawn_width(b) == 0
+    wait.until(lambda d: drawn_width(d) == W)
+    found = b.find_elements(By.CSS_SELECTOR, "#answers tbody tr")
+    assert found or text(b, "answers-note") == "no registered object was found in the frame"
+    assert text(b, "rec-error") == ""
+
+    # Deletion, confirmed: gone from the page's list and from the service.
+    row = b.find_element(By.CSS_SELECTOR, '#objects tbody tr[data-name="part"]')
+    row.find_element(By.CSS_SELECTOR, 'button[aria-label="Delete part"]').click()
+    wait.until(EC.alert_is_present()).accept()
+    wait.until(lambda d: object_names(d) == [])
+    assert httpx.get(f"{server.url}/objects").json() == []
+    assert text(b, "obj-error") == ""
+
+
+@pytest.mark.slow  # a real server and a browser
+def test_the_api_s_errors_are_shown_on_the_page(server, browser):
+    b, wait = browser, WebDriverWait(browser, HANG)
+    b.get(f"{server.url}/")
+
+    # A mesh sent as the colour image: the service's own message, word for word.
+    b.find_element(By.ID, "rgb").send_keys(str(EXAMPLES / "part.ply"))
+    b.find_element(By.ID, "find").click()
+    sent = {"files": {"rgb": ("part.ply", (EXAMPLES / "part.ply").read_bytes())}, "data": CAMERA | {"k": 5}}
+    refused = httpx.post(f"{server.url}/recognize", **sent)
+    assert refused.status_code == 422
+    wait.until(EC.text_to_be_present_in_element((By.ID, "rec-error"), f"422: {refused.json()['detail']}"))
+    assert drawn_width(b) == 0 and b.find_elements(By.CSS_SELECTOR, "#answers tbody tr") == []
+
+    # No camera: the frame is taken for a patch, and the service says what a frame needs.
+    b.find_element(By.ID, "example-frame").click()
+    wait.until(lambda d: "example frame" in text(d, "rec-status"))
+    for name in CAMERA:
+        b.find_element(By.ID, name).clear()
+    b.find_element(By.ID, "find").click()
+    wait.until(EC.text_to_be_present_in_element((By.ID, "rec-error"), "422: a patch must be square"))
+    assert "send fx, fy, cx, cy, u and v" in text(b, "rec-error")
+
+
+def page_client() -> TestClient:
+    """The app without its lifespan: the page's files need no models, store or state."""
+    return TestClient(create_app(service_settings(ROOT / "data" / "never-made", MODELS)))
+
+
+def test_the_page_loads_its_own_files_only():
+    c = page_client()
+    r = c.get("/")
+    assert r.status_code == 200 and r.headers["content-type"] == "text/html; charset=utf-8"
+    assert "default-src 'self'" in r.headers["content-security-policy"]  # no other origin, no inline script
+    assert "<script>" not in r.text and "http://" not in r.text and "https://" not in r.text
+    assets = re.findall(r"""<(?:script|link)\b[^>]*(?:src|href)="([^"]+)\"""", r.text)
+    assert sorted(assets) == ["/static/app.js", "/static/style.css"]
+    for url, kind in zip(sorted(assets), ("text/javascript", "text/css"), strict=True):
+        got = c.get(url)
+        assert got.status_code == 200 and got.headers["content-type"].startswith(kind)
+        assert got.content == (STATIC / url.rsplit("/", 1)[-1]).read_bytes()
+    assert c.get("/examples/robot-rgb.png").content == (EXAMPLES / "robot-rgb.png").read_bytes()
+
+
+@pytest.mark.parametrize(
+    "url",
+    [
+        "/static/index.html.bak",
+        "/static/..%2F..%2Fsettings.py",
+        "/static/%2Fetc%2Fpasswd",
+        "/examples/make_examples.py",  # in the folder, but not an example
+        "/examples/..%2Fmain.py",
+        "/examples/",
+    ],
+)
+def test_nothing_else_is_served_through_the_page_s_routes(url):
+    r = page_client().get(url)
+    assert r.status_code == 404 and r.headers["content-type"] == "application/json"
+    assert "detail" in r.json()
+
+
+def test_a_non_editable_install_ships_the_page_and_its_examples():
+    data = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["package-data"]
+    served = [STATIC / "index.html", *STATIC_FILES.values(), *EXAMPLE_FILES.values()]
+    assert {p.name for p in EXAMPLE_FILES.values()} >= {"robot-rgb.png", "robot-depth.png", "part.ply"}
+    unshipped = [
+        p
+        for p in served
+        if not any(fnmatch.fnmatch(str(p.relative_to(ROOT / "service")), g) for g in data["service"])
+    ]
+    assert unshipped == []
