@@ -27,6 +27,7 @@ from scipy.spatial import cKDTree
 
 from index.draw import DrawMesh
 from index.fit import Fit, apply_twist
+from index.mesh import diameter
 
 #: surface points of a DepthModel: 1,500 put a point every ~4 mm on a 150 mm object (LM-O's are 100-260
 #: mm across), about 300-700 of them facing the camera at ~1 m, enough for six parameters many times over
@@ -96,7 +97,7 @@ class DepthModel:
             vertices, faces, size = mesh.vertices, mesh.faces, mesh.diameter
         else:
             vertices, faces = np.asarray(mesh.vertices, float), np.asarray(mesh.faces, np.int64)
-            size = float(np.linalg.norm(np.ptp(vertices, axis=0))) if len(vertices) else 0.0
+            size = diameter(mesh) if len(faces) else 0.0
         tri = np.asarray(vertices, float)[np.asarray(faces, np.int64)]
         cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
         area = np.linalg.norm(cross, axis=1)

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -39,6 +40,11 @@ from index.symmetry import transformations_from_bop
 
 SCENE = 2
 MIN_VISIB = 0.5
+RENDERED_NOTE = (
+    "depth rendered from the ground truth through the sensor model (evaluation.masks.rendered_depth), as "
+    "`posedesc evaluate` sends LM-O's colour-only frames: optimistic (no unannotated clutter, no real sensor "
+    "bias, the same meshes as the fit's)"
+)
 SLIDE_MM = (10.0, 30.0)  # the perturbed starts' translation error: where the service's distance lands
 
 
@@ -223,6 +229,8 @@ def main() -> None:
         "dataset": str(args.dataset),
         "frames": args.frames,
         "depth": kind if kind != "real" else "real (Kinect)",
+        "command": " ".join(["scripts/fit_depth_eval.py", *sys.argv[1:]]),
+        "note": RENDERED_NOTE if kind != "real" else "real Kinect depth, LM-O's ground truth",
         "starts": args.starts,
         "fit_kwargs": fit_kwargs,
         "n_instances": len(insts),
