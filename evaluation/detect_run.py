@@ -61,7 +61,6 @@ from index.shapes import demo_shapes, random_shape
 from service.detection import Detection, detect, reported
 from service.errors import ApiError
 from service.pipeline.context import Query
-from service.poses import match_pose
 from service.settings import Settings
 from service.state import AppState, close_state, load_state
 
@@ -310,7 +309,7 @@ def ask_service(
 def _hit(frame: tuple[int, int], d: Detection, dataset_ids: Mapping[int, int]) -> Hit:
     """A `service.detection.Detection` as a hit: its best answer's object (dataset id) and pose."""
     best = d.result.matches[0]
-    R, t = match_pose(best, d.result.ray, d.result.origins_mm[0])
+    R, t = d.result.pose(0)
     return Hit(frame, dataset_ids.get(best.object_id, -1), float(d.confidence), d.box, R, t)
 
 

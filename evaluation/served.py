@@ -50,7 +50,7 @@ from evaluation.samples import RENDERED, SYNTHETIC, SYNTHETIC_NOTE, Samples, ins
 from evaluation.templates import render_template_set, service_symmetry
 from index.bop import BopDataset, Instance
 from index.embed import Embedder
-from index.pose import View, view_to_pose
+from index.pose import View, pose_to_view, view_to_pose
 from index.pose_error import rotation_errors, view_errors
 from index.register import template_views
 from index.render import Renderer
@@ -58,7 +58,6 @@ from index.symmetry import Symmetry
 from service.errors import ApiError
 from service.pipeline.answer import Result
 from service.pipeline.query import Query, cut, decode
-from service.poses import match_pose
 from service.recognition import recognise
 from service.rejection import read_calibrations
 from service.settings import Settings
@@ -226,7 +225,7 @@ def _best(result: Result, obj_id: int, seconds: float) -> Best | None:
     answered "no known object" or nothing."""
     if result.reason is not None or not result.matches or obj_id < 0:
         return None
-    R, t = match_pose(result.matches[0], result.ray, result.origins_mm[0])
+    R, t = result.pose(0)
     return Best(obj_id, R, t, result.confidences[0], seconds)
 
 
@@ -307,6 +306,7 @@ def _ask(
                     result = recognise(state, q)
                     call_ms.append(1000 * (time.perf_counter() - t0))
                     obj[i], answer_views[i], _ = ours.answers(result.matches, dataset_ids, K_MAX)
+                    _fitted_views(result, answer_views[i], inst)
                     best = _best(result, int(obj[i, 0]), call_ms[-1] / 1000)
                     rejected[i] = result.reason is not None
                     if depth_errors is not None and q.distance_mm is None and obj[i, 0] == inst.obj_id:
@@ -356,6 +356,19 @@ def origin_errors(errors: np.ndarray) -> dict[str, float | int]:
         out[f"{name}_median_error"] = round(float(np.median(errors[:, j])), 1)
         out[f"{name}_median_abs_error"] = round(float(np.median(np.abs(errors[:, j]))), 1)
     return out
+
+
+def _fitted_views(result: Result, views: np.ndarray, inst: Instance) -> None:
+    """Each answer the pose fit moved (`service.pipeline.fit`) written into `views` (k, 3) as the view whose
+    pose along the instance's ray (as `score` reads a view) is the fitted rotation (`pose_to_view` inverts
+    `view_to_pose` for one ray): the errors are then the fitted pose's."""
+    u, v = inst.centre_uv
+    ray = np.linalg.inv(inst.K) @ np.array([u, v, 1.0])
+    for j in range(min(len(result.fits), len(views))):
+        if result.fitted(j) is not None:
+            R, _ = result.pose(j)
+            view = pose_to_view(R, ray / np.linalg.norm(ray))
+            views[j] = view.azimuth, view.elevation, view.inplane
 
 
 def _stack(images: list, shape: tuple[int, ...], dtype) -> np.ndarray:

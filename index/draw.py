@@ -13,6 +13,7 @@ import threading
 from collections import OrderedDict
 from collections.abc import Callable, Collection, Sequence
 from dataclasses import dataclass
+from typing import Generic, TypeVar
 
 import cv2
 import numpy as np
@@ -212,18 +213,22 @@ def grey_to_rgb(image: np.ndarray) -> np.ndarray:
     return np.repeat(out[..., None], 3, axis=2)
 
 
-class MeshCache:
-    """Drawing meshes by object id, loaded once (`load`: the id's mesh, or None when it has none) and
-    kept for the `capacity` most recently drawn (a 20k-face one holds ~0.7 MB). `prune` forgets the ids
+T = TypeVar("T")
+
+
+class MeshCache(Generic[T]):
+    """Drawing meshes by object id (or what is made of them: the pose fit's models, `service.pipeline.fit`),
+    loaded once (`load`: the id's, or None when it has none) and kept for the `capacity` most recently used
+    (a 20k-face drawing mesh holds ~0.7 MB). `prune` forgets the ids
     no longer registered: ids are never reused (the stores count them up), so a deleted object's mesh is
     never drawn for another. Safe across threads; two threads missing the same id both load it."""
 
-    def __init__(self, load: Callable[[int], DrawMesh | None], capacity: int = 32):
+    def __init__(self, load: Callable[[int], T | None], capacity: int = 32):
         self._load, self._capacity = load, capacity
-        self._meshes: OrderedDict[int, DrawMesh | None] = OrderedDict()
+        self._meshes: OrderedDict[int, T | None] = OrderedDict()
         self._lock = threading.Lock()
 
-    def get(self, object_id: int) -> DrawMesh | None:
+    def get(self, object_id: int) -> T | None:
         with self._lock:
             if object_id in self._meshes:
                 self._meshes.move_to_end(object_id)

@@ -153,23 +153,6 @@ def crops(
     return rgb_out, depth_out
 
 
-def frame_mask(
-    keep: np.ndarray,
-    K: np.ndarray,
-    centre_uv: tuple[float, float],
-    distance_mm: float,
-    spec: PatchSpec,
-    shape: tuple[int, int],
-) -> np.ndarray:
-    """A patch's mask (S, S) (cut upright at `centre_uv` and `distance_mm`: `crop` at in-plane 0) laid back
-    over the frame it was cut from: (H, W) float32 in [0, 1], 0 outside the window."""
-    Hs, _, _ = _homographies(np.asarray(K, float), centre_uv, distance_mm, spec, [0.0])
-    h, w = shape
-    return cv2.warpPerspective(
-        keep.astype(np.float32), Hs[0], (w, h), flags=cv2.INTER_LINEAR, borderValue=0.0
-    )
-
-
 def turn_masks(masks: np.ndarray, degrees: float, spec: PatchSpec = PatchSpec()) -> np.ndarray:
     """Masks of patches cut at in-plane a -> those of the same patches cut at a + `degrees` (`crop`):
     patches of one centre and distance that differ in in-plane differ by a rotation about the patch's

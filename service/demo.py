@@ -28,6 +28,7 @@ def startup(state: AppState) -> None:
             log.info("made templates again for %d (object, model) pairs", made)
         if state.settings.demo_objects:
             seed(state)
+        state.warm(state.store.snapshot.objects)  # the registered objects' pose fit models, ahead of queries
     except Exception as e:  # the service still serves what it has; /readyz shows the reason
         log.exception("start-up work failed")
         state.startup_error = f"start-up work failed: {e}"

@@ -23,7 +23,6 @@ from index.windows import window_classes
 from service.errors import ApiError
 from service.pipeline.answer import Result
 from service.pipeline.query import Decoded, Query, decode
-from service.poses import match_pose
 from service.proposals import Proposal, propose
 from service.state import AppState
 
@@ -35,7 +34,8 @@ NMS_IOU = 0.5
 
 @dataclass(frozen=True)
 class Detection:
-    """One object found: where its origin projects (`u`, `v`, px), its extent (`box`: x0, y0, x1, y1 px,
+    """One object found: where its origin projects (`u`, `v`, px: where it was verified, or where the pose
+    fit moved it), its extent (`box`: x0, y0, x1, y1 px,
     the mesh at the answered pose, clipped to the frame), the best answer's `confidence`, the verifier's
     whole answer at (u, v) (`result`: its matches, their confidences and poses) and the proposal it came
     from."""
@@ -128,10 +128,11 @@ def _verify(
         return None
     best = result.matches[0]
     mesh = state.draw_meshes.get(best.object_id)
-    R, t = match_pose(best, result.ray, result.origins_mm[0])
+    R, t = result.pose(0)
     box = _box(mesh.vertices if mesh is not None else None, R, t, K, (w, h), p)
     assert at.u is not None and at.v is not None  # `_centred` gives a centre
-    return Detection(at.u, at.v, box, confidence(result, p), result, p)
+    u, v = (at.u, at.v) if result.fitted(0) is None else tuple(float(x) for x in (K @ t)[:2] / t[2])
+    return Detection(u, v, box, confidence(result, p), result, p)
 
 
 def confidence(result: Result, p: Proposal) -> float:
@@ -205,7 +206,8 @@ def _centred(state: AppState, snapshot: Snapshot, q: Query, d: Decoded, p: Propo
                 best, log_d = s, centre_log + dl
     if best[0] < 0:
         return None
-    return replace(q, u=u, v=v, distance_mm=None if log_d is None else float(np.exp(log_d)))
+    distance = None if log_d is None else float(np.exp(log_d))
+    return replace(q, u=u, v=v, distance_mm=distance, estimated=True)
 
 
 def _box(

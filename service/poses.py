@@ -13,9 +13,3 @@ from index.store import Match
 def match_pose(m: Match, ray: np.ndarray, distance_mm: float) -> tuple[np.ndarray, np.ndarray]:
     """(R_m2c (3, 3), t_m2c (3,) mm) of an answer; `ray` (3,) in the query's camera."""
     return view_to_pose(View(m.azimuth, m.elevation, m.inplane, distance_mm), ray)
-
-
-def pose_fields(m: Match, ray: np.ndarray, distance_mm: float) -> dict[str, list[float]]:
-    """The answer's `R` (row-major, 9 values) and `t` (mm, 3 values), as the API returns them."""
-    R, t = match_pose(m, ray, distance_mm)
-    return {"R": [float(x) for x in R.ravel()], "t": [float(x) for x in t]}

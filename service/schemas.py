@@ -18,12 +18,25 @@ MATCH_EXAMPLE: JsonDict = {
     # a patch's answer: in the patch camera, 400 mm along its optical axis
     "R": [-0.809, -0.5878, 0.0, -0.3089, 0.4251, -0.8508, 0.5001, -0.6883, -0.5255],
     "t": [0.0, 0.0, 400.0],
+    "refined": False,
+    "template": {"azimuth": 126.0, "elevation": 31.7, "inplane": 0.0},
+    "u": None,
+    "v": None,
 }
+
+
+class TemplateOut(BaseModel):
+    """The template an answer came from: its viewpoint and roll (degrees)."""
+
+    azimuth: float
+    elevation: float
+    inplane: float
 
 
 class MatchOut(BaseModel):
     """An answer: an object and its pose (degrees, see the pose conventions), from the nearest template of
-    that (object, viewpoint)."""
+    that (object, viewpoint); with `refined`, that pose fitted to the frame over six degrees of freedom
+    (POSE_FIT): every pose field then gives the fitted pose, `template` the template's."""
 
     model_config = ConfigDict(json_schema_extra={"examples": [MATCH_EXAMPLE]})
 
@@ -61,6 +74,17 @@ class MatchOut(BaseModel):
         "at registration; objects registered before offsets were kept: the surface); else 400 for a "
         "colour patch",
     )
+    refined: bool = Field(
+        False,
+        description="the pose was fitted to the frame (the mesh's outline against the colour image, or its "
+        "points against the depth) and moved from its template's: azimuth, elevation, inplane, R, t, u and "
+        "v then give the fitted pose (the angles along the ray through the fitted origin)",
+    )
+    template: TemplateOut = Field(description="the viewpoint and roll of the template the answer came from")
+    u: float | None = Field(
+        None, description="where the object's origin projects in the frame, px (null for a patch)"
+    )
+    v: float | None = None
 
 
 class DetectionOut(BaseModel):

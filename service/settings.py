@@ -78,6 +78,12 @@ class Settings(BaseSettings):
         150, ge=0, le=1000, description="re-ranking: compare this many best answers also at every other "
         "in-plane angle of the templates, and keep the roll that fits best (0: off)",
     )  # fmt: skip
+    # 1: the best answer, the one a user acts on (and each detection's); more costs a fit each
+    pose_fit: int = Field(
+        1, ge=0, le=100, description="refine the pose of this many best answers over all six degrees of "
+        "freedom against the frame (a frame sent with its camera): the mesh's outline against the colour "
+        "image, or its points against the depth (ICP); 0: off, every pose is a template's",
+    )  # fmt: skip
     refine_rounds: int = Field(
         1, ge=1, le=4, description="re-ranking refinement: rounds, each from where the last left the answers "
         "with the roll's turn halved (a sixth of the in-plane step, a twelfth, ...)",
@@ -212,8 +218,13 @@ def default_store() -> str:
 
 def screening(settings: Settings) -> Settings:
     """The settings of a detection's screening (`AppState.screens`): the re-ranking of
-    `detect_screen_rerank` answers, no roll sweep, no refinement: where around a proposal the object is
+    `detect_screen_rerank` answers, no roll sweep, no refinement, no pose fit: where around a proposal the object is
     centred, before the whole pipeline names it there."""
     return settings.model_copy(
-        update={"rerank": settings.detect_screen_rerank, "roll_sweep": 0, "roll_refine": 0}
+        update={
+            "rerank": settings.detect_screen_rerank,
+            "roll_sweep": 0,
+            "roll_refine": 0,
+            "pose_fit": 0,
+        }
     )

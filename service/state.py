@@ -6,7 +6,7 @@ import asyncio
 import logging
 import threading
 import time
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from functools import partial
@@ -25,6 +25,7 @@ from index.store import EMBEDDED, TemplateStore, open_store
 from service.jobs import Jobs
 from service.metrics import Metrics
 from service.pipeline import Pipeline
+from service.pipeline.fit import CAPACITY, Shapes
 from service.proposals import Colour
 from service.settings import Settings, screening
 from service.threads import limit_threads, worker_pool
@@ -52,8 +53,13 @@ class AppState:
     recognition_gate: asyncio.Semaphore = field(default_factory=lambda: asyncio.Semaphore(2))
     #: where recognitions run (as many threads as the gate lets in)
     recognizer: ThreadPoolExecutor = field(init=False)
+    #: where the pose fit's models of new and stored objects are made ahead of the queries that need
+    #: them (`warm`): a colour one takes seconds
+    fitter: ThreadPoolExecutor = field(init=False)
     #: the meshes `POST /recognize/draw` draws, read from the store once per object (`index.draw`)
-    draw_meshes: MeshCache = field(init=False)
+    draw_meshes: MeshCache[DrawMesh] = field(init=False)
+    #: what the pose fit needs of each object, made from `draw_meshes` (`service.pipeline.fit`)
+    shapes: Shapes = field(init=False)
     #: colour proposals for finding objects in a whole frame (`service.proposals`): the objectness model
     #: of the models dir, or None without one
     colour_proposals: Colour | None = None
@@ -77,7 +83,9 @@ class AppState:
         self.embed_pool = worker_pool(2, "embed", n)
         self.mesh_loader = worker_pool(1, "mesh", n)
         self.recognizer = worker_pool(2, "recognise", n)
+        self.fitter = worker_pool(1, "fit", n)
         self.draw_meshes = MeshCache(lambda oid: DrawMesh.from_glb(self.store.mesh_bytes(oid)))
+        self.shapes = Shapes(self.draw_meshes)
 
     @property
     def pipelines(self) -> dict[str, Pipeline]:
@@ -88,7 +96,8 @@ class AppState:
         built = self._pipelines
         if built is None or built[0] is not self.settings or built[1] is not self.embedders:
             pipelines = {
-                m: Pipeline.build(self.settings, e, self.templates) for m, e in self.embedders.items()
+                m: Pipeline.build(self.settings, e, self.templates, self.shapes)
+                for m, e in self.embedders.items()
             }
             self._pipelines = built = (self.settings, self.embedders, pipelines)
         return built[2]
@@ -114,7 +123,7 @@ class AppState:
     ) -> Registration:
         """`mesh` registered into this state's store with its renderer, models and pools, as `POST /objects`
         registers it (`index.register.register`)."""
-        return register(
+        reg = register(
             mesh,
             name,
             symmetry,
@@ -126,6 +135,19 @@ class AppState:
             extra=extra,
             progress=progress,
         )
+        self.warm([reg.record.object_id])
+        return reg
+
+    def warm(self, object_ids: Iterable[int]) -> None:
+        """The pose fit's models of these objects (`service.pipeline.fit.Shapes`: the colour one for the rgb
+        model, the depth one for a model that reads depth) made on the fit thread, ahead of the first query
+        that needs them; as many as the cache keeps. Nothing with the pose fit off."""
+        if self.settings.pose_fit == 0:
+            return
+        caches = [c for c, wanted in self.shapes.needed(self.embedders) if wanted]
+        for oid in list(object_ids)[:CAPACITY]:
+            for cache in caches:
+                self.fitter.submit(cache.get, oid)
 
     @property
     def model_names(self) -> dict[str, str]:
@@ -180,6 +202,7 @@ def close_state(state: AppState) -> None:
     state.mesh_loader.shutdown(wait=True, cancel_futures=True)
     state.embed_pool.shutdown(wait=True)
     state.recognizer.shutdown(wait=True)
+    state.fitter.shutdown(wait=True, cancel_futures=True)
     state.worker.close()
     state.jobs.close()
     state.store.close()

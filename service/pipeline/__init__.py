@@ -13,7 +13,8 @@ the store's snapshot as it found it and runs the model's own onnxruntime session
   local features: the re-ranking by the local score (`score.LocalScore`), the roll sweep and the
   refinement;
 
-then the answers' assembly (`answer`: the order, the open-set verdict, the origins). Each stage gets the
+then the answers' assembly (`answer`: the order, the open-set verdict, the origins), and the pose fit of
+the best answers over six degrees of freedom against the frame (`fit.PoseFit`, `pose_fit` answers). Each stage gets the
 query's frozen `context.Context` and hands on a new one (or None: nothing to do for this query). A stage
 that a model or the settings leave out is not in its pipeline (`build` returns None). Adding a stage is a
 new module and one line in `STAGES`.
@@ -31,7 +32,7 @@ the whole turn when they are upright only): the n patches are embedded in one ba
 match of template in-plane θ on the turn by o says the object is rolled θ + o (`crop` undoes o).
 
 `timings_ms` (milliseconds): `decode` (when timed: `service.recognition.recognise`), then each stage that
-ran by its name (`cut`, `mask`, `embed`, `search`, `local`, `sweep`, `refine`), then the sums older
+ran by its name (`cut`, `mask`, `embed`, `search`, `local`, `sweep`, `refine`, `fit`), then the sums older
 readers know: `patch` = cut + mask, `rerank` = local + sweep + refine (when the re-ranking ran), and
 `total` (everything above, decode included)."""
 
@@ -47,6 +48,7 @@ from index.windows import window_classes
 from service.errors import ApiError
 from service.pipeline.answer import Result, answer, judged
 from service.pipeline.context import Context, Stage
+from service.pipeline.fit import PoseFit, Shapes
 from service.pipeline.mask import Mask
 from service.pipeline.query import FRAME_FIELDS, Cut, Decoded, Query
 from service.pipeline.refine import Refine
@@ -66,13 +68,19 @@ SUMS: Mapping[str, tuple[str, ...]] = {"patch": ("cut", "mask"), "rerank": ("loc
 class Pipeline:
     """One model's stages (`stages`), run in order on a query."""
 
-    def __init__(self, stages: tuple[Stage, ...], settings: Settings, judged: int = 0):
-        self.stages, self.settings, self.judged = stages, settings, judged
+    def __init__(
+        self, stages: tuple[Stage, ...], settings: Settings, judged: int = 0, fit: PoseFit | None = None
+    ):
+        self.stages, self.settings, self.judged, self.fit = stages, settings, judged, fit
 
     @classmethod
-    def build(cls, settings: Settings, embedder: Embedder, templates: TemplateConfig) -> Pipeline:
+    def build(
+        cls, settings: Settings, embedder: Embedder, templates: TemplateConfig, shapes: Shapes | None = None
+    ) -> Pipeline:
+        """The model's stages at these settings; `shapes`: the objects' fit models (None: no pose fit)."""
         made = (stage.build(settings, embedder, templates) for stage in STAGES)
-        return cls(tuple(s for s in made if s is not None), settings, judged(settings, embedder))
+        fit = None if shapes is None or settings.pose_fit == 0 else PoseFit(settings.pose_fit, shapes)
+        return cls(tuple(s for s in made if s is not None), settings, judged(settings, embedder), fit)
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -97,7 +105,14 @@ class Pipeline:
                 refused.append(e)
         if not runs:
             raise refused[0]
-        return answer(runs, timings(spent, time.perf_counter() - t0, decode_s), self.settings)
+        result = answer(runs, {}, self.settings)
+        if self.fit is not None:
+            t = time.perf_counter()
+            if (fitted := self.fit(result, runs)) is not None:
+                result = fitted
+                spent[self.fit.name] = time.perf_counter() - t
+        result.timings_ms = timings(spent, time.perf_counter() - t0, decode_s)
+        return result
 
     def run(self, ctx: Context, spent: dict[str, float]) -> Context:
         """The stages on one context; each stage's seconds added to `spent`."""

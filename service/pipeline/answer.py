@@ -20,10 +20,12 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from index.embed import Embedder
+from index.fit import Fit
 from index.patches import surface_depth
 from index.store import Match, Snapshot
 from index.surface import offset_of
 from service.pipeline.context import Context
+from service.poses import match_pose
 from service.rejection import LISTED, judge, read_calibrations, served_score
 from service.settings import Settings
 
@@ -47,6 +49,21 @@ class Result:
     #: per match, how far its object's origin lies along `ray` (mm): `distance_mm` when it was sent, else
     #: the measured surface plus the match's template offset (`origin_distances`)
     origins_mm: list[float] = field(default_factory=list)
+    #: the best matches' pose fits (`service.pipeline.fit`), as many as were fitted (None: not fitted)
+    fits: list[Fit | None] = field(default_factory=list)
+
+    def fitted(self, i: int) -> Fit | None:
+        """Match i's fit when the fit moved it, else None (its pose is its template's)."""
+        fit = self.fits[i] if i < len(self.fits) else None
+        return fit if fit is not None and fit.moved else None
+
+    def pose(self, i: int) -> tuple[np.ndarray, np.ndarray]:
+        """Match i's pose (R_m2c (3, 3), t_m2c (3,) mm) in the query's camera: its fit's when the fit moved
+        it, else its template's along the ray at its origin's distance (`service.poses.match_pose`)."""
+        fit = self.fitted(i)
+        if fit is not None:
+            return fit.R, fit.t
+        return match_pose(self.matches[i], self.ray, self.origins_mm[i])
 
 
 def ranked_matches(ctx: Context) -> list[Match]:

@@ -37,6 +37,9 @@ class Query:
     #: (None: the model's open-set verdict decides)
     max_detections: int = 10
     min_confidence: float | None = None
+    #: u, v and distance_mm are the detection's estimates (`service.detection`), not what a user sent: the
+    #: colour pose fit then lets the translation move as far as such estimates are off
+    estimated: bool = False
 
     @property
     def finds(self) -> bool:

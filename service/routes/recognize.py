@@ -11,14 +11,14 @@ import numpy as np
 from fastapi import APIRouter, Depends, File, Form, Response, UploadFile
 
 from index.draw import PATCH_DRAW_PX, Drawn, draw_answers, grey_to_rgb, patch_view
+from index.pose import pose_to_view
 from service.deps import KnownFieldsDep, StateDep
 from service.detection import Found, check, detect, detect_decoded
 from service.errors import ApiError, responses
 from service.pipeline.answer import Result
 from service.pipeline.query import MAX_DISTANCE_MM, MAX_PX, MIN_DISTANCE_MM, Query, decode
-from service.poses import match_pose, pose_fields
 from service.recognition import recognise, recognise_decoded
-from service.schemas import DetectionOut, MatchOut, RecognizeOut
+from service.schemas import DetectionOut, MatchOut, RecognizeOut, TemplateOut
 from service.state import AppState
 
 router = APIRouter(tags=["recognition"])
@@ -134,9 +134,9 @@ async def recognize(state: StateDep, form: RecognizeFormDep) -> RecognizeOut:
         q = await form.query()
         if q.finds:
             found = await asyncio.wrap_future(state.recognizer.submit(detect, state, q))
-            return found_out(found)
+            return found_out(found, camera(q))
         result = await asyncio.wrap_future(state.recognizer.submit(recognise, state, q))
-    matches = matches_out(result)
+    matches = matches_out(result, camera(q))
     return RecognizeOut(
         matches=matches,
         best=None if result.reason else matches[0],
@@ -147,19 +147,49 @@ async def recognize(state: StateDep, form: RecognizeFormDep) -> RecognizeOut:
     )
 
 
-def matches_out(result: Result) -> list[MatchOut]:
-    """A result's matches as the API answers them, each with its confidence and pose."""
-    return [
-        MatchOut(**m.__dict__, confidence=c, **pose_fields(m, result.ray, origin))
-        for m, c, origin in zip(result.matches, result.confidences, result.origins_mm, strict=True)
-    ]
+def camera(q: Query) -> np.ndarray | None:
+    """The query's intrinsics K (3, 3), or None for a patch."""
+    if q.fx is None or q.fy is None or q.cx is None or q.cy is None:
+        return None
+    return np.array([[q.fx, 0.0, q.cx], [0.0, q.fy, q.cy], [0.0, 0.0, 1.0]])
 
 
-def found_out(found: Found) -> RecognizeOut:
+def matches_out(result: Result, K: np.ndarray | None) -> list[MatchOut]:
+    """A result's matches as the API answers them, each with its confidence and pose: the fitted pose
+    where the pose fit moved it (`Result.pose`), its angles read back along the ray through its origin
+    (`index.pose.pose_to_view`), and where its origin projects in a frame of intrinsics `K`."""
+    out = []
+    for i, (m, c) in enumerate(zip(result.matches, result.confidences, strict=True)):
+        R, t = result.pose(i)
+        template = TemplateOut(azimuth=m.azimuth, elevation=m.elevation, inplane=m.inplane)
+        angles = {}
+        if refined := result.fitted(i) is not None:
+            view = pose_to_view(R, t)
+            angles = {"azimuth": view.azimuth, "elevation": view.elevation, "inplane": view.inplane}
+        u = v = None
+        if K is not None and t[2] > 0:
+            u, v = (float(x) for x in (K @ t)[:2] / t[2])
+        fields = {**m.__dict__, **angles}
+        out.append(
+            MatchOut(
+                **fields,
+                confidence=c,
+                R=[float(x) for x in R.ravel()],
+                t=[float(x) for x in t],
+                refined=refined,
+                template=template,
+                u=u,
+                v=v,
+            )
+        )
+    return out
+
+
+def found_out(found: Found, K: np.ndarray | None) -> RecognizeOut:
     """The answer to a frame without a centre: the detections, and the first one's answer at the top."""
     detections = []
     for x in found.detections:
-        matches = matches_out(x.result)
+        matches = matches_out(x.result, K)
         detections.append(DetectionOut(u=x.u, v=x.v, box=list(x.box), best=matches[0], matches=matches))
     first = detections[0] if detections else None
     return RecognizeOut(
@@ -225,16 +255,13 @@ def drawing(state: AppState, q: Query, draw_k: int) -> bytes:
         image, K = patch_view(image, d.embedder.info.spec, answers[0][0].distance_mm)
     else:
         K = np.array([[q.fx, 0.0, q.cx], [0.0, q.fy, q.cy], [0.0, 0.0, 1.0]])
-    state.draw_meshes.prune(state.store.snapshot.objects.keys())
+    state.shapes.prune(set(state.store.snapshot.objects))
     drawn = []
     for result, n in answers:
-        best = slice(n)
-        for m, c, origin in zip(
-            result.matches[best], result.confidences[best], result.origins_mm[best], strict=True
-        ):
+        for i, (m, c) in enumerate(zip(result.matches[:n], result.confidences[:n], strict=True)):
             mesh = state.draw_meshes.get(m.object_id)
             if mesh is not None:  # deleted since
-                R, t = match_pose(m, result.ray, origin)
+                R, t = result.pose(i)
                 drawn.append((mesh, Drawn(m.name, c, R, t, rejected=result.reason is not None)))
     ok, png = cv2.imencode(".png", cv2.cvtColor(draw_answers(image, drawn, K), cv2.COLOR_RGB2BGR))
     assert ok  # a uint8 RGB image always encodes

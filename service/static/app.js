@@ -187,13 +187,14 @@ function norm(t) {
 
 function answerRow(match, where, note) {
   const row = document.createElement("tr");
-  cell(row, note ? `${match.name} (${note})` : match.name);
+  const notes = [note, match.refined ? "fitted" : ""].filter(Boolean).join(", ");
+  cell(row, notes ? `${match.name} (${notes})` : match.name);
   cell(row, typeof match.confidence === "number" ? `${Math.round(match.confidence * 100)} %` : "—");
   cell(row, fixed(match.azimuth));
   cell(row, fixed(match.elevation));
   cell(row, fixed(match.inplane));
   cell(row, fixed(norm(match.t), 0));
-  cell(row, where);
+  cell(row, typeof match.u === "number" ? `(${fixed(match.u, 0)}, ${fixed(match.v, 0)})` : where);
   cell(row, fixed(match.distance, 3));
   return row;
 }

@@ -9,7 +9,6 @@ from index.patches import (
     crop,
     crops,
     fill_depth,
-    frame_mask,
     network_input,
     normalise_depth,
     normalise_rgb,
@@ -227,16 +226,3 @@ def test_crops_at_many_rolls_are_each_rolls_own_cut():
             rot @ np.linalg.inv(patch_camera(spec, dist)) @ np.stack([u.ravel(), v.ravel(), np.ones(64 * 64)])
         )[2]
         np.testing.assert_allclose(depths[i], d / rz.reshape(64, 64), rtol=1e-5)
-
-
-def test_a_patch_mask_laid_back_over_its_frame_covers_what_was_cut():
-    K = np.array([[572.4, 0.0, 325.3], [0.0, 573.6, 242.0], [0.0, 0.0, 1.0]])
-    rgb = np.zeros((480, 640, 3), np.uint8)
-    rgb[200:260, 300:380] = 255  # a bright box, inside a 200 mm window 800 mm away (~143 px)
-    spec = PatchSpec()
-    patch, _ = crop(rgb, None, K, (340.0, 230.0), 800.0, spec)
-    mask = frame_mask(patch[..., 0] > 128, K, (340.0, 230.0), 800.0, spec, (480, 640))
-    assert mask.shape == (480, 640) and mask.dtype == np.float32
-    agree = (mask > 0.5) == (rgb[..., 0] > 128)
-    assert agree.mean() > 0.995  # off only along the box's edge, by the 64 px patch's resolution
-    assert mask[:100].max() == 0.0  # nothing outside the window

@@ -9,11 +9,13 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 from service_helpers import ROOT, created, service_settings, wait_ready
 
 from index.bop import BopDataset
+from index.pose_error import ADD_FRACTION, add, adi
 from service.detection import iou
 from service.main import create_app
 
@@ -98,3 +100,35 @@ def test_a_real_colour_frame_without_a_centre(client):
     for d in body["detections"]:
         t = d["best"]["t"]
         assert 300 < t[2] < 3000  # the distance estimated from colour alone is a table-top one
+
+
+def test_the_pose_fit_puts_the_kinect_frames_objects_within_add_s(client):
+    """The issue's target: with the centre given (each instance's origin projected), at least 5 of the
+    frame's 6 instances at least half visible within ADD(-S) < 0.1 d once the best answer is fitted to
+    the real depth (ICP); 3 of them before. The egg box is named otherwise (see above)."""
+    root = SHARED / "lmo-depth"
+    scene = root / "test" / "000002"
+    files = {"rgb": ("f.png", (scene / "rgb" / "000003.png").read_bytes()),
+             "depth": ("d.png", (scene / "depth" / "000003.png").read_bytes())}  # fmt: skip
+    dataset = BopDataset(root)
+    within, fitted = [], 0
+    for inst in dataset.instances(2):
+        if inst.frame_id != 3 or inst.visib_fract < 0.5:
+            continue
+        u, v = inst.centre_uv
+        r = client.post(
+            "/recognize", files=files, data={**camera(root, 3), "u": str(u), "v": str(v), "k": "1"}
+        )
+        assert r.status_code == 200, r.text
+        best = r.json()["matches"][0]
+        fitted += best["refined"]
+        if client.ids[best["object_id"]] != inst.obj_id:
+            continue
+        R, t = np.reshape(best["R"], (3, 3)), np.asarray(best["t"])
+        points = np.asarray(dataset.mesh(inst.obj_id).vertices)
+        symmetric = dataset.symmetry(inst.obj_id) != "none"
+        error = (adi if symmetric else add)(R, t, inst.R, inst.t, points)
+        if error < ADD_FRACTION * dataset.models_info[inst.obj_id]["diameter"]:
+            within.append(inst.obj_id)
+    print("RGB-D, frame 3, centre given: within ADD(-S) < 0.1 d:", within, "fitted:", fitted)
+    assert fitted >= 5 and len(within) >= 5, within

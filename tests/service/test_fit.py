@@ -1,0 +1,114 @@
+"""The pose fit in `POST /recognize` (`service.pipeline.fit`): a frame's best answer moved from its
+template's pose to the pose that explains the frame, every pose field giving the fitted pose and
+`template` the template's. The shipped models, one object registered at level 1 (templates ~20 deg
+apart, so a template's pose is visibly off), a rendered frame at a pose between the templates."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from fastapi.testclient import TestClient
+from service_helpers import (
+    ROOT,
+    K,
+    depth_png,
+    frame,
+    frame_fields,
+    png,
+    register,
+    service_settings,
+    wait_ready,
+)
+
+from index.pose import View, view_to_pose
+from index.pose_error import rotation_error
+from service.main import create_app
+
+#: between level 1's viewpoints and off the in-plane grid
+VIEW, UV = View(52.0, 38.0, 11.0, 600.0), (350.0, 230.0)
+
+
+@pytest.fixture(scope="module")
+def client(tmp_path_factory, l_shape):
+    settings = service_settings(tmp_path_factory.mktemp("data"), ROOT / "models", level=1, reject_above="off")
+    with TestClient(create_app(settings)) as c:
+        wait_ready(c)
+        register(c, l_shape, "ell")
+        yield c
+
+
+@pytest.fixture(scope="module")
+def shot(renderer, l_shape):
+    rgb, depth = frame(renderer, l_shape, VIEW, UV, wall_mm=900.0)
+    ray = np.linalg.inv(K) @ np.array([UV[0], UV[1], 1.0])
+    R, t = view_to_pose(VIEW, ray=ray)
+    return {"rgb": rgb, "depth": depth, "R": R, "t": t}
+
+
+def best(client, files: dict, **extra) -> dict:
+    r = client.post("/recognize", files=files, data=frame_fields(UV, k="3", **extra))
+    assert r.status_code == 200, r.text
+    return r.json()["matches"][0]
+
+
+def pose(m: dict) -> tuple[np.ndarray, np.ndarray]:
+    return np.reshape(m["R"], (3, 3)), np.asarray(m["t"])
+
+
+def template_pose(m: dict) -> tuple[np.ndarray, np.ndarray]:
+    """The pose of the answer's template, along the query's ray at the fitted distance."""
+    ray = np.linalg.inv(K) @ np.array([UV[0], UV[1], 1.0])
+    view = View(**m["template"], distance=float(np.linalg.norm(m["t"])))
+    return view_to_pose(view, ray=ray)
+
+
+def test_with_depth_the_best_answer_is_fitted_nearer_the_truth_than_its_template(client, shot):
+    m = best(client, {"rgb": ("f.png", png(shot["rgb"])), "depth": ("d.png", depth_png(shot["depth"]))})
+    assert m["name"] == "ell" and m["refined"] is True
+    R, t = pose(m)
+    R0, _ = template_pose(m)
+    assert rotation_error(R, shot["R"]) < rotation_error(R0, shot["R"])
+    assert rotation_error(R, shot["R"]) < 3.0
+    assert np.linalg.norm(t - shot["t"]) < 5.0  # mm, at 600 mm
+
+
+def test_a_fitted_answers_fields_all_give_its_fitted_pose(client, shot):
+    m = best(client, {"rgb": ("f.png", png(shot["rgb"])), "depth": ("d.png", depth_png(shot["depth"]))})
+    R, t = pose(m)
+    # the angles are the fitted pose's, read along the ray through its origin
+    view = View(m["azimuth"], m["elevation"], m["inplane"], float(np.linalg.norm(t)))
+    R_angles, t_angles = view_to_pose(view, ray=t)
+    assert np.abs(R_angles - R).max() < 1e-6 and np.abs(t_angles - t).max() < 1e-6
+    # and u, v where that origin projects
+    uv = (K @ t)[:2] / t[2]
+    assert np.abs(uv - [m["u"], m["v"]]).max() < 1e-6
+    assert (m["azimuth"], m["elevation"], m["inplane"]) != tuple(m["template"].values())
+
+
+def test_a_patch_is_not_fitted(client, shot):
+    r = client.post("/recognize", files={"rgb": ("p.png", png(np.full((64, 64, 3), 90, np.uint8)))})
+    m = r.json()["matches"][0]
+    assert m["refined"] is False and m["u"] is None and m["v"] is None
+    assert (m["azimuth"], m["elevation"], m["inplane"]) == tuple(m["template"].values())
+
+
+def test_only_the_best_answer_is_fitted_by_default(client, shot):
+    r = client.post(
+        "/recognize",
+        files={"rgb": ("f.png", png(shot["rgb"])), "depth": ("d.png", depth_png(shot["depth"]))},
+        data=frame_fields(UV, k="3"),
+    )
+    matches = r.json()["matches"]
+    assert [m["refined"] for m in matches[1:]] == [False] * (len(matches) - 1)
+    assert "fit" in r.json()["timings_ms"]
+
+
+def test_colour_only_the_rotation_is_fitted_and_the_sent_centre_and_distance_kept(client, shot):
+    distance = float(np.linalg.norm(shot["t"]))
+    m = best(client, {"rgb": ("f.png", png(shot["rgb"]))}, distance_mm=f"{distance:.3f}")
+    assert m["name"] == "ell" and m["refined"] is True
+    R, t = pose(m)
+    R0, t0 = template_pose(m)
+    assert rotation_error(R, shot["R"]) < 5.0 < rotation_error(R0, shot["R"])
+    assert np.abs(t - shot["t"]).max() < 0.01  # the sent centre and distance: the true ones
+    assert abs(m["u"] - UV[0]) < 1e-6 and abs(m["v"] - UV[1]) < 1e-6
