@@ -176,9 +176,8 @@ class _Outline:
             (w, h), span = shape[i], slice(crossing[i], crossing[i + 1])
             # the running sum over the steps is every pixel's winding number
             winding = cv2.integral(np.bincount(at[span], step[span], w * h).reshape(h, w), sdepth=cv2.CV_64F)
-            contours, _ = cv2.findContours(
-                cv2.compare(winding, 0, cv2.CMP_NE), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE
-            )
+            inside = (winding != 0).view(np.uint8)
+            contours, _ = cv2.findContours(inside, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
             if not contours:
                 continue
             pixels[i], tangents[i] = _spread(contours, share)
