@@ -155,9 +155,9 @@ class _Outline:
         R = look_from(directions)
         cam = (R.reshape(-1, 3) @ self.vertices.T).reshape(len(R), 3, -1)
         uv = cam[:, :2] * self.scale  # (V, 2, N) px
-        # each view's raster: the box of its vertices and a pixel of zeros around, (width, height) from `lo`
+        # each view's raster: the box of its vertices and pixels of zeros around, (width, height) from `lo`
         lo = np.floor(uv.min(axis=2)).astype(np.int64) - 1
-        shape = np.ceil(uv.max(axis=2)).astype(np.int64) - lo + 2
+        shape = np.ceil(uv.max(axis=2)).astype(np.int64) - lo + 3  # a column more: x's rounding
         # an edge's winding in a view: the sum over its faces of the way they run it, times the way they face
         weight = (self.incidence @ np.sign(self.face_normals @ directions.T)).T
         view, edge = np.nonzero(weight)
@@ -168,24 +168,26 @@ class _Outline:
         # the nearest end to a pixel in single floats: a hundredth of a pixel matters not
         uv32 = uv.astype(np.float32)
         square = (uv32**2).sum(axis=1)
-        share = np.arange(n) / n
-        pixels = np.zeros((len(R), n, 2))
-        tangents = np.zeros((len(R), n, 2))
-        depth = np.zeros((len(R), n))
+        outlines: list[np.ndarray] = []
+        counts = np.zeros(len(R), np.int64)
         for i in range(len(R)):
             (w, h), span = shape[i], slice(crossing[i], crossing[i + 1])
             # the running sum over the steps is every pixel's winding number
             winding = cv2.integral(np.bincount(at[span], step[span], w * h).reshape(h, w), sdepth=cv2.CV_64F)
-            inside = (winding != 0).view(np.uint8)
-            contours, _ = cv2.findContours(inside, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
-            if not contours:
-                continue
-            pixels[i], tangents[i] = _spread(contours, share)
-            pixels[i] += lo[i] - 1  # the running sum's first row and column are its zeros
-            live = ends[first[i] : first[i + 1]].ravel()
+            contours, _ = cv2.findContours(
+                (winding != 0).view(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE
+            )
+            outlines.extend(contours)
+            counts[i] = len(contours)
+        pixels, tangents = _spread(outlines, counts, n)
+        pixels += lo[:, None, :] - 1  # the running sum's first row and column are its zeros
+        depth = np.zeros((len(R), n))
+        pixels32 = pixels.astype(np.float32)
+        for j in np.flatnonzero(counts):
+            live = ends[first[j] : first[j + 1]].ravel()
             # the squared distance to each end, less the pixel's own square
-            near = np.argmin(square[i, live] - 2 * pixels[i].astype(np.float32) @ uv32[i][:, live], axis=1)
-            depth[i] = cam[i, 2, live[near]]
+            near = np.argmin(square[j, live] - 2 * pixels32[j] @ uv32[j][:, live], axis=1)
+            depth[j] = cam[j, 2, live[near]]
         # OpenCV runs outer contours with the object on the right: the outward normal is the tangent turned
         # a quarter to the left
         g = np.stack([-tangents[..., 1], tangents[..., 0]], axis=-1)
@@ -207,32 +209,48 @@ class _Outline:
         raster (`lo`, `shape`), the winding's step (up at the crossing's column, back on the row below:
         each twice) and the view."""
         p, q = uv[view, :, self.edges[edge, 0]], uv[view, :, self.edges[edge, 1]]
-        # an edge crosses the rows whose centres lie in [its lower y, its upper y)
+        # an edge crosses the rows whose centres lie in [its lower y, its upper y), at x = x0 + y * slope
         top = np.ceil(np.minimum(p[:, 1], q[:, 1])).astype(np.int64)
         rows = np.ceil(np.maximum(p[:, 1], q[:, 1])).astype(np.int64) - top
-        k = np.repeat(np.arange(len(edge)), rows)
-        y = top[k] + np.arange(len(k)) - np.repeat(np.cumsum(rows) - rows, rows)
-        x = p[k, 0] + (y - p[k, 1]) * (q[k, 0] - p[k, 0]) / (q[k, 1] - p[k, 1])
-        v = view[k]
-        width = shape[v, 0]
-        at = (y - lo[v, 1]) * width + np.minimum(np.ceil(x).astype(np.int64) - lo[v, 0], width - 1)
-        step = np.where(q[:, 1] > p[:, 1], weight, -weight)[k]
-        at_twice, step_twice = np.stack([at, at + width], axis=1), np.stack([step, -step], axis=1)
-        return at_twice.ravel(), step_twice.ravel(), np.repeat(v, 2)
+        crosses = rows > 0
+        p, q, rows, top = p[crosses], q[crosses], rows[crosses], top[crosses]
+        view, weight = view[crosses], weight[crosses]
+        slope = (q[:, 0] - p[:, 0]) / (q[:, 1] - p[:, 1])
+        x0 = p[:, 0] - p[:, 1] * slope
+        width = shape[view, 0]
+        # the flat index of pixel (x, y) in the edge's view's raster is y * width + x + offset
+        offset = -lo[view, 1] * width - lo[view, 0]
+        y = np.arange(rows.sum()) - np.repeat(np.cumsum(rows) - rows - top, rows)
+        x = np.ceil(np.repeat(x0, rows) + y * np.repeat(slope, rows)).astype(np.int64)
+        at = y * np.repeat(width, rows) + x + np.repeat(offset, rows)
+        step = np.repeat(np.where(q[:, 1] > p[:, 1], weight, -weight), rows)
+        at_twice = np.stack([at, at + np.repeat(width, rows)], axis=1)
+        return at_twice.ravel(), np.stack([step, -step], axis=1).ravel(), np.repeat(view, 2 * rows)
 
 
-def _spread(contours: Sequence[np.ndarray], share: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Points spread evenly over `contours` (OpenCV's, (L, 1, 2) each) at `share` (n,) of their whole
-    length: their pixels (n, 2) and tangents (n, 2), between the pixels `TANGENT_PX` either side along
-    their own contour."""
-    lengths = np.array([len(k) for k in contours])
-    c = np.concatenate(contours)[:, 0]
-    at = np.round(share * len(c)).astype(np.int64) % len(c)
-    which = np.searchsorted(np.cumsum(lengths), at, side="right")
-    start, length = np.cumsum(lengths)[which] - lengths[which], lengths[which]
-    ahead = start + (at - start + TANGENT_PX) % length
-    behind = start + (at - start - TANGENT_PX) % length
-    return c[at], c[ahead] - c[behind]
+def _spread(contours: Sequence[np.ndarray], counts: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """`n` points spread evenly over each view's contours (OpenCV's, (L, 1, 2) each, `counts` (V,) of
+    them a view, in the views' order): their pixels (V, n, 2) and tangents (V, n, 2), between the pixels
+    `TANGENT_PX` either side along their own contour; zeros for a view without any."""
+    lengths = np.array([len(k) for k in contours] or [0])
+    c = np.concatenate(contours)[:, 0] if contours else np.zeros((1, 2), np.int32)
+    ends = np.cumsum(lengths)
+    total = np.bincount(np.repeat(np.arange(len(counts)), counts), lengths[: counts.sum()], len(counts))
+    total = total.astype(np.int64)
+    first = np.cumsum(total) - total
+    at = (
+        first[:, None]
+        + np.round(np.arange(n) / n * total[:, None]).astype(np.int64) % np.maximum(total, 1)[:, None]
+    )
+    at[total == 0] = 0
+    which = np.searchsorted(ends, at, side="right")
+    start, length = ends[which] - lengths[which], lengths[which]
+    ahead = start + (at - start + TANGENT_PX) % np.maximum(length, 1)
+    behind = start + (at - start - TANGENT_PX) % np.maximum(length, 1)
+    pixels, tangents = c[at].astype(float), (c[ahead] - c[behind]).astype(float)
+    pixels[total == 0] = 0.0
+    tangents[total == 0] = 0.0
+    return pixels, tangents
 
 
 # -- the fit -------------------------------------------------------------------------------------------
