@@ -50,9 +50,9 @@ class ColourModel:
     towards the camera, model axes; for each, `coords` (V, P, 3) of its outer contour's points in the
     view's camera axes (`look_from`: x and y across the view, z along it) in steps of `unit` mm, and
     `angles` (V, P) of their outward normals in the view's image plane, a turn in 256 steps; `diameter`
-    mm. A byte each (a third of float16's bytes): the step, 1/127 of the farthest vertex's distance from
-    the origin, is about the raster's pixel (1/240 of the diameter) the contour was found at; a 1.4 deg
-    step turns a normal's line, the fit's search direction, by a hundredth of its length."""
+    mm. A byte each, 4 bytes a point (12 as half floats): the step, 1/127 of the farthest vertex's
+    distance from the origin, is about the raster's pixel (1/240 of the diameter) the contour was found
+    at; a 1.4 deg step turns a normal's line, the fit's search direction, by a hundredth of its length."""
 
     directions: np.ndarray
     coords: np.ndarray
