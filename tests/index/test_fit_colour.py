@@ -4,13 +4,14 @@ are `scripts/fit_colour_eval.py`'s."""
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import pytest
 import trimesh
 
 from index.draw import DrawMesh, silhouette
 from index.fit import apply_twist
-from index.fit_colour import ColourModel, fit_colour
+from index.fit_colour import MODEL_PX, ColourModel, fit_colour, look_from
 from index.pose_error import rotation_error
 
 K = np.array([[572.4, 0.0, 325.3], [0.0, 573.6, 242.0], [0.0, 0.0, 1.0]])
@@ -48,7 +49,48 @@ def test_model_is_a_contour_per_view() -> None:
     assert np.allclose(np.linalg.norm(n, axis=2), 1.0, atol=0.01)
     # contour points lie on the mesh's outside: no farther out than its bounding sphere
     assert np.linalg.norm(model.points.astype(float), axis=2).max() <= model.diameter
-    assert model.nbytes == model.directions.nbytes + model.points.nbytes + model.normals.nbytes
+    assert model.nbytes == model.directions.nbytes + model.coords.nbytes + model.angles.nbytes
+    assert model.coords.itemsize == model.angles.itemsize == 1
+
+
+def _reference_outline(
+    mesh: DrawMesh, R: np.ndarray, scale: float, size: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """The silhouette (size, size) uint8 and its outer contour's pixels (C, 2), every face filled on its
+    own (`cv2.fillConvexPoly`), orthographic at `scale` px/mm with the origin in the middle."""
+    uv = (mesh.vertices @ R.T)[:, :2] * scale + size / 2
+    mask = np.zeros((size, size), np.uint8)
+    for face in np.round(uv[mesh.faces] * 16).astype(np.int32):
+        cv2.fillConvexPoly(mask, face, 255, lineType=cv2.LINE_8, shift=4)
+    contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    return mask, np.concatenate(contours)[:, 0].astype(float)
+
+
+def test_contours_agree_with_faces_filled_one_by_one() -> None:
+    mesh = DrawMesh.of(_mesh())
+    model = ColourModel.of(mesh, views=24, points=60)
+    scale, size = MODEL_PX / mesh.diameter, 2 * MODEL_PX
+    gaps, out, inside = [], [], []
+    for v, d in enumerate(model.directions):
+        R = look_from(d.astype(float))
+        mask, contour = _reference_outline(mesh, R, scale, size)
+        points, normals = model.view(v)
+        uv = (points @ R.T)[:, :2] * scale + size / 2
+        n2 = (normals @ R.T)[:, :2]
+        gaps.append(np.linalg.norm(uv[:, None] - contour[None], axis=2).min(axis=1))
+        ahead, behind = np.round(uv + 3 * n2).astype(int), np.round(uv - 3 * n2).astype(int)
+        out.append(mask[ahead[:, 1], ahead[:, 0]] == 0)
+        inside.append(mask[behind[:, 1], behind[:, 0]] > 0)
+    # within a pixel of the outline the faces make (the reference fills the pixels an edge touches, the
+    # model's outline runs between pixel centres), the normals pointing out of it
+    gap = np.concatenate(gaps)
+    assert gap.mean() < 1.0 and np.percentile(gap, 95) < 1.5 and gap.max() < 3.0
+    assert np.mean(np.concatenate(out)) > 0.98 and np.mean(np.concatenate(inside)) > 0.98
+    # each point's depth along its view within the mesh's (a contour pixel takes a vertex's depth)
+    depth = np.einsum("vpi,vi->vp", model.points, -model.directions.astype(float))
+    span = np.einsum("ni,vi->vn", mesh.vertices, -model.directions.astype(float))
+    assert (depth >= span.min(axis=1, keepdims=True) - model.unit).all()
+    assert (depth <= span.max(axis=1, keepdims=True) + model.unit).all()
 
 
 def test_a_perturbed_start_comes_closer(scene: tuple) -> None:
