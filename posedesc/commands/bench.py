@@ -41,8 +41,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--only",
         default=None,
         help="comma-separated sections: descriptor,recognition,knn,http,register,roll,train,guards,detect,"
-        "milvus "
-        "(default: all but milvus)",
+        "milvus,memory "
+        "(default: all but milvus and memory)",
     )
     p.add_argument(
         "--all",
@@ -84,6 +84,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--detect-objects",
         default=None,
         help="objects registered in the detect section (LM-O meshes, then generated shapes; 8; --all: 8,100)",
+    )
+    p.add_argument(
+        "--memory-objects",
+        default=None,
+        help="objects in the stores of the memory section, the slope taken between the first and last "
+        "(100,1000)",
     )
     p.add_argument("--query-turns", default=None, help="query turns of the roll section (1,2,3)")
     p.add_argument(
@@ -161,6 +167,8 @@ def configure(args: argparse.Namespace) -> BenchConfig:
         cfg = replace(cfg, roll=replace(cfg.roll, objects=args.roll_objects))
     if args.detect_objects:
         cfg = replace(cfg, detect=replace(cfg.detect, counts=_ints(args.detect_objects)))
+    if args.memory_objects:
+        cfg = replace(cfg, memory=replace(cfg.memory, counts=_ints(args.memory_objects)))
     if args.query_turns:
         turns = _ints(args.query_turns)
         if max(turns) > 36:
