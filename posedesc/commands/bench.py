@@ -6,8 +6,9 @@ The default run: descriptor, recognition (8 and 100 objects), knn, http, registe
 model), train, guards (the times of the service's refusals) and detect (LM-O frames searched whole at 8
 objects): 7.5 minutes on this project's 2-core machine before detect (measured at load 1-1.6; the roll
 section is 4.8 of them), detect ~2 more. --all adds recognition at 1,000 objects, the roll section's
-untrained stand-in model, detection at 100 objects and the milvus section (a Milvus server, replica
-propagation): 25-35 minutes. --quick: every section at tiny sizes, a few minutes (the tests').
+untrained stand-in model, detection at 100 objects, the milvus section (a Milvus server, replica
+propagation) and the memory section (resident memory at 100 and 1,000 objects, ~11 minutes alone):
+35-45 minutes. --quick: every section at tiny sizes, a few minutes (the tests').
 """
 
 from __future__ import annotations
@@ -48,7 +49,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--all",
         action="store_true",
         help="also what the default leaves out for time: recognition at 1,000 objects, the roll section's "
-        "untrained model, detection at 100 objects, the milvus section",
+        "untrained model, detection at 100 objects, the milvus and memory sections",
     )
     p.add_argument("--models", type=Path, default=Path("models"), help="folder of posedesc-*.onnx models")
     p.add_argument("--modality", choices=("rgb", "depth", "rgbd"), default="rgb", help="the model measured")

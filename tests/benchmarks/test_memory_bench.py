@@ -29,7 +29,9 @@ def test_memory_section():
         assert rgb["local"]["dtype"] == "float16" and rgb["local"]["ram_anonymous_bytes"] == 0
         assert rgb["local"]["ram_mapped_bytes"] == viewpoints * width * 2
         assert rgbd["disk"]["sqlite_local_bytes"] < 100 * viewpoints  # pointers to rgb's rows, no copy
-        assert set(row["top1"]) == {"rgb", "depth", "rgbd"} and row["queried"]["VmRSS"] > row["models"]["VmRSS"]
+        assert (
+            set(row["top1"]) == {"rgb", "depth", "rgbd"} and row["queried"]["VmRSS"] > row["models"]["VmRSS"]
+        )
     assert set(out["slope_mb_per_object"]) >= {"queried_VmRSS", "queried_RssAnon"}
     table = render({"machine": {"cores_usable": 2, "cpu": "x", "load_average_at_start": [0], "load_average_at_end": [0]},
                     "threads": {"onnxruntime_intra_op": 1, "faiss_omp": 1, "opencv": 1}, "seconds": {"total": 1},

@@ -70,7 +70,9 @@ def test_a_missing_or_damaged_file_is_made_again_from_sqlite(tmp_path):
     again.close()
     path.unlink()
     third = Store(tmp_path, MODELS)
-    np.testing.assert_array_equal(third.snapshot.models["rgbd"].local[local_key(a, *ts.poses[0, :2])], ts.local[0])
+    np.testing.assert_array_equal(
+        third.snapshot.models["rgbd"].local[local_key(a, *ts.poses[0, :2])], ts.local[0]
+    )
 
 
 def test_files_of_objects_sqlite_does_not_hold_are_swept(tmp_path):
