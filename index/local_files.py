@@ -44,8 +44,10 @@ class LocalFiles:
     def __init__(self, data_dir: Path, fingerprints: Mapping[str, str]):
         self.root = Path(data_dir) / LOCAL_DIR
         self.dirs = {m: self.root / f"{m}-{fp}" for m, fp in fingerprints.items()}
-        # one mapping per file (inode), however many models map it, for as long as any row of it is used
-        self._maps: weakref.WeakValueDictionary[tuple[int, int], np.ndarray] = weakref.WeakValueDictionary()
+        # one mapping per file (inode), however many models map it, for as long as any row of it is used;
+        # keyed by its size and time too: a removed file's inode number may come again for a new file
+        # while the old mapping is still in use (a snapshot a query holds, a pipeline's cached table)
+        self._maps: weakref.WeakValueDictionary[tuple[int, ...], np.ndarray] = weakref.WeakValueDictionary()
 
     def path(self, model: str, object_id: int) -> Path:
         return self.dirs[model] / f"{int(object_id)}.npy"
@@ -83,7 +85,12 @@ class LocalFiles:
     def remove(self, object_id: int, models: list[str] | None = None) -> None:
         """The object's files (of `models`, default all); mappings in use stay valid."""
         for m in self.dirs if models is None else models:
-            self.path(m, object_id).unlink(missing_ok=True)
+            path = self.path(m, object_id)
+            try:
+                self._maps.pop(_identity(path), None)
+            except OSError:
+                continue
+            path.unlink(missing_ok=True)
 
     def sweep(self, object_ids: set[int]) -> None:
         """Removes the files of objects not in `object_ids`, temporary files, and the folders of these
@@ -153,8 +160,7 @@ class LocalFiles:
         return None
 
     def _map(self, path: Path, shape: tuple[int, ...]) -> np.ndarray:
-        st = path.stat()
-        key = (st.st_dev, st.st_ino)
+        key = _identity(path)
         if (hit := self._maps.get(key)) is None:
             mm = np.load(path, mmap_mode="r", allow_pickle=False)
             # a plain array over the mapping: its rows are plain views, lighter than np.memmap's
@@ -162,6 +168,12 @@ class LocalFiles:
         if hit.dtype != np.float16 or hit.shape != tuple(shape):
             raise ValueError(f"holds {hit.shape} {hit.dtype}")
         return hit
+
+
+def _identity(path: Path) -> tuple[int, ...]:
+    """What tells a file apart from every other, its hard links aside (they share an inode)."""
+    st = path.stat()
+    return st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns
 
 
 def _blobs(db: sqlite3.Connection, model: str, object_id: int) -> list[bytes]:
