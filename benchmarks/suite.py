@@ -30,6 +30,7 @@ from benchmarks import (
     detection,
     guards,
     knn,
+    memory,
     milvus,
     over_http,
     recognition,
@@ -41,6 +42,7 @@ from benchmarks.descriptor import DescriptorConfig
 from benchmarks.detection import DetectConfig
 from benchmarks.guards import GuardsConfig
 from benchmarks.knn import KnnConfig
+from benchmarks.memory import MemoryConfig
 from benchmarks.milvus import MilvusConfig
 from benchmarks.over_http import HttpConfig
 from benchmarks.recognition import RecognitionConfig
@@ -59,8 +61,10 @@ SECTIONS = (
     "guards",
     "detect",
     "milvus",
+    "memory",
 )
-DEFAULT_SECTIONS = SECTIONS[:-1]  # milvus starts a server and bulk-loads 10^6 templates: on request
+#: milvus starts a server and bulk-loads 10^6 templates, memory fills stores of 1,000 objects: on request
+DEFAULT_SECTIONS = tuple(s for s in SECTIONS if s not in ("milvus", "memory"))
 #: What the default run leaves out, each past the ten minutes a default run may take on a 2-core machine
 #: (seconds from docs/results/bench.json, bench-roll-*.json and bench-milvus.json, load average 0.3-6):
 OPT_IN = {
@@ -69,6 +73,8 @@ OPT_IN = {
     # a second model doubles the roll section: 453 s for both against 144-217 s for the shipped one alone
     "the roll section's untrained stand-in model": "--roll-models shipped,untrained",
     "the milvus section (a Milvus server, 10^6 templates bulk-loaded: 328 s)": "--only milvus",
+    # a store of 1,000 objects is ~9 GB of SQLite to write and read back
+    "the memory section (resident memory at 100 and 1,000 objects)": "--only memory",
     # 92 registrations beyond the 8 objects, ~2.8 s each (2 cores, load 4.5), before a frame is asked
     "detection at 100 objects": "--detect-objects 8,100",
 }
@@ -91,6 +97,8 @@ TARGETS = {  # the issue's
     "roll_register_20k_faces_s": ("<=", 2.0, "registration of a 20k-face mesh, in-plane templates (s)"),
     # the detection issue's (section "detect"): a 640x480 colour frame, every registered object found
     "detect_p50_ms_8": ("<=", 300.0, "640x480 colour frame, objects found in-process, p50, 8 objects (ms)"),
+    # issue 28: the resident memory one more registered object costs (section "memory", opt-in)
+    "memory_slope_mb_per_object": ("<=", 1.0, "resident memory per registered object, 100 to 1,000 (MB)"),
     "detect_p50_ms_100": (
         "<=",
         800.0,
@@ -120,6 +128,7 @@ class BenchConfig:
     guards: GuardsConfig = field(default_factory=GuardsConfig)
     milvus: MilvusConfig = field(default_factory=MilvusConfig)
     detect: DetectConfig = field(default_factory=DetectConfig)
+    memory: MemoryConfig = field(default_factory=MemoryConfig)
 
     def everything(self) -> BenchConfig:
         """Every section at full size: the default run and OPT_IN."""
@@ -172,6 +181,7 @@ class BenchConfig:
                 self.milvus, objects=3, large=(2000,), queries=20, recall_queries=20, registrations=1
             ),
             detect=replace(self.detect, counts=(2,), frames=1, warmup=0, rgbd_repeats=1),
+            memory=MemoryConfig(counts=(2, 4), level=1),
         )
 
 
@@ -265,6 +275,8 @@ def run(cfg: BenchConfig) -> dict:
             out["sections"][name] = guards.run(cfg.guards, cfg.models)
         elif name == "milvus":
             out["sections"][name] = milvus.run(cfg.milvus)
+        elif name == "memory":
+            out["sections"][name] = memory.run(cfg.memory, cfg.models, cfg.seed)
         elif name == "detect":
             out["sections"][name] = detection.run(cfg.detect, cfg.models, cfg.level, cfg.seed)
             notes += out["sections"][name]["notes"]
@@ -393,6 +405,10 @@ def _summary(sections: dict) -> dict:
                 if store in row["registration"]:
                     s[f"store_{store}_register_p50_ms_{n}"] = row["registration"][store]["p50_ms"]
             s[f"store_milvus_recall_at_{mv['k']}_{n}"] = row["recall_at_k"]
+    if (me := sections.get("memory")) and "slope_mb_per_object" in me:
+        s["memory_slope_mb_per_object"] = me["slope_mb_per_object"]["queried_VmRSS"]
+        s["memory_anon_slope_mb_per_object"] = me["slope_mb_per_object"]["queried_RssAnon"]
+        s["memory_disk_mb_per_object"] = me["disk_mb_per_object"]
     return s
 
 

@@ -337,6 +337,8 @@ def render(result: dict) -> str:
              "Milvus add_object", f"Milvus recall@{mv['k']}"],
             rows,
         )  # fmt: skip
+    if me := sec.get("memory"):
+        lines += _memory(me)
     if gd := sec.get("guards"):
         lines += _guards(gd)
     if de := sec.get("detect"):
@@ -361,3 +363,33 @@ def render(result: dict) -> str:
     for note in result.get("notes", []) + [f"capped: {c}" for c in result.get("capped", [])]:
         lines.append(f"note: {note}")
     return "\n".join(lines)
+
+
+def _memory(me: dict) -> list[str]:
+    """The memory section: per store size, the resident memory after a query and the disk, per object."""
+    rows = []
+    for n, row in me["by_count"].items():
+        acc = row["accounting"]
+        rows.append(
+            [
+                f"{int(n):,}",
+                f"{row['queried']['VmRSS'] / 1e6:,.0f}",
+                f"{row['queried']['RssAnon'] / 1e6:,.0f}",
+                f"{row['queried']['RssFile'] / 1e6:,.0f}",
+                f"{acc['ram_anonymous_bytes_per_object'] / 1e6:.2f}",
+                f"{acc['ram_mapped_bytes_per_object'] / 1e6:.2f}",
+                f"{acc['disk_bytes_per_object']['total'] / 1e6:.2f}",
+            ]
+        )
+    lines = _table(
+        "memory: the service's state after one query per model (VmRSS = RssAnon + RssFile, MB), and "
+        "the store's accounting per object (MB)",
+        ["objects", "VmRSS", "RssAnon", "RssFile", "heap / object", "mapped / object", "disk / object"],
+        rows,
+    )
+    if slope := me.get("slope_mb_per_object"):
+        lines.append(
+            f"slope: {slope['queried_VmRSS']} MB resident per object ({slope['queried_RssAnon']} heap), "
+            f"{me['disk_mb_per_object']} MB on disk"
+        )
+    return lines

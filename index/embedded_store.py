@@ -8,11 +8,17 @@ Layout of a data directory:
   `generation` counter bumped by every write. One SQLite transaction per write, so after a crash an
   object is wholly present or wholly absent, for every model at once.
 - `<model>.faiss` + `<model>.faiss.json`: a snapshot of that model's index (`index.snapshot_files`).
+- `local/`: the local features, one memory-mapped file per object and model (`index.local_files`).
   A damaged `store.sqlite` (SQLite's own `quick_check` fails) is refused with a one-line `StoreError`.
 
 A full disk: a write that SQLite cannot commit is rolled back and raises `OSError(ENOSPC)`; the store keeps
 its previous state. A snapshot that cannot be written after a commit is only a warning (its tag is
 removed, so it is rebuilt at the next start); so is one rebuilt on open that cannot be saved.
+
+Two models whose templates are the same (the RGB-D model takes the rgb model's, `index.register.template_twins`:
+the same poses, descriptors and local features, object for object) share one `ModelIndex` in memory and one
+snapshot file: the second's tag says `same_as` the first (`_twin`). They part when a write gives them
+different templates (`_own`).
 
 Readers never see a half-added object: the live state is an immutable `FaissSnapshot` (indexes +
 metadata). A write builds the next one on copies (copy-on-write) and swaps the reference under a lock; a
@@ -36,6 +42,7 @@ from pathlib import Path
 import faiss
 import numpy as np
 
+from index.local_files import LocalFiles, keep_twins, marker
 from index.records import Match, NameTaken, ObjectRecord, StoreError, TemplateSet, check_set, local_key
 from index.search import FaissSnapshot, ModelIndex
 from index.snapshot_files import (
@@ -45,6 +52,7 @@ from index.snapshot_files import (
     grown,
     paths,
     read_snapshot,
+    read_tag,
     save_snapshot,
     tune,
     write_atomic,
@@ -140,6 +148,7 @@ class EmbeddedStore:
         self.ivf_min = ivf_min  # "auto": IVF from this many templates (`index.snapshot_files.ivf_from`)
         self._write = threading.Lock()
         self._tags: dict[str, dict] = {}  # the snapshot files' tags, as last written
+        self._files = LocalFiles(self.dir, {m: fp for m, (_, fp) in models.items()})
         path = self.dir / "store.sqlite"
         try:
             self._db = sqlite3.connect(path, check_same_thread=False, isolation_level=None)
@@ -215,29 +224,40 @@ class EmbeddedStore:
         for m, ts in templates.items():
             self._check_set(m, ts)
         with self._write:
-            with self._transaction() as cur:
-                row = cur.execute("SELECT id FROM objects WHERE name = ? LIMIT 1", (name,)).fetchone()
-                if row is not None:
-                    raise NameTaken(name, int(row[0]))
-                created = time.time()
-                cur.execute(
-                    "INSERT INTO objects (name, symmetry, faces, created, extra, mesh) VALUES (?, ?, ?, ?, ?, ?)",
-                    (name, symmetry, int(faces), created, json.dumps(dict(extra or {})), mesh),
-                )
-                oid = int(cur.lastrowid)  # type: ignore[arg-type]
-                new_ids = {m: self._insert_templates(cur, oid, m, ts) for m, ts in templates.items()}
-                rec = ObjectRecord(
-                    oid,
-                    name,
-                    symmetry,
-                    int(faces),
-                    created,
-                    {m: len(ids) for m, ids in new_ids.items()},
-                    extra or {},
-                )
-                snap = self._next(
-                    cur, add={m: (oid, ids, templates[m]) for m, ids in new_ids.items()}, put=rec
-                )
+            oid = None
+            try:
+                with self._transaction() as cur:
+                    row = cur.execute("SELECT id FROM objects WHERE name = ? LIMIT 1", (name,)).fetchone()
+                    if row is not None:
+                        raise NameTaken(name, int(row[0]))
+                    created = time.time()
+                    cur.execute(
+                        "INSERT INTO objects (name, symmetry, faces, created, extra, mesh) "
+                        "VALUES (?, ?, ?, ?, ?, ?)",
+                        (name, symmetry, int(faces), created, json.dumps(dict(extra or {})), mesh),
+                    )
+                    oid = int(cur.lastrowid)  # type: ignore[arg-type]
+                    twins = self._twins_in(templates)
+                    new_ids = {
+                        m: self._insert_templates(cur, oid, m, ts, twins.get(m))
+                        for m, ts in templates.items()
+                    }
+                    rec = ObjectRecord(
+                        oid,
+                        name,
+                        symmetry,
+                        int(faces),
+                        created,
+                        {m: len(ids) for m, ids in new_ids.items()},
+                        extra or {},
+                    )
+                    snap = self._next(
+                        cur, add={m: (oid, ids, templates[m]) for m, ids in new_ids.items()}, put=rec
+                    )
+            except BaseException:
+                if oid is not None:  # files written for a write that was not committed (the id comes again)
+                    self._files.remove(oid)
+                raise
             self._swap(snap)
         return rec
 
@@ -248,11 +268,15 @@ class EmbeddedStore:
             old = self._snap.objects.get(object_id)
             if old is None:
                 raise KeyError(object_id)
-            with self._transaction() as cur:
-                ids = self._insert_templates(cur, object_id, model, ts)
-                counts = {**old.templates, model: old.templates.get(model, 0) + len(ids)}
-                rec = replace(old, templates=counts)
-                snap = self._next(cur, add={model: (object_id, ids, ts)}, put=rec)
+            try:
+                with self._transaction() as cur:
+                    ids = self._insert_templates(cur, object_id, model, ts)
+                    counts = {**old.templates, model: old.templates.get(model, 0) + len(ids)}
+                    rec = replace(old, templates=counts)
+                    snap = self._next(cur, add={model: (object_id, ids, ts)}, put=rec)
+            except BaseException:
+                self._files.remove(object_id, [model])
+                raise
             self._swap(snap)
 
     def remove_object(self, object_id: int) -> bool:
@@ -265,6 +289,7 @@ class EmbeddedStore:
                 cur.execute("DELETE FROM objects WHERE id = ?", (object_id,))
                 snap = self._next(cur, remove=object_id)
             self._swap(snap)
+            self._files.remove(object_id)  # snapshots still searching map them on: Linux keeps the pages
         return True
 
     def close(self) -> None:
@@ -294,16 +319,28 @@ class EmbeddedStore:
                 raise OSError(errno.ENOSPC, f"disk full: could not write {self.dir / 'store.sqlite'}") from e
             raise
 
+    def _twins_in(self, add: Mapping[str, TemplateSet]) -> dict[str, str]:
+        """The models of a write that go on sharing an earlier model's index (`_next`): model -> that one."""
+        return {
+            m: src
+            for m in add
+            if (src := _twin(self._snap.models, m)) is not None and src in add and _same_set(add[src], add[m])
+        }
+
     def _check_set(self, model: str, ts: TemplateSet) -> None:
         check_set(model, self.dims, ts)
 
-    def _insert_templates(self, cur: sqlite3.Cursor, oid: int, model: str, ts: TemplateSet) -> np.ndarray:
+    def _insert_templates(
+        self, cur: sqlite3.Cursor, oid: int, model: str, ts: TemplateSet, same_as: str | None = None
+    ) -> np.ndarray:
+        """`ts` as `model`'s rows of object `oid`; the local features of a model whose templates are
+        `same_as`'s in this write are not stored twice: its rows say where they are (`index.local_files.marker`)."""
         desc = np.ascontiguousarray(ts.descriptors, np.float32)
         poses = np.asarray(ts.poses, float)
         local: list[bytes | None] = [None] * len(desc)
         if ts.local_rows is not None and ts.local is not None:
             for r, f in zip(ts.local_rows, np.asarray(ts.local, np.float16), strict=True):
-                local[int(r)] = f.tobytes()
+                local[int(r)] = f.tobytes() if same_as is None else marker(same_as)
         first = cur.execute("SELECT COALESCE(MAX(id), 0) + 1 FROM templates").fetchone()[0]
         ids = np.arange(first, first + len(desc), dtype=np.int64)
         cur.executemany(
@@ -330,21 +367,31 @@ class EmbeddedStore:
         models = dict(old.models)
         if remove is not None:
             del objects[remove]
+            done: dict[int, ModelIndex] = {}  # a model sharing another's index: the same result
             for m, mi in old.models.items():
                 gone = mi.object_ids == remove
-                if gone.any():
+                if id(mi) in done:
+                    models[m] = done[id(mi)]
+                elif gone.any():
                     index = faiss.clone_index(mi.index)
                     index.remove_ids(mi.ids[gone])
                     local = {k: v for k, v in mi.local.items() if k[0] != remove}
                     models[m] = ModelIndex(index, mi.ids[~gone], mi.object_ids[~gone], mi.poses[~gone], local)
-        for m, (oid, ids, ts) in (add or {}).items():
+                done[id(mi)] = models[m]
+        add = add or {}
+        for m in [m for m in self.dims if m in add]:  # a twin after the model it shares with
+            oid, ids, ts = add[m]
             mi = old.models[m]
+            if _twin(old.models, m) is not None:  # after the loop
+                continue
             index = faiss.clone_index(mi.index)
             index.add_with_ids(np.ascontiguousarray(ts.descriptors, np.float32), ids)
             index = grown(index, self.kind, self.nlist, self.nprobe, self.ivf_min)
             local = dict(mi.local)
             if ts.local_rows is not None and ts.local is not None:
-                for r, f in zip(ts.local_rows, np.asarray(ts.local, np.float16), strict=True):
+                order = np.argsort(ts.local_rows, kind="stable")  # the file's rows in template id order
+                rows = self._files.write(m, oid, np.asarray(ts.local, np.float16)[order])
+                for r, f in zip(np.asarray(ts.local_rows)[order], rows, strict=True):
                     p = ts.poses[int(r)]
                     local[local_key(oid, p[0], p[1])] = f
             models[m] = ModelIndex(
@@ -354,6 +401,13 @@ class EmbeddedStore:
                 np.concatenate([mi.poses, np.asarray(ts.poses, np.float32)]),
                 local,
             )
+        for m in self.dims:
+            if (src := _twin(old.models, m)) is None or not (m in add or src in add):
+                continue
+            if m in add and src in add and _same_set(add[src][2], add[m][2]):  # as `_twins_in`
+                models[m] = models[src]
+            else:  # they part: an index of its own, from SQLite (this write's rows too); the shared one's
+                models[m] = self._own(m)  # ids are its twin's
         if put is not None:
             objects[put.object_id] = put
         return FaissSnapshot(old.generation + 1, objects, models)
@@ -375,7 +429,7 @@ class EmbeddedStore:
         its tag moved to the new generation."""
         try:
             if changed:
-                self._save_index(m, snap.models[m], snap.generation)
+                self._save_index(m, snap.models[m], snap.generation, _twin(snap.models, m))
             elif m in self._tags:  # unchanged index: only its tag moves to the new generation
                 tag = {**self._tags[m], "generation": snap.generation}
                 write_atomic(self._paths(m)[1], json.dumps(tag).encode())
@@ -396,6 +450,7 @@ class EmbeddedStore:
                 log.warning("model %s changed since its templates were made: they will be made again", name)
             with self._db:
                 self._db.execute("BEGIN IMMEDIATE")
+                keep_twins(self._db, name)
                 self._db.execute("DELETE FROM templates WHERE model = ?", (name,))
                 self._db.execute("INSERT OR REPLACE INTO models VALUES (?, ?, ?)", (name, fingerprint, dim))
                 self._db.execute(
@@ -417,10 +472,72 @@ class EmbeddedStore:
                 "SELECT id, name, symmetry, faces, created, extra FROM objects"
             )
         }
-        models = {m: self._load_model(m, generation) for m in self.dims}
+        self._files.sweep(set(objects))
+        models: dict[str, ModelIndex] = {}
+        for m in self.dims:
+            tag = read_tag(self.dir, m) or {}
+            src = tag.get("same_as")
+            if tag.get("generation") == generation and src in models and self._rows_match(m, models[src]):
+                models[m], self._tags[m] = models[src], tag
+            else:
+                models[m] = self._load_model(m, generation)
+        self._share_twins(models, generation)
         return FaissSnapshot(generation, objects, models)
 
-    def _load_model(self, model: str, generation: int) -> ModelIndex:
+    def _rows_match(self, model: str, mi: ModelIndex) -> bool:
+        """Whether `model`'s templates in SQLite are `mi`'s, pose for pose and object for object, with as
+        many local features (what a `same_as` tag of the same generation promises)."""
+        rows = self._db.execute(
+            "SELECT object_id, azimuth, elevation, inplane, local IS NOT NULL FROM templates "
+            "WHERE model = ? ORDER BY id",
+            (model,),
+        ).fetchall()
+        meta = np.array(rows, dtype=float).reshape(-1, 5)
+        return (
+            len(meta) == mi.size
+            and np.array_equal(meta[:, 0].astype(np.int64), mi.object_ids)
+            and np.array_equal(meta[:, 1:4].astype(np.float32), mi.poses)
+            and int(meta[:, 4].sum()) == len(mi.local)
+        )
+
+    def _share_twins(self, models: dict[str, ModelIndex], generation: int) -> None:
+        """Models holding the same templates as an earlier one (a store from before sharing, an empty one)
+        made to share its index, and tagged so (`same_as`), so that the next start need not compare."""
+        names = list(models)
+        for i, m in enumerate(names):
+            for src in names[:i]:
+                if _twin(models, m) is None and self._same(src, models[src], m, models[m]):
+                    models[m] = models[src]
+                    try:
+                        self._save_index(m, models[m], generation, src)
+                    except OSError as e:  # as any snapshot: only a warning, compared again at the next start
+                        log.warning("could not tag %s as sharing %s's index: %s", m, src, e)
+                    break
+
+    def _same(self, a: str, ia: ModelIndex, b: str, ib: ModelIndex) -> bool:
+        """Whether models `a` and `b` hold the same templates: objects and poses in the same order, local
+        features, and descriptors (SQLite's, compared row by row: any index kind, little memory)."""
+        if self.dims[a] != self.dims[b] or ia.size != ib.size or ia.local.keys() != ib.local.keys():
+            return False
+        if not (np.array_equal(ia.object_ids, ib.object_ids) and np.array_equal(ia.poses, ib.poses)):
+            return False
+        for k, f in ia.local.items():
+            g = ib.local[k]
+            if f.__array_interface__["data"][0] != g.__array_interface__["data"][0] and not np.array_equal(
+                f, g
+            ):
+                return False
+        query = "SELECT descriptor FROM templates WHERE model = ? ORDER BY id"
+        rows_a, rows_b = self._db.execute(query, (a,)), self._db.execute(query, (b,))
+        return all(x == y for (x,), (y,) in zip(rows_a, rows_b, strict=True))
+
+    def _own(self, model: str) -> ModelIndex:
+        """`model`'s index from SQLite alone (this connection: an open transaction's rows too)."""
+        return self._load_model(model, None)
+
+    def _load_model(self, model: str, generation: int | None) -> ModelIndex:
+        """`model`'s index: its snapshot of `generation` when it has one, else built from SQLite and saved
+        (not saved for None: in a write, `_swap` saves it)."""
         rows = self._db.execute(
             "SELECT id, object_id, azimuth, elevation, inplane FROM templates WHERE model = ? ORDER BY id",
             (model,),
@@ -428,29 +545,26 @@ class EmbeddedStore:
         meta = np.array(rows, dtype=float).reshape(-1, 5)
         ids, object_ids = meta[:, 0].astype(np.int64), meta[:, 1].astype(np.int64)
         poses = meta[:, 2:].astype(np.float32)
-        local = {
-            local_key(oid, az, el): np.frombuffer(blob, np.float16)
-            for oid, az, el, blob in self._db.execute(
-                "SELECT object_id, azimuth, elevation, local FROM templates "
-                "WHERE model = ? AND local IS NOT NULL",
-                (model,),
-            )
-        }
-        index = self._read_snapshot(model, generation, len(ids))
+        local = self._files.load(self._db, model)
+        index = None if generation is None else self._read_snapshot(model, generation, len(ids))
         if index is None:
             index = self._build(model, ids)
-            try:
-                self._save_index(model, ModelIndex(index, ids, object_ids, poses), generation)
-            except OSError as e:  # a full disk: SQLite is intact and the index is built, so serve on
-                log.warning(
-                    "could not save the %s index snapshot to %s (%s): serving from SQLite; it is rebuilt "
-                    "at each start until it can be saved",
-                    model,
-                    self.dir,
-                    e,
-                )
-                self._paths(model)[1].unlink(missing_ok=True)  # as in `_swap`: no tag for a file it lacks
+            if generation is not None:
+                self._save_loaded(model, ModelIndex(index, ids, object_ids, poses), generation)
         return ModelIndex(index, ids, object_ids, poses, local)
+
+    def _save_loaded(self, model: str, mi: ModelIndex, generation: int) -> None:
+        try:
+            self._save_index(model, mi, generation)
+        except OSError as e:  # a full disk: SQLite is intact and the index is built, so serve on
+            log.warning(
+                "could not save the %s index snapshot to %s (%s): serving from SQLite; it is rebuilt "
+                "at each start until it can be saved",
+                model,
+                self.dir,
+                e,
+            )
+            self._paths(model)[1].unlink(missing_ok=True)  # as in `_swap`: no tag for a file it lacks
 
     def _paths(self, model: str) -> tuple[Path, Path]:
         return paths(self.dir, model)
@@ -471,8 +585,47 @@ class EmbeddedStore:
             desc[i] = np.frombuffer(blob, np.float32)
         return build_index(desc, ids, self.kind, self.nlist, self.nprobe, self.ivf_min)
 
-    def _save_index(self, model: str, mi: ModelIndex, generation: int) -> None:
-        self._tags[model] = save_snapshot(self.dir, model, mi.index, generation, self.kind)
+    def _save_index(self, model: str, mi: ModelIndex, generation: int, same_as: str | None = None) -> None:
+        """Its snapshot file and tag; for a model sharing `same_as`'s index, a tag saying so and no file."""
+        if same_as is None:
+            self._tags[model] = save_snapshot(self.dir, model, mi.index, generation, self.kind)
+            return
+        path, tag_path = self._paths(model)
+        tag = {
+            "generation": generation,
+            "ntotal": int(mi.index.ntotal),
+            "kind": self.kind,
+            "same_as": same_as,
+        }
+        write_atomic(tag_path, json.dumps(tag).encode())
+        path.unlink(missing_ok=True)
+        self._tags[model] = tag
 
     def problem(self) -> str | None:
         return None  # in this process: it serves as long as the process does
+
+
+def _twin(models: Mapping[str, ModelIndex], model: str) -> str | None:
+    """The earlier model whose index `model` shares, if any."""
+    for m, mi in models.items():
+        if m == model:
+            return None
+        if mi is models[model]:
+            return m
+    return None
+
+
+def _same_set(a: TemplateSet, b: TemplateSet) -> bool:
+    """Whether two models' templates of an object are the same: poses, descriptors and local features."""
+    if a is b:
+        return True
+    if (a.local is None) != (b.local is None):
+        return False
+    same = np.array_equal(a.poses, b.poses) and np.array_equal(a.descriptors, b.descriptors)
+    if a.local is None or b.local is None:
+        return same
+    return (
+        same
+        and np.array_equal(a.local_rows, b.local_rows)  # type: ignore[arg-type]
+        and np.array_equal(np.asarray(a.local, np.float16), np.asarray(b.local, np.float16))
+    )

@@ -62,6 +62,15 @@ def read_snapshot(
     return index, tag
 
 
+def read_tag(data_dir: Path, model: str) -> dict | None:
+    """`model`'s snapshot tag, or None when there is none or it cannot be read."""
+    try:
+        tag = json.loads(paths(data_dir, model)[1].read_text())
+    except (OSError, ValueError):
+        return None
+    return tag if isinstance(tag, dict) else None
+
+
 def ivf_from(kind: str, n: int, nlist: int, ivf_min: int = AUTO_IVF_MIN) -> bool:
     """Whether a `kind` index of n templates is IVF: "ivf" once there are enough to train it (39 per
     list), "auto" from `ivf_min` (and enough to train), "flat" never."""

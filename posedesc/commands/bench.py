@@ -6,8 +6,9 @@ The default run: descriptor, recognition (8 and 100 objects), knn, http, registe
 model), train, guards (the times of the service's refusals) and detect (LM-O frames searched whole at 8
 objects): 7.5 minutes on this project's 2-core machine before detect (measured at load 1-1.6; the roll
 section is 4.8 of them), detect ~2 more. --all adds recognition at 1,000 objects, the roll section's
-untrained stand-in model, detection at 100 objects and the milvus section (a Milvus server, replica
-propagation): 25-35 minutes. --quick: every section at tiny sizes, a few minutes (the tests').
+untrained stand-in model, detection at 100 objects, the milvus section (a Milvus server, replica
+propagation) and the memory section (resident memory at 100 and 1,000 objects, ~11 minutes alone):
+35-45 minutes. --quick: every section at tiny sizes, a few minutes (the tests').
 """
 
 from __future__ import annotations
@@ -41,14 +42,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--only",
         default=None,
         help="comma-separated sections: descriptor,recognition,knn,http,register,roll,train,guards,detect,"
-        "milvus "
-        "(default: all but milvus)",
+        "milvus,memory "
+        "(default: all but milvus and memory)",
     )
     p.add_argument(
         "--all",
         action="store_true",
         help="also what the default leaves out for time: recognition at 1,000 objects, the roll section's "
-        "untrained model, detection at 100 objects, the milvus section",
+        "untrained model, detection at 100 objects, the milvus and memory sections",
     )
     p.add_argument("--models", type=Path, default=Path("models"), help="folder of posedesc-*.onnx models")
     p.add_argument("--modality", choices=("rgb", "depth", "rgbd"), default="rgb", help="the model measured")
@@ -84,6 +85,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--detect-objects",
         default=None,
         help="objects registered in the detect section (LM-O meshes, then generated shapes; 8; --all: 8,100)",
+    )
+    p.add_argument(
+        "--memory-objects",
+        default=None,
+        help="objects in the stores of the memory section, the slope taken between the first and last "
+        "(100,1000)",
     )
     p.add_argument("--query-turns", default=None, help="query turns of the roll section (1,2,3)")
     p.add_argument(
@@ -161,6 +168,8 @@ def configure(args: argparse.Namespace) -> BenchConfig:
         cfg = replace(cfg, roll=replace(cfg.roll, objects=args.roll_objects))
     if args.detect_objects:
         cfg = replace(cfg, detect=replace(cfg.detect, counts=_ints(args.detect_objects)))
+    if args.memory_objects:
+        cfg = replace(cfg, memory=replace(cfg.memory, counts=_ints(args.memory_objects)))
     if args.query_turns:
         turns = _ints(args.query_turns)
         if max(turns) > 36:

@@ -118,7 +118,8 @@ def options(*argv: str) -> argparse.Namespace:
 def test_the_default_run_leaves_out_the_opt_in_parts():
     """What takes the default past ten minutes on two cores is opt-in (--all, or named)."""
     cfg = configure(options())
-    assert cfg.sections == DEFAULT_SECTIONS and "milvus" not in cfg.sections and "guards" in cfg.sections
+    assert cfg.sections == DEFAULT_SECTIONS and "guards" in cfg.sections
+    assert "milvus" not in cfg.sections and "memory" not in cfg.sections
     assert max(cfg.recognition.counts) == 100 and cfg.roll.models == ("shipped",)
     assert "detect" in cfg.sections and cfg.detect.counts == (8,)
     every = configure(options("--all"))
@@ -131,7 +132,9 @@ def test_the_default_run_leaves_out_the_opt_in_parts():
     assert configure(options("--objects", "8,100,1000")).recognition.counts == (8, 100, 1000)
     assert configure(options("--roll-models", "shipped,untrained")).roll.models == ("shipped", "untrained")
     assert configure(options("--detect-objects", "8,100")).detect.counts == (8, 100)
-    assert len(OPT_IN) == 4
+    memory = configure(options("--only", "memory", "--memory-objects", "100,300,1000"))
+    assert memory.sections == ("memory",) and memory.memory.counts == (100, 300, 1000)
+    assert len(OPT_IN) == 5
     assert configure(options("--profile", "p")).roll.profile == Path("p") and cfg.roll.profile is None
     quick = configure(options("--quick"))
     assert quick.guards.small_only and quick.guards.fuzz_cases < cfg.guards.fuzz_cases
