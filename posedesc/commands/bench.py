@@ -6,8 +6,9 @@ The default run: descriptor, recognition (8 and 100 objects), knn, http, registe
 model), train, guards (the times of the service's refusals) and detect (LM-O frames searched whole at 8
 objects): 7.5 minutes on this project's 2-core machine before detect (measured at load 1-1.6; the roll
 section is 4.8 of them), detect ~2 more. --all adds recognition at 1,000 objects, the roll section's
-untrained stand-in model, detection at 100 objects and the milvus section (a Milvus server, replica
-propagation): 25-35 minutes. --quick: every section at tiny sizes, a few minutes (the tests').
+untrained stand-in model, detection at 100 objects, the milvus section (a Milvus server, replica
+propagation) and the fit section (the pose fit on and off on LM-O's validation frames and the Kinect
+frame; `--only fit`): 25-35 minutes. --quick: every section at tiny sizes, a few minutes (the tests').
 """
 
 from __future__ import annotations
@@ -41,14 +42,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--only",
         default=None,
         help="comma-separated sections: descriptor,recognition,knn,http,register,roll,train,guards,detect,"
-        "milvus "
-        "(default: all but milvus)",
+        "milvus,fit (default: all but milvus and fit)",
     )
     p.add_argument(
         "--all",
         action="store_true",
         help="also what the default leaves out for time: recognition at 1,000 objects, the roll section's "
-        "untrained model, detection at 100 objects, the milvus section",
+        "untrained model, detection at 100 objects, the milvus and fit sections",
     )
     p.add_argument("--models", type=Path, default=Path("models"), help="folder of posedesc-*.onnx models")
     p.add_argument("--modality", choices=("rgb", "depth", "rgbd"), default="rgb", help="the model measured")
@@ -84,6 +84,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--detect-objects",
         default=None,
         help="objects registered in the detect section (LM-O meshes, then generated shapes; 8; --all: 8,100)",
+    )
+    p.add_argument(
+        "--fit-frames",
+        default=None,
+        help="LM-O scene 2 frames of the fit section, comma-separated (default: the rgb model's val frames)",
     )
     p.add_argument("--query-turns", default=None, help="query turns of the roll section (1,2,3)")
     p.add_argument(
@@ -161,6 +166,8 @@ def configure(args: argparse.Namespace) -> BenchConfig:
         cfg = replace(cfg, roll=replace(cfg.roll, objects=args.roll_objects))
     if args.detect_objects:
         cfg = replace(cfg, detect=replace(cfg.detect, counts=_ints(args.detect_objects)))
+    if args.fit_frames:
+        cfg = replace(cfg, fit=replace(cfg.fit, frames=_ints(args.fit_frames)))
     if args.query_turns:
         turns = _ints(args.query_turns)
         if max(turns) > 36:
