@@ -67,8 +67,9 @@ SECTIONS = (
     "fit",
 )
 #: sections run only when asked for (--only, --all): milvus starts a server and bulk-loads 10^6 templates;
-#: fit registers LM-O's 7 objects with two models and makes their fit models (~1 min) before 2 x 115 + 2 x
-#: 115 + 2 x 30 timed calls
+#: fit took 74 s (load 5-6, docs/results/bench-fit.json), past the ~60 s a default section may add: LM-O's
+#: 7 objects registered with two models (19 s), their colour fit models (28 s: ColourModel.of, 2.7-6.7 s
+#: each), then 2 x (115 + 115 + 30) calls (26 s). A faster ColourModel.of may bring it into the default run
 ON_REQUEST = ("milvus", "fit")
 DEFAULT_SECTIONS = tuple(s for s in SECTIONS if s not in ON_REQUEST)
 #: What the default run leaves out, each past the ten minutes a default run may take on a 2-core machine
@@ -81,6 +82,7 @@ OPT_IN = {
     "the milvus section (a Milvus server, 10^6 templates bulk-loaded: 328 s)": "--only milvus",
     # 92 registrations beyond the 8 objects, ~2.8 s each (2 cores, load 4.5), before a frame is asked
     "detection at 100 objects": "--detect-objects 8,100",
+    # 74 s at load 5-6, most of it registering LM-O with two models and making its colour fit models
     "the fit section (the pose fit on and off; LM-O registered, its validation frames asked)": "--only fit",
 }
 DEFAULT_COUNTS = (8, 100)  # the recognition section's object counts by default
