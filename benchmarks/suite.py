@@ -9,7 +9,10 @@ throughput), "guards" (how long the refusals of hostile uploads, oversized and d
 port take; `benchmarks/guards.py`), "milvus" (the template store through Milvus beside the embedded one,
 at 100 objects and 10^6 templates, HNSW's recall, and how soon a replica sees another's registration and
 deletion; `benchmarks/milvus.py`), "detect" (every registered object found in a whole 640x480 LM-O frame,
-in-process, at 8 objects and, opt-in, 100; the RGB-D Kinect frame at 8; `benchmarks/detection.py`). The headline figures are copied to the top of the JSON (`summary`, and
+in-process, at 8 objects and, opt-in, 100; the RGB-D Kinect frame at 8; `benchmarks/detection.py`), "fit" (on
+request: the pose fit's time per answer and the call with and without it, on LM-O's validation frames in
+colour, with rendered depth and on the Kinect frame; each object's fit models' seconds and bytes;
+`benchmarks/fit.py`). The headline figures are copied to the top of the JSON (`summary`, and
 the issue's keys `recognize_vs_linemod_speedup_100` and `register_20k_faces_s`) with the issue's targets.
 
 The default run fits ten minutes on a 2-core machine; `everything()` (`posedesc bench --all`) adds what
@@ -28,6 +31,7 @@ from tqdm import tqdm
 from benchmarks import (
     descriptor,
     detection,
+    fit,
     guards,
     knn,
     memory,
@@ -40,6 +44,7 @@ from benchmarks import (
 )
 from benchmarks.descriptor import DescriptorConfig
 from benchmarks.detection import DetectConfig
+from benchmarks.fit import FitConfig
 from benchmarks.guards import GuardsConfig
 from benchmarks.knn import KnnConfig
 from benchmarks.memory import MemoryConfig
@@ -62,9 +67,14 @@ SECTIONS = (
     "detect",
     "milvus",
     "memory",
+    "fit",
 )
-#: milvus starts a server and bulk-loads 10^6 templates, memory fills stores of 1,000 objects: on request
-DEFAULT_SECTIONS = tuple(s for s in SECTIONS if s not in ("milvus", "memory"))
+#: sections run only when asked for (--only, --all): milvus starts a server and bulk-loads 10^6 templates;
+#: memory fills stores of 1,000 objects; fit took 74 s (load 5-6, docs/results/bench-fit.json), past the
+#: ~60 s a default section may add: LM-O's 7 objects registered with two models (19 s), their colour fit
+#: models (28 s, before ColourModel.of became ~15 times faster), then 2 x (115 + 115 + 30) calls (26 s)
+ON_REQUEST = ("milvus", "memory", "fit")
+DEFAULT_SECTIONS = tuple(s for s in SECTIONS if s not in ON_REQUEST)
 #: What the default run leaves out, each past the ten minutes a default run may take on a 2-core machine
 #: (seconds from docs/results/bench.json, bench-roll-*.json and bench-milvus.json, load average 0.3-6):
 OPT_IN = {
@@ -77,6 +87,8 @@ OPT_IN = {
     "the memory section (resident memory at 100 and 1,000 objects)": "--only memory",
     # 92 registrations beyond the 8 objects, ~2.8 s each (2 cores, load 4.5), before a frame is asked
     "detection at 100 objects": "--detect-objects 8,100",
+    # 74 s at load 5-6, most of it registering LM-O with two models and making its colour fit models
+    "the fit section (the pose fit on and off; LM-O registered, its validation frames asked)": "--only fit",
 }
 DEFAULT_COUNTS = (8, 100)  # the recognition section's object counts by default
 TARGETS = {  # the issue's
@@ -104,6 +116,9 @@ TARGETS = {  # the issue's
         800.0,
         "640x480 colour frame, objects found in-process, p50, 100 objects (ms)",
     ),
+    # the pose-fit issue's (section "fit"): the best answer's 6-DoF fit, p50 per answer, 2 cores
+    "fit_colour_p50_ms": ("<=", fit.TARGET_COLOUR_MS, "pose fit per answer, colour, LM-O val, p50 (ms)"),
+    "fit_depth_p50_ms": ("<=", fit.TARGET_DEPTH_MS, "pose fit per answer, depth (Kinect frame), p50 (ms)"),
 }
 
 
@@ -129,6 +144,7 @@ class BenchConfig:
     milvus: MilvusConfig = field(default_factory=MilvusConfig)
     detect: DetectConfig = field(default_factory=DetectConfig)
     memory: MemoryConfig = field(default_factory=MemoryConfig)
+    fit: FitConfig = field(default_factory=FitConfig)
 
     def everything(self) -> BenchConfig:
         """Every section at full size: the default run and OPT_IN."""
@@ -182,6 +198,7 @@ class BenchConfig:
             ),
             detect=replace(self.detect, counts=(2,), frames=1, warmup=0, rgbd_repeats=1),
             memory=MemoryConfig(counts=(2, 4), level=1),
+            fit=replace(self.fit, max_frames=1, objects=2, warmup=0, kinect_repeats=1),
         )
 
 
@@ -279,6 +296,9 @@ def run(cfg: BenchConfig) -> dict:
             out["sections"][name] = memory.run(cfg.memory, cfg.models, cfg.seed)
         elif name == "detect":
             out["sections"][name] = detection.run(cfg.detect, cfg.models, cfg.level, cfg.seed)
+            notes += out["sections"][name]["notes"]
+        elif name == "fit":
+            out["sections"][name] = fit.run(replace(cfg.fit, seed=cfg.seed), cfg.models, cfg.level)
             notes += out["sections"][name]["notes"]
         elif name in ("http", "register"):
             if "service" in seconds:  # both ran on the one service
@@ -393,6 +413,8 @@ def _summary(sections: dict) -> dict:
         s["guards_busy_port_s"] = gd["busy_port"]["median_s"]
     if de := sections.get("detect"):
         s |= _detect_summary(de)
+    if fi := sections.get("fit"):
+        s |= fit.summary(fi)
     if mv := sections.get("milvus"):
         if pr := mv.get("propagation"):
             for what in ("registration", "deletion"):

@@ -343,6 +343,27 @@ def render(result: dict) -> str:
         lines += _guards(gd)
     if de := sec.get("detect"):
         lines += _detect(de)
+    if (fi := sec.get("fit")) and fi["rows"]:
+        from benchmarks.fit import table as fit_rows
+
+        mm = fi["models_made"]
+        lines += _table(
+            f"the pose fit (pose_fit 1, one answer a call) beside the call without it, in-process; each object's "
+            f"models made in (median) colour {mm['colour_s_median']:.2f} s, {mm['colour_bytes_max'] / 1024:.0f} kB, "
+            f"depth {mm['depth_s_median'] * 1e3:.0f} ms, {mm['depth_bytes_max'] / 1024:.0f} kB; ms",
+            [
+                "frames",
+                "model",
+                "calls",
+                "fit p50",
+                "fit p90",
+                "call p50 off",
+                "call p50 on",
+                "on/off",
+                "moved",
+            ],
+            list(fit_rows(fi)),
+        )
     if (pr := (sec.get("milvus") or {}).get("propagation")) is not None:
         lines += _table(
             f"replicas: two stores on one Milvus and one shared directory (each polls every "

@@ -7,8 +7,9 @@ model), train, guards (the times of the service's refusals) and detect (LM-O fra
 objects): 7.5 minutes on this project's 2-core machine before detect (measured at load 1-1.6; the roll
 section is 4.8 of them), detect ~2 more. --all adds recognition at 1,000 objects, the roll section's
 untrained stand-in model, detection at 100 objects, the milvus section (a Milvus server, replica
-propagation) and the memory section (resident memory at 100 and 1,000 objects, ~11 minutes alone):
-35-45 minutes. --quick: every section at tiny sizes, a few minutes (the tests').
+propagation), the memory section (resident memory at 100 and 1,000 objects, ~11 minutes alone) and
+the fit section (the pose fit on and off on LM-O's validation frames and the Kinect frame, 74 s; `--only
+fit`): 35-45 minutes. --quick: every section at tiny sizes, a few minutes (the tests').
 """
 
 from __future__ import annotations
@@ -42,14 +43,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--only",
         default=None,
         help="comma-separated sections: descriptor,recognition,knn,http,register,roll,train,guards,detect,"
-        "milvus,memory "
-        "(default: all but milvus and memory)",
+        "milvus,memory,fit (default: all but milvus, memory and fit)",
     )
     p.add_argument(
         "--all",
         action="store_true",
         help="also what the default leaves out for time: recognition at 1,000 objects, the roll section's "
-        "untrained model, detection at 100 objects, the milvus and memory sections",
+        "untrained model, detection at 100 objects, the milvus, memory and fit sections",
     )
     p.add_argument("--models", type=Path, default=Path("models"), help="folder of posedesc-*.onnx models")
     p.add_argument("--modality", choices=("rgb", "depth", "rgbd"), default="rgb", help="the model measured")
@@ -91,6 +91,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default=None,
         help="objects in the stores of the memory section, the slope taken between the first and last "
         "(100,1000)",
+    )
+    p.add_argument(
+        "--fit-frames",
+        default=None,
+        help="LM-O scene 2 frames of the fit section, comma-separated (default: the rgb model's val frames)",
     )
     p.add_argument("--query-turns", default=None, help="query turns of the roll section (1,2,3)")
     p.add_argument(
@@ -170,6 +175,8 @@ def configure(args: argparse.Namespace) -> BenchConfig:
         cfg = replace(cfg, detect=replace(cfg.detect, counts=_ints(args.detect_objects)))
     if args.memory_objects:
         cfg = replace(cfg, memory=replace(cfg.memory, counts=_ints(args.memory_objects)))
+    if args.fit_frames:
+        cfg = replace(cfg, fit=replace(cfg.fit, frames=_ints(args.fit_frames)))
     if args.query_turns:
         turns = _ints(args.query_turns)
         if max(turns) > 36:

@@ -120,21 +120,24 @@ def test_the_default_run_leaves_out_the_opt_in_parts():
     cfg = configure(options())
     assert cfg.sections == DEFAULT_SECTIONS and "guards" in cfg.sections
     assert "milvus" not in cfg.sections and "memory" not in cfg.sections
+    assert "fit" not in cfg.sections and cfg.fit.frames is None  # the rgb model's val frames when asked
     assert max(cfg.recognition.counts) == 100 and cfg.roll.models == ("shipped",)
     assert "detect" in cfg.sections and cfg.detect.counts == (8,)
     every = configure(options("--all"))
-    assert every.sections == SECTIONS and "milvus" in every.sections
+    assert every.sections == SECTIONS and "milvus" in every.sections and "fit" in every.sections
     assert 1000 in every.recognition.counts and every.roll.models == ("shipped", "untrained")
     assert every.detect.counts == (8, 100)
     assert every.guards == cfg.guards and every.knn == cfg.knn  # the rest at the default's sizes
     # each opt-in part can be asked for alone, as OPT_IN says
     assert configure(options("--only", "milvus")).sections == ("milvus",)
+    fit = configure(options("--only", "fit", "--fit-frames", "224,243"))
+    assert fit.sections == ("fit",) and fit.fit.frames == (224, 243)
     assert configure(options("--objects", "8,100,1000")).recognition.counts == (8, 100, 1000)
     assert configure(options("--roll-models", "shipped,untrained")).roll.models == ("shipped", "untrained")
     assert configure(options("--detect-objects", "8,100")).detect.counts == (8, 100)
     memory = configure(options("--only", "memory", "--memory-objects", "100,300,1000"))
     assert memory.sections == ("memory",) and memory.memory.counts == (100, 300, 1000)
-    assert len(OPT_IN) == 5
+    assert len(OPT_IN) == 6
     assert configure(options("--profile", "p")).roll.profile == Path("p") and cfg.roll.profile is None
     quick = configure(options("--quick"))
     assert quick.guards.small_only and quick.guards.fuzz_cases < cfg.guards.fuzz_cases
