@@ -70,9 +70,9 @@ SECTIONS = (
     "fit",
 )
 #: sections run only when asked for (--only, --all): milvus starts a server and bulk-loads 10^6 templates;
-#: memory fills stores of 1,000 objects; fit took 74 s (load 5-6, docs/results/bench-fit.json), past the
-#: ~60 s a default section may add: LM-O's 7 objects registered with two models (19 s), their colour fit
-#: models (28 s, before ColourModel.of became ~15 times faster), then 2 x (115 + 115 + 30) calls (26 s)
+#: memory fills stores of 1,000 objects; fit registers LM-O's 7 objects with two models and makes their
+#: fit models, then 2 x (115 + 115 + 30) calls: 74 s with the first colour models (load 5-6), 35 s since
+#: (load 1.5, docs/results/bench-fit.json), and the pose fit's own figures, not the default run's
 ON_REQUEST = ("milvus", "memory", "fit")
 DEFAULT_SECTIONS = tuple(s for s in SECTIONS if s not in ON_REQUEST)
 #: What the default run leaves out, each past the ten minutes a default run may take on a 2-core machine
@@ -87,7 +87,7 @@ OPT_IN = {
     "the memory section (resident memory at 100 and 1,000 objects)": "--only memory",
     # 92 registrations beyond the 8 objects, ~2.8 s each (2 cores, load 4.5), before a frame is asked
     "detection at 100 objects": "--detect-objects 8,100",
-    # 74 s at load 5-6, most of it registering LM-O with two models and making its colour fit models
+    # 35 s at load 1.5, most of it registering LM-O with two models
     "the fit section (the pose fit on and off; LM-O registered, its validation frames asked)": "--only fit",
 }
 DEFAULT_COUNTS = (8, 100)  # the recognition section's object counts by default

@@ -8,7 +8,7 @@ objects): 7.5 minutes on this project's 2-core machine before detect (measured a
 section is 4.8 of them), detect ~2 more. --all adds recognition at 1,000 objects, the roll section's
 untrained stand-in model, detection at 100 objects, the milvus section (a Milvus server, replica
 propagation), the memory section (resident memory at 100 and 1,000 objects, ~11 minutes alone) and
-the fit section (the pose fit on and off on LM-O's validation frames and the Kinect frame, 74 s; `--only
+the fit section (the pose fit on and off on LM-O's validation frames and the Kinect frame, 35 s; `--only
 fit`): 35-45 minutes. --quick: every section at tiny sizes, a few minutes (the tests').
 """
 
