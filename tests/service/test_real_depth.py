@@ -110,12 +110,14 @@ def test_recognise_objects_in_a_real_depth_frame(client, frame, cut_distances, m
         assert all(0.0 <= m["confidence"] <= 1.0 for m in body["matches"])
         assert {m["object_id"] for m in body["matches"]} <= set(client.ids)
         assert body["timings_ms"]["total"] > 0
-        # each answer's pose: a rotation, the origin along the ray through (u, v), near the surface
+        # each answer's pose: a rotation, the origin along the ray through (u, v) (a fitted answer's where
+        # the fit moved it: u, v then say where), near the surface
         ray = np.linalg.inv(inst.K) @ np.array([*inst.centre_uv, 1.0])
         for m in body["matches"]:
             R, t = np.reshape(m["R"], (3, 3)), np.asarray(m["t"])
             assert np.abs(R @ R.T - np.eye(3)).max() < 1e-9 and np.linalg.det(R) == pytest.approx(1.0)
-            np.testing.assert_allclose(t / np.linalg.norm(t), ray / np.linalg.norm(ray), rtol=1e-9)
+            through = ray if not m["refined"] else np.linalg.inv(inst.K) @ np.array([m["u"], m["v"], 1.0])
+            np.testing.assert_allclose(t / np.linalg.norm(t), through / np.linalg.norm(through), rtol=1e-9)
             # the origin near the surface seen: a template's centre can look past the origin (a handle, a
             # hollow), so an offset may be negative, but never beyond the window's half-depth (100 mm)
             assert abs(np.linalg.norm(t) - cut_distances[0]) < 100.0
