@@ -12,6 +12,7 @@ normals, outlines) is made once from the stored mesh and kept for the objects us
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, replace
 from typing import TypeVar
@@ -23,10 +24,11 @@ from index.fit import Fit
 from index.fit_colour import ColourModel, fit_colour
 from index.fit_depth import DepthModel, fit_depth
 from service.pipeline.answer import Result
-from service.pipeline.context import Context
+from service.pipeline.context import Context, Decoded, Query
 from service.pipeline.query import FRAME_FIELDS
 
 T = TypeVar("T")
+log = logging.getLogger("service")
 
 #: objects whose fit models are kept (each under 1 MB); a query fits a handful of objects
 CAPACITY = 64
@@ -87,13 +89,24 @@ class PoseFit:
         K = np.array([[q.fx, 0.0, q.cx], [0.0, q.fy, q.cy], [0.0, 0.0, 1.0]], dtype=float)
         fits: list[Fit | None] = []
         for i, m in enumerate(result.matches[: self.count]):
-            R0, t0 = result.pose(i)
-            fit = None
-            if d.depth is not None and (model := self.shapes.depth.get(m.object_id)) is not None:
-                fit = fit_depth(d.depth, K, model, R0, t0)
-            elif d.rgb is not None and (cmodel := self.shapes.colour.get(m.object_id)) is not None:
-                fit = fit_colour(d.rgb, K, cmodel, R0, t0)
-                if fit.moved and q.distance_mm is not None and not q.estimated:
-                    fit = replace(fit, t=t0)  # what the user sent is kept: see the class's docstring
-            fits.append(fit)
+            try:
+                fits.append(self.fit(q, d, K, m.object_id, *result.pose(i)))
+            except Exception:  # a fit only improves an answer: one that fails leaves it where it was
+                log.exception(
+                    "the pose fit of object %d failed; its answer keeps its template's pose", m.object_id
+                )
+                fits.append(None)
         return replace(result, fits=fits)
+
+    def fit(
+        self, q: Query, d: Decoded, K: np.ndarray, object_id: int, R0: np.ndarray, t0: np.ndarray
+    ) -> Fit | None:
+        """One answer's fit: with depth by ICP, with colour alone by its outline; None without a model."""
+        if d.depth is not None and (model := self.shapes.depth.get(object_id)) is not None:
+            return fit_depth(d.depth, K, model, R0, t0)
+        if d.rgb is not None and (cmodel := self.shapes.colour.get(object_id)) is not None:
+            fit = fit_colour(d.rgb, K, cmodel, R0, t0)
+            if fit.moved and q.distance_mm is not None and not q.estimated:
+                fit = replace(fit, t=t0)  # what the user sent is kept: see the class's docstring
+            return fit
+        return None

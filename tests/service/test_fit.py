@@ -112,3 +112,15 @@ def test_colour_only_the_rotation_is_fitted_and_the_sent_centre_and_distance_kep
     assert rotation_error(R, shot["R"]) < 5.0 < rotation_error(R0, shot["R"])
     assert np.abs(t - shot["t"]).max() < 0.01  # the sent centre and distance: the true ones
     assert abs(m["u"] - UV[0]) < 1e-6 and abs(m["v"] - UV[1]) < 1e-6
+
+
+def test_a_fit_that_fails_leaves_the_answer_at_its_template(client, shot, monkeypatch):
+    import service.pipeline.fit as fit
+
+    def broken(*args, **kwargs):
+        raise FloatingPointError("a degenerate outline")
+
+    monkeypatch.setattr(fit, "fit_colour", broken)  # a fault injected where a mesh could make one
+    m = best(client, {"rgb": ("f.png", png(shot["rgb"]))}, distance_mm="600")
+    assert m["name"] == "ell" and m["refined"] is False
+    assert (m["azimuth"], m["elevation"], m["inplane"]) == tuple(m["template"].values())
