@@ -15,6 +15,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from index.fit import rotation_of
+
 SYMMETRIES = ("none", "180", "full")
 Symmetry = str | Sequence[np.ndarray]  # one of SYMMETRIES, or BOP's discrete rotations
 
@@ -87,10 +89,8 @@ def _offset(m: np.ndarray) -> np.ndarray:
 
 
 def _axis_turn(axis: np.ndarray, deg: float) -> np.ndarray:
-    """The rotation by `deg` about the unit `axis` (Rodrigues)."""
-    k = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
-    a = np.radians(deg)
-    return np.eye(3) + np.sin(a) * k + (1.0 - np.cos(a)) * k @ k
+    """The rotation by `deg` about the unit `axis`."""
+    return rotation_of(np.radians(deg) * np.asarray(axis, float))
 
 
 def transformations_from_bop(

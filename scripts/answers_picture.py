@@ -18,10 +18,9 @@ import numpy as np
 
 from evaluation.served import register_objects
 from index.bop import BopDataset
-from index.draw import Drawn, draw_answers
 from index.embed import load_models
-from service.detection import detect
 from service.pipeline.context import Query
+from service.routes.recognize import drawing
 from service.settings import Settings
 from service.state import AppState, close_state, load_state
 
@@ -30,16 +29,10 @@ ROOT = Path(__file__).resolve().parents[1]
 WIDTH = 1280
 
 
-def drawn(state: AppState, q: Query, image: np.ndarray, K: np.ndarray) -> np.ndarray:
-    """The frame with every detection's best answer drawn at its pose."""
-    answers = []
-    for x in detect(state, q).detections:
-        m, c = x.result.matches[0], x.result.confidences[0]
-        mesh = state.draw_meshes.get(m.object_id)
-        if mesh is not None:
-            R, t = x.result.pose(0)
-            answers.append((mesh, Drawn(m.name.replace("obj_0000", "obj "), c, R, t)))
-    return draw_answers(image, answers, K)
+def drawn(state: AppState, q: Query) -> np.ndarray:
+    """The frame as `POST /recognize/draw` answers it (every object found at its best answer), RGB."""
+    png = drawing(state, q, 1)
+    return cv2.cvtColor(cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
 
 
 def main() -> None:
@@ -53,7 +46,6 @@ def main() -> None:
     dataset = BopDataset(args.dataset)
     frame = next(i for i in dataset.instances(args.scene) if i.frame_id == args.frame)
     rgb_path = args.dataset / "test" / f"{args.scene:06d}" / "rgb" / f"{args.frame:06d}.png"
-    image = cv2.cvtColor(cv2.imread(str(rgb_path)), cv2.COLOR_BGR2RGB)
     K = frame.K
     q = Query(rgb_path.read_bytes(), None, fx=K[0, 0], fy=K[1, 1], cx=K[0, 2], cy=K[1, 2], k=1)
     with tempfile.TemporaryDirectory() as tmp:
@@ -63,12 +55,12 @@ def main() -> None:
             ids = [int(o) for o in args.objects.split(",")] if args.objects else dataset.obj_ids
             register_objects(state, dataset, ids)
             state.settings = settings.model_copy(update={"pose_fit": 0})
-            before = drawn(state, q, image, K)
+            before = drawn(state, q)
             state.settings = settings
-            after = drawn(state, q, image, K)
+            after = drawn(state, q)
         finally:
             close_state(state)
-    both = np.hstack([before, np.full((image.shape[0], 8, 3), 255, np.uint8), after])
+    both = np.hstack([before, np.full((before.shape[0], 8, 3), 255, np.uint8), after])
     scale = WIDTH / both.shape[1]
     small = cv2.resize(both, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
     # JPEG at 85: a photograph, a fifth of the PNG's bytes

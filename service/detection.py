@@ -84,7 +84,8 @@ def detect_decoded(state: AppState, q: Query, d: Decoded, decode_s: float = 0.0)
     suppressed and the floor applied. `decode_s`: the seconds decoding took, reported and counted in total."""
     t0 = time.perf_counter()
     ms: dict[str, float] = {"decode": decode_s}
-    K = np.array([[q.fx, 0.0, q.cx], [0.0, q.fy, q.cy], [0.0, 0.0, 1.0]])
+    K = q.camera
+    assert K is not None  # `check` refused a frame without its camera
     snapshot = state.store.snapshot  # every proposal verified against the same store
     windows = window_classes(snapshot.objects, d.embedder.info.window_mm)
     cfg = state.settings

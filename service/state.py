@@ -144,7 +144,7 @@ class AppState:
         that needs them; as many as the cache keeps. Nothing with the pose fit off."""
         if self.settings.pose_fit == 0:
             return
-        caches = [c for c, wanted in self.shapes.needed(self.embedders) if wanted]
+        caches = self.shapes.needed(self.embedders)
         for oid in list(object_ids)[:CAPACITY]:
             for cache in caches:
                 self.fitter.submit(cache.get, oid)

@@ -42,6 +42,14 @@ class Query:
     estimated: bool = False
 
     @property
+    def camera(self) -> np.ndarray | None:
+        """The frame's intrinsics K (3, 3), or None when any of fx, fy, cx, cy was not sent (a patch, or a
+        partial camera the checks refuse)."""
+        if self.fx is None or self.fy is None or self.cx is None or self.cy is None:
+            return None
+        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
+
+    @property
     def finds(self) -> bool:
         """Whether this query asks to find the objects: a frame (intrinsics sent) without a centre."""
         camera = any(getattr(self, f) is not None for f in ("fx", "fy", "cx", "cy"))

@@ -25,7 +25,6 @@ from index.fit_colour import ColourModel, fit_colour
 from index.fit_depth import DepthModel, fit_depth
 from service.pipeline.answer import Result
 from service.pipeline.context import Context, Decoded, Query
-from service.pipeline.query import FRAME_FIELDS
 
 T = TypeVar("T")
 log = logging.getLogger("service")
@@ -52,11 +51,14 @@ class Shapes:
 
         return load
 
-    def needed(self, models: Iterable[str]) -> list[tuple[MeshCache, bool]]:
-        """Each cache and whether a query of these models (their modalities) reads it: colour with an rgb
-        model (a colour frame alone), depth with a depth or RGB-D one."""
+    def needed(self, models: Iterable[str]) -> list[MeshCache]:
+        """The caches a query of these models (their modalities) reads: colour with an rgb model (a colour
+        frame alone), depth with a depth or RGB-D one."""
         have = set(models)
-        return [(self.colour, "rgb" in have), (self.depth, bool(have & {"depth", "rgbd"}))]
+        caches: list[MeshCache] = [self.colour] if "rgb" in have else []
+        if have & {"depth", "rgbd"}:
+            caches.append(self.depth)
+        return caches
 
     def prune(self, registered: Sequence[int] | set[int]) -> None:
         """Forgets the objects no longer registered (ids are never reused)."""
@@ -83,10 +85,9 @@ class PoseFit:
     shapes: Shapes
 
     def __call__(self, result: Result, runs: Sequence[Context]) -> Result | None:
-        q, d = runs[0].query, runs[0].decoded
-        if self.count <= 0 or any(getattr(q, f) is None for f in FRAME_FIELDS):
+        q, d, K = runs[0].query, runs[0].decoded, runs[0].query.camera
+        if self.count <= 0 or K is None or q.u is None or q.v is None:
             return None
-        K = np.array([[q.fx, 0.0, q.cx], [0.0, q.fy, q.cy], [0.0, 0.0, 1.0]], dtype=float)
         fits: list[Fit | None] = []
         for i, m in enumerate(result.matches[: self.count]):
             try:

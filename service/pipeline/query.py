@@ -167,7 +167,8 @@ def _from_frame(q: Query, rgb, depth, spec: PatchSpec) -> tuple[np.ndarray, tupl
     u, v = float(q.u), float(q.v)
     if not (0 <= u < w and 0 <= v < h):
         raise ApiError(422, f"the centre (u, v) = ({u:g}, {v:g}) is outside the {w} x {h} frame")
-    K = np.array([[q.fx, 0.0, q.cx], [0.0, q.fy, q.cy], [0.0, 0.0, 1.0]], dtype=float)
+    K = q.camera
+    assert K is not None  # as u and v
     distance = q.distance_mm
     if distance is None:
         if depth is None:

@@ -134,9 +134,9 @@ async def recognize(state: StateDep, form: RecognizeFormDep) -> RecognizeOut:
         q = await form.query()
         if q.finds:
             found = await asyncio.wrap_future(state.recognizer.submit(detect, state, q))
-            return found_out(found, camera(q))
+            return found_out(found, q.camera)
         result = await asyncio.wrap_future(state.recognizer.submit(recognise, state, q))
-    matches = matches_out(result, camera(q))
+    matches = matches_out(result, q.camera)
     return RecognizeOut(
         matches=matches,
         best=None if result.reason else matches[0],
@@ -145,13 +145,6 @@ async def recognize(state: StateDep, form: RecognizeFormDep) -> RecognizeOut:
         timings_ms=result.timings_ms,
         model=result.model,
     )
-
-
-def camera(q: Query) -> np.ndarray | None:
-    """The query's intrinsics K (3, 3), or None for a patch."""
-    if q.fx is None or q.fy is None or q.cx is None or q.cy is None:
-        return None
-    return np.array([[q.fx, 0.0, q.cx], [0.0, q.fy, q.cy], [0.0, 0.0, 1.0]])
 
 
 def matches_out(result: Result, K: np.ndarray | None) -> list[MatchOut]:
@@ -251,10 +244,9 @@ def drawing(state: AppState, q: Query, draw_k: int) -> bytes:
     else:
         assert d.depth is not None  # `decode` refuses a query without images
         image = grey_to_rgb(d.depth)
-    if q.fx is None:  # a patch: its answers are in the patch camera, at the distance it was cut at
+    K = q.camera
+    if K is None:  # a patch: its answers are in the patch camera, at the distance it was cut at
         image, K = patch_view(image, d.embedder.info.spec, answers[0][0].distance_mm)
-    else:
-        K = np.array([[q.fx, 0.0, q.cx], [0.0, q.fy, q.cy], [0.0, 0.0, 1.0]])
     state.shapes.prune(set(state.store.snapshot.objects))
     drawn = []
     for result, n in answers:
