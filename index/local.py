@@ -32,10 +32,10 @@ def cell_cosines(
     against query `rows[j]` (default j; templates sorted by their row are compared without copies).
     Shape: (Q, C * G * G), (N, C * G * G) channels first, rows (N,) -> (N, G * G)."""
     n, g2 = len(templates), grid * grid
-    q = _float32(query).reshape(len(query), -1, g2)
+    q = as_float32(query).reshape(len(query), -1, g2)
     q = q / (np.sqrt(np.einsum("qcg,qcg->qg", q, q))[:, None] + 1e-12)  # each query cell a unit vector
     rows = np.zeros(n, int) if rows is None and len(q) == 1 else rows
-    t = _float32(templates).reshape(n, -1, g2)
+    t = as_float32(templates).reshape(n, -1, g2)
     norms = np.sqrt(np.einsum("ncg,ncg->ng", t, t)) + 1e-12
     if rows is None:
         return np.einsum("ncg,ncg->ng", q, t) / norms
@@ -48,21 +48,24 @@ def cell_cosines(
 
 
 def cell_cosines_across(query: np.ndarray, templates: np.ndarray, grid: int) -> np.ndarray:
-    """`cell_cosines` of every template against every query row at once: one small matrix product per
-    cell, (N, C) by (C, R), so the same template against a query cut at 12 rolls is read once. The maps
-    are turned cells-first by OpenCV's transpose: in a micro-benchmark here (150 templates, 12 rolls, one
-    thread) numpy's strided copies and the product took 6.1 ms, OpenCV's transposes and the product 0.8.
-    Shape: (R, C * G * G), (N, C * G * G) channels first -> (N, R, G * G)."""
+    """`cell_cosines` of every template against every query row at once (`cell_dots_across` of their unit
+    cells). Shape: (R, C * G * G), (N, C * G * G) channels first -> (N, R, G * G)."""
     g2 = grid * grid
-    q = _float32(query).reshape(len(query), -1, g2)
-    q = q / (np.sqrt(np.einsum("rcg,rcg->rg", q, q))[:, None] + 1e-12)  # each query cell a unit vector
-    t = _float32(templates).reshape(len(templates), -1, g2)
-    norms = np.sqrt(np.einsum("ncg,ncg->ng", t, t)) + 1e-12
-    (n, c), r = t.shape[:2], len(q)
-    tg = _cells_first(t.reshape(n * c, g2)).reshape(g2, n, c)
-    qg = _cells_first(q.reshape(r * c, g2)).reshape(g2, r, c)
+    t, q = unit_cells(templates, grid), unit_cells(query, grid)
+    return cell_dots_across(t.reshape(len(t), -1, g2), q.reshape(len(q), -1, g2))
+
+
+def cell_dots_across(templates: np.ndarray, queries: np.ndarray) -> np.ndarray:
+    """Each cell's dot product of every template against every query row: one small matrix product per
+    cell, (N, C) by (C, R), so a template read once serves every row (of unit cells, `unit_cells`: their
+    cosines). The maps are turned cells-first by OpenCV's transpose: in a micro-benchmark here (150
+    templates, 12 rolls, one thread) numpy's strided copies and the product took 6.1 ms, OpenCV's
+    transposes and the product 0.8. Shape: (N, C, G * G), (R, C, G * G) float32 -> (N, R, G * G)."""
+    (n, c, g2), r = templates.shape, len(queries)
+    tg = _cells_first(templates.reshape(n * c, g2)).reshape(g2, n, c)
+    qg = _cells_first(queries.reshape(r * c, g2)).reshape(g2, r, c)
     dots = np.matmul(tg, qg.transpose(0, 2, 1))  # (G * G, N, R)
-    return _cells_first(dots.reshape(g2, n * r)).reshape(n, r, g2) / norms[:, None, :]
+    return _cells_first(dots.reshape(g2, n * r)).reshape(n, r, g2)
 
 
 def _cells_first(x: np.ndarray) -> np.ndarray:
@@ -70,13 +73,43 @@ def _cells_first(x: np.ndarray) -> np.ndarray:
     return np.asarray(cv2.transpose(np.ascontiguousarray(x, np.float32)))
 
 
-def _float32(x: np.ndarray) -> np.ndarray:
-    """As float32. float16 (how local features are stored) through OpenCV's vectorised conversion: numpy's
-    took 2 ms for the 200 candidates' maps of one query here, OpenCV's 0.6."""
+def as_float32(x: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+    """As float32 (into `out` when given, a C-contiguous array of x's shape). float16 (how local features
+    are stored) through OpenCV's vectorised conversion: numpy's took 2 ms for the 200 candidates' maps of
+    one query here, OpenCV's 0.6."""
     x = np.asarray(x)
     if x.dtype == np.float16 and x.ndim == 2 and x.size:
-        return np.asarray(cv2.add(x, 0.0, dtype=cv2.CV_32F))  # type: ignore[call-overload]  # a scalar src2
-    return np.asarray(x, np.float32)
+        # a scalar src2; `dst` of the right shape and type is written in place
+        got = np.asarray(cv2.add(x, 0.0, dst=out, dtype=cv2.CV_32F))  # type: ignore[call-overload]
+        if out is not None and not np.shares_memory(got, out):
+            out[...] = got
+        return out if out is not None else got
+    if out is None:
+        return np.asarray(x, np.float32)
+    out[...] = x
+    return out
+
+
+def unit_cells(x: np.ndarray, grid: int, out: np.ndarray | None = None) -> np.ndarray:
+    """Local maps with each cell's C values scaled to unit length (a zero cell stays zero), as float32,
+    flattened channels first again (into `out` when given: (N, C * G * G) float32): the cosine of two
+    cells is then their dot product (`cell_dots_across`). Shape: (N, C * G * G) -> (N, C * G * G)."""
+    n, g2 = len(x), grid * grid
+    if out is None:
+        out = np.empty((n, np.shape(x)[1]), np.float32)
+    t = as_float32(x, out).reshape(n, -1, g2)
+    norms = np.sqrt(np.einsum("ncg,ncg->ng", t, t)) + 1e-12
+    np.divide(t, norms[:, None, :], out=t)
+    return out
+
+
+def cell_shares(weights: np.ndarray) -> np.ndarray:
+    """Cells' weights (`cell_weights`, a silhouette's or a mask's) as shares that sum to 1, every cell alike
+    where they are all zero: `masked_cosine` is 1 - the cosines weighed by these. Shape: (N, G * G) ->
+    (N, G * G) float32."""
+    w = np.asarray(weights, np.float32)
+    total = w.sum(axis=-1, keepdims=True)
+    return np.where(total > 0, w / np.maximum(total, 1e-12), np.float32(1.0 / w.shape[-1])).astype(np.float32)
 
 
 def cell_weights(mask: np.ndarray, grid: int) -> np.ndarray:

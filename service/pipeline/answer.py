@@ -14,6 +14,7 @@ runs the stages once per class; the answers are each class's ranked answers merg
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 
@@ -70,9 +71,9 @@ def ranked_matches(ctx: Context) -> list[Match]:
     """The query's answers (`Context.wanted` of them: k, or what the verdict reads): the search's matches, or once re-ranked those scored in the order of their
     scores (two refined to one viewpoint: the better one stays), each at the pose it was scored at, then
     those without local features in the search's order."""
-    k, matches, r = ctx.wanted, list(ctx.matches), ctx.ranked
+    k, matches, r = ctx.wanted, ctx.matches, ctx.ranked
     if r is None:
-        return matches[:k]
+        return list(matches[:k])
     order, seen = np.argsort(r.scores, kind="stable"), set()
     out: list[Match] = []
     for j in order:
@@ -85,8 +86,9 @@ def ranked_matches(ctx: Context) -> list[Match]:
         if (r.keys[j], r.rolls[j]) != r.first[j]:  # the sweep or refinement moved it
             m = replace(m, azimuth=r.keys[j][1], elevation=r.keys[j][2], inplane=r.rolls[j])
         out.append(m)
-    scored = set(r.have)
-    return (out + [m for i, m in enumerate(matches) if i not in scored])[:k]
+    scored = set(r.have)  # then those without local features, read only as far as k needs
+    rest = (matches[i] for i in range(len(matches)) if i not in scored)
+    return out + list(itertools.islice(rest, max(k - len(out), 0)))
 
 
 def answer(runs: Sequence[Context], timings_ms: dict[str, float], settings: Settings) -> Result:

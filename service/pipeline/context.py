@@ -4,8 +4,7 @@ what a stage is (`Stage`)."""
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
-from types import MappingProxyType
+from dataclasses import dataclass
 from typing import Protocol
 
 import numpy as np
@@ -116,10 +115,10 @@ class Context:
     """One query in the pipeline. `snapshot`: the store as the query found it, for all its stages.
     `patches`: the query cut at its turns (the depth as measured); `described`: those patches as the
     descriptor sees them (masked: `service.pipeline.mask`), `keep` (n, S, S) bool that mask or None;
-    `matches`: the search's candidates; `ranked`: the local scores, once re-ranked; `scored`: every pose
-    scored so far (the same template against the same cut of the query scores the same, so none is scored
-    twice); `scorer`: the re-ranking's score of this query (holding the query's cuts, made once per
-    roll); `score`: what the answers' distances are ("local" once re-ranked); `wanted`: how many answers
+    `matches`: the search's candidates; `ranked`: the local scores, once re-ranked; `scorer`: the
+    re-ranking's score of this query (holding the query's cuts, made once per roll, and every pose it
+    scored: the same template against the same cut of the query scores the same, so none is scored
+    twice); `score`: what the answers' distances are ("local" once re-ranked); `wanted`: how many answers
     are ranked, k or more when the open-set verdict reads past the best (`service.rejection.LISTED`);
     `window_mm`: the window the query is cut through, its objects' class's (`index.windows`; None: the
     model's), `snapshot` then seeing that class's objects only when the store holds several."""
@@ -131,9 +130,8 @@ class Context:
     described: Patches | None = None
     keep: np.ndarray | None = None
     descriptors: np.ndarray | None = None
-    matches: tuple[Match, ...] = ()
+    matches: Sequence[Match] = ()
     ranked: Ranked | None = None
-    scored: Mapping[Pose, float] = field(default_factory=lambda: MappingProxyType({}))
     scorer: Scorer | None = None
     score: str = "descriptor"
     wanted: int = 0

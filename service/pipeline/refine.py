@@ -12,14 +12,13 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
-from types import MappingProxyType
 
 import numpy as np
 
 from index.embed import Embedder
 from index.pose import camera_centre, wrap_degrees
 from index.register import TemplateConfig
-from service.pipeline.context import Context, Key, Pose
+from service.pipeline.context import Context, Key
 from service.pipeline.rerank import reranks
 from service.settings import Settings
 
@@ -98,7 +97,7 @@ class RefineConfig:
 class Refine:
     """The best `n` candidates compared also at the viewpoints around theirs and at their roll turned
     either way; each keeps the (viewpoint, roll) scoring best. A pose scored by an earlier stage is not
-    scored again (`Context.scored`). Its viewpoint tables are built once per snapshot's local features."""
+    scored again (the scorer keeps every score: `LocalScore`). Its viewpoint tables are built once per snapshot's local features."""
 
     name = "refine"
 
@@ -117,7 +116,6 @@ class Refine:
         c = self.config
         table = self.tables.of(scorer.local)
         score, keys, rolls = r.scores.copy(), list(r.keys), list(r.rolls)
-        known = dict[Pose, float](ctx.scored)
         best = np.argsort(score, kind="stable")[: c.n]
         for step in range(c.rounds):  # each round from where the last left each candidate, the turn halved
             turn = c.spacing / (c.roll_divisor * 2**step)
@@ -128,12 +126,11 @@ class Refine:
                 for o in turns:
                     roll = round(float(wrap_degrees(rolls[j] + o)), 3)
                     tried += [(int(j), v, roll) for v in views if (v, roll) != (keys[j], rolls[j])]
-            new = list(dict.fromkeys((v, roll) for _, v, roll in tried if (v, roll) not in known))
-            if new:
-                known |= {pose: float(s) for pose, s in zip(new, scorer.pairs(new), strict=True)}
-            for j, v, roll in tried:
-                if known[(v, roll)] < score[j]:
-                    score[j], keys[j], rolls[j] = known[(v, roll)], v, roll
+            # a pose an earlier stage or candidate scored is not scored again (`LocalScore`)
+            got = scorer.pairs([(v, roll) for _, v, roll in tried])
+            for (j, v, roll), s in zip(tried, got, strict=True):
+                if s < score[j]:
+                    score[j], keys[j], rolls[j] = s, v, roll
         score.flags.writeable = False
         ranked = replace(r, scores=score, keys=tuple(keys), rolls=tuple(rolls))
-        return replace(ctx, ranked=ranked, scored=MappingProxyType(known))
+        return replace(ctx, ranked=ranked)

@@ -4,13 +4,14 @@ The later passes (`sweep`, `refine`) start from these scores and the scorer this
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
-from types import MappingProxyType
 
 from index.embed import Embedder
 from index.register import TemplateConfig
-from index.store import local_key
-from service.pipeline.context import Context, Ranked
+from index.search import Found
+from index.store import Match, local_key
+from service.pipeline.context import Context, Key, Ranked
 from service.pipeline.score import LocalScore, QueryCuts, ScoreConfig
 from service.rejection import served_score
 from service.settings import Settings
@@ -20,6 +21,15 @@ def reranks(settings: Settings, embedder: Embedder) -> bool:
     """Whether the pipeline of this model re-ranks at all: a model with local features, `rerank` > 0 (the
     answers' distances are then the local score: `service.rejection.served_score`)."""
     return served_score(settings, embedder) == "local"
+
+
+def keys_and_rolls(matches: Sequence[Match]) -> tuple[list[Key], list[float]]:
+    """Each match's viewpoint as its local features are found (`local_key`) and its roll to 1e-3 degrees:
+    read from the search's arrays (`index.search.Found`) when it gave them."""
+    if isinstance(matches, Found):
+        return matches.keys(), matches.rolls()
+    keys = [local_key(m.object_id, m.azimuth, m.elevation) for m in matches]
+    return keys, [round(m.inplane, 3) for m in matches]
 
 
 @dataclass(frozen=True)
@@ -61,14 +71,13 @@ class Rerank:
         # cut through: the same share of it, whatever the class (the relief is measured in windows)
         scorer = LocalScore(self.config.score, cuts, local, d.embedder.local_grid, d.embedder.info.window_mm)
         ctx = replace(ctx, scorer=scorer, score="local")
-        every = [local_key(m.object_id, m.azimuth, m.elevation) for m in ctx.matches]
+        every, all_rolls = keys_and_rolls(ctx.matches)
         have = tuple(i for i, k in enumerate(every) if k in local)
         if not have:
             return ctx
         keys = tuple(every[i] for i in have)
-        rolls = tuple(round(ctx.matches[i].inplane, 3) for i in have)
+        rolls = tuple(all_rolls[i] for i in have)
         first = tuple(zip(keys, rolls, strict=True))
         scores = scorer.pairs(first)
         scores.flags.writeable = False  # the context is frozen: a later stage scores a copy
-        scored = MappingProxyType({pose: float(s) for pose, s in zip(first, scores, strict=True)})
-        return replace(ctx, ranked=Ranked(have, keys, rolls, scores, first), scored=scored)
+        return replace(ctx, ranked=Ranked(have, keys, rolls, scores, first))

@@ -67,4 +67,4 @@ class Search:
         found = ctx.snapshot.answers(
             m, ctx.descriptors, max(ctx.wanted, rerank), ctx.patches.offsets, self.config.variants
         )
-        return replace(ctx, matches=tuple(found))
+        return replace(ctx, matches=found)

@@ -6,14 +6,13 @@ nearest variant's, and for an occluded object that roll is often wrong where the
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from types import MappingProxyType
 
 import numpy as np
 
 from index.embed import Embedder
 from index.pose import wrap_degrees
 from index.register import TemplateConfig
-from service.pipeline.context import Context, Pose
+from service.pipeline.context import Context
 from service.pipeline.rerank import reranks
 from service.settings import Settings
 
@@ -58,16 +57,14 @@ class Sweep:
         nearest = offsets[np.arange(len(best)), np.argmin(np.abs(offsets), axis=1)]
         for j, off in zip(best, nearest, strict=True):
             by_gap.setdefault(round(float(off), 3), []).append(int(j))
-        score, rolls, known = r.scores.copy(), list(r.rolls), dict[Pose, float](ctx.scored)
+        score, rolls = r.scores.copy(), list(r.rolls)
         for gap, group in by_gap.items():
             turned = sorted({round(float(wrap_degrees(a + gap)), 3) for a in turns})
             table = scorer.table([r.keys[j] for j in group], turned)
-            for j, row in zip(group, table, strict=True):
-                for roll, s in zip(turned, row, strict=True):
-                    known.setdefault((r.keys[j], roll), float(s))  # a pose scored already keeps its score
-                i = int(np.argmin(row))
-                if known[(r.keys[j], turned[i])] < score[j]:
-                    score[j], rolls[j] = known[(r.keys[j], turned[i])], turned[i]
+            at = np.argmin(table, axis=1)
+            for j, i, s in zip(group, at, table[np.arange(len(group)), at], strict=True):
+                if s < score[j]:
+                    score[j], rolls[j] = s, turned[i]
         score.flags.writeable = False
         ranked = replace(r, scores=score, rolls=tuple(rolls))
-        return replace(ctx, ranked=ranked, scored=MappingProxyType(known))
+        return replace(ctx, ranked=ranked)

@@ -80,3 +80,49 @@ def test_the_querys_relief_matches_its_own_viewpoints_template(rgbd_state, l_sha
     older = {k: np.asarray(local[k])[:-cells] for k in keys}  # rows stored before the relief
     without = _scores(state, q, d, older, poses, coverage=0.3, relief=1.0)
     np.testing.assert_allclose(without, plain, atol=1e-6)
+
+
+def test_the_scorer_gives_the_reference_formula_once_per_pose(rgbd_state, l_shape):
+    """`LocalScore` (templates prepared once, cosines as dot products, every pose scored once) gives what
+    `index.local`'s reference formula gives the same stored rows and cuts: `masked_distance` over the
+    template's silhouette and the query's mask plus the coverage term, plus the relief's distance; by
+    pairs, by table, and when a pose asked for again is looked up instead of computed."""
+    from index.local import cell_cosines, cell_weights, masked_distance, relief_distance
+
+    state = rgbd_state
+    local = state.store.snapshot.models["rgbd"].local
+    keys = sorted(local)[:40]
+    e, s = state.embedders["rgbd"], state.settings
+    q = _query(state, l_shape, View(keys[3][1], keys[3][2], 30.0, 400.0))
+    d = decode(state, q)
+    cuts = QueryCuts(q, d, None, s.patch_distance_mm)
+    config = ScoreConfig(0.3, 5.0, s.relief_clip_mm)
+    scorer = LocalScore(config, cuts, local, e.local_grid, e.info.window_mm)
+    rolls = [0.0, 30.0, -60.0]
+    poses = [(k, rolls[i % 3]) for i, k in enumerate(keys)]
+    got = scorer.pairs(poses)
+
+    def reference(key, roll) -> float:
+        cut = cuts.at([roll])[0]
+        assert cut.mask is not None and cut.relief is not None  # the RGB-D model's mask is its depth
+        stored = StoredLocal.of(np.asarray(local[key])[None], len(cut.features), e.local_grid)
+        assert stored.silhouettes is not None and stored.relief is not None
+        cos = cell_cosines(cut.features[None], stored.features, e.local_grid)
+        sil = np.asarray(stored.silhouettes, np.float32)
+        mask = cell_weights(cut.mask[None], e.local_grid)
+        score = masked_distance(cos, sil, mask, config.coverage)
+        values, shares = (x[None] for x in cut.relief)
+        far = relief_distance(
+            values, shares, np.asarray(stored.relief, np.float32), sil, 20.0 / e.info.window_mm
+        )
+        return float(score[0] + config.relief * far[0])
+
+    want = np.array([reference(k, r) for k, r in poses])
+    np.testing.assert_allclose(got, want, atol=2e-5)
+    computed = scorer.computed
+    table = scorer.table(keys[:10], rolls)
+    np.testing.assert_allclose(table, [[reference(k, r) for r in rolls] for k in keys[:10]], atol=2e-5)
+    assert scorer.computed == computed + 10 * 3 - 10  # the table computes only the poses the pairs did not
+    again = scorer.pairs(poses[:5] + poses[:5])
+    assert scorer.computed == computed + 20  # asked again: looked up, not computed
+    np.testing.assert_array_equal(again, np.concatenate([got[:5], got[:5]]))

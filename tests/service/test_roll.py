@@ -158,30 +158,43 @@ def test_a_second_round_halves_the_turn(tmp_path_factory, shipped_rgb, renderer,
 def test_refinement_scores_each_pose_once(whole_turn, renderer, l_shape, monkeypatch):
     """The roll sweep compares the best answers at every template roll, the refinement their neighbouring
     viewpoints and turned rolls: a pose the re-ranking or the sweep scored already, or a neighbour two
-    answers share, is not scored again (same template, same cut of the query: the same score)."""
+    answers share, is not computed again (same template, same cut of the query: the same score), and
+    each stage gets the scores of all it asked for."""
     from service.pipeline.score import LocalScore
 
-    calls: list[list[tuple[tuple[int, float, float], float]]] = []
+    asked: list[list[tuple[tuple[int, float, float], float]]] = []
+    computed: list[int] = []
     pairs, table = LocalScore.pairs, LocalScore.table
 
     def counting(self, poses):
-        calls.append(list(poses))
-        return pairs(self, poses)
+        before = self.computed
+        out = pairs(self, poses)
+        asked.append(list(poses))
+        computed.append(self.computed - before)
+        assert out.shape == (len(poses),) and np.isfinite(out).all()
+        return out
 
     def counting_table(self, keys, rolls):
-        calls.append([(k, r) for k in keys for r in rolls])
-        return table(self, keys, rolls)
+        before = self.computed
+        out = table(self, keys, rolls)
+        asked.append([(k, r) for k in keys for r in rolls])
+        computed.append(self.computed - before)
+        assert out.shape == (len(keys), len(rolls)) and np.isfinite(out).all()
+        return out
 
     monkeypatch.setattr(LocalScore, "pairs", counting)
     monkeypatch.setattr(LocalScore, "table", counting_table)
     answer = ask(whole_turn, renderer, l_shape, View(AZ, EL, 40.0, 600.0))
     assert (
-        answer["matches"] and len(calls) == 3
+        answer["matches"] and len(asked) == 3
     )  # the re-ranking, the roll sweep (one query turn), the refinement
-    first, swept, refined = calls
+    first, swept, refined = asked
     assert len(swept) == 12 * min(150, len(first))  # the best 150 at each of the 12 template rolls
-    assert refined and len(set(refined)) == len(refined)  # each pose once
-    assert not set(refined) & (set(first) | set(swept))  # none the re-ranking or the sweep scored
+    assert computed[0] == len(set(first))  # every candidate once
+    assert computed[1] == len(set(swept) - set(first))  # the sweep: only what the re-ranking did not score
+    seen = set(first) | set(swept)
+    assert refined and computed[2] == len(set(refined) - seen)  # each new pose once, none scored before
+    assert set(refined) & seen  # (the refinement does ask again for poses scored before: its own)
 
 
 def test_the_sweep_finds_the_roll_the_descriptor_missed(
