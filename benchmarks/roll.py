@@ -55,6 +55,8 @@ from index.register import TemplateConfig
 from index.store import TemplateSet
 
 MODEL_KINDS = ("shipped", "untrained")
+#: concurrent clients of the frame's throughput over HTTP (issue 28: 4 clients, beside one)
+FRAME_CLIENTS = 4
 
 
 @dataclass(frozen=True)
@@ -418,14 +420,17 @@ def _served(
         out["frame_640x480"] = _http(url, frame, cfg) | {
             "request": "README's demo frame: " + "+".join(frame.files) + " PNGs, camera fields, k = 5",
         }
+        out[f"frame_640x480_{FRAME_CLIENTS}_clients"] = _http(url, frame, cfg, FRAME_CLIENTS) | {
+            "request": f"the same frame from {FRAME_CLIENTS} clients at once",
+        }
         out["patch"] = _http(url, patch, cfg) | {"request": "the query patch as PNG, k = 5"}
         out["register"] = registration.run(url, register_repeats) | {"store_objects_before": cfg.objects}
     return out
 
 
-def _http(url: str, req: over_http.Request, cfg: RollConfig) -> dict:
-    over_http.load(url, req, 1, cfg.http_warmup)
-    lat, inner, wall, failed = over_http.load(url, req, 1, cfg.http_requests)
+def _http(url: str, req: over_http.Request, cfg: RollConfig, clients: int = 1) -> dict:
+    over_http.load(url, req, clients, cfg.http_warmup)
+    lat, inner, wall, failed = over_http.load(url, req, clients, cfg.http_requests)
     return Timing(tuple(lat)).ms() | {
         "requests_per_s": len(lat) / wall,
         "server_total_median_ms": statistics.median(inner) if inner else None,
