@@ -25,6 +25,37 @@ def test_each_output_is_the_whole_graphs_and_runs_only_its_nodes():
     assert e.nodes[LOCAL_NAME] < e.nodes[MASK_NAME] / 2 and e.nodes[LOCAL_NAME] < e.nodes[OUTPUT_NAME]
 
 
+def test_concatenations_into_convolutions_are_padded_to_whole_blocks_without_changing_outputs():
+    """`pad_concat_channels`: the mask head's concatenations (trunk maps and two channels of image
+    coordinates) widened to a multiple of `CHANNEL_BLOCK` channels by zero channels, the convolutions'
+    weights by zero rows: the logits as before, to float rounding."""
+    import onnx
+    import onnx.shape_inference
+    import onnx.utils
+
+    from index.embed import CHANNEL_BLOCK, pad_concat_channels
+
+    mask = onnx.utils.Extractor(onnx.load(str(SHIPPED_RGB))).extract_model(["patch"], [MASK_NAME])
+    padded = pad_concat_channels(mask)
+
+    def concat_channels(model: onnx.ModelProto) -> list[int]:
+        info = onnx.shape_inference.infer_shapes(model).graph.value_info
+        dims = {v.name: v.type.tensor_type.shape.dim for v in info}
+        return [
+            dims[n.output[0]][1].dim_value
+            for n in model.graph.node
+            if n.op_type == "Concat" and len(dims.get(n.output[0], [])) == 4
+        ]
+
+    before, after = concat_channels(mask), concat_channels(padded)
+    assert any(c % CHANNEL_BLOCK for c in before)  # the shipped head has such concatenations
+    assert len(after) == len(before) and all(c % CHANNEL_BLOCK == 0 for c in after if c > 2), after
+    x = np.random.default_rng(1).normal(size=(4, 3, 64, 64)).astype(np.float32)
+    a = ort.InferenceSession(mask.SerializeToString(), providers=["CPUExecutionProvider"])
+    b = ort.InferenceSession(padded.SerializeToString(), providers=["CPUExecutionProvider"])
+    np.testing.assert_allclose(b.run(None, {"patch": x})[0], a.run(None, {"patch": x})[0], atol=1e-4)
+
+
 def test_a_file_that_is_no_model_is_one_line(tmp_path):
     bad = tmp_path / "posedesc-rgb.onnx"
     bad.write_bytes(b"not an onnx file at all")
