@@ -19,10 +19,12 @@ the RGB-D model within 20 deg 76.6 -> 91.4 %.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import cv2
 import numpy as np
+import onnxruntime as ort
 
 
 def cell_cosines(
@@ -88,6 +90,53 @@ def as_float32(x: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
         return np.asarray(x, np.float32)
     out[...] = x
     return out
+
+
+def leading_float32(rows: np.ndarray, width: int, out: np.ndarray | None = None) -> np.ndarray:
+    """The first `width` values of each of `rows` (N, W) float16 as float32 (N, width), into `out` when
+    given (C-contiguous). Through onnxruntime's Cast (one intra-op thread), which writes into `out`
+    itself: 400 stored templates' features (6,144 values each) 0.6-0.9 ms here against OpenCV's 1.8-2.1
+    (`as_float32`), on a busy machine, one thread."""
+    rows = np.ascontiguousarray(rows, np.float16)
+    if out is None:
+        out = np.empty((len(rows), width), np.float32)
+    if not len(rows):
+        return out
+    binding = _cast_session().io_binding()
+    binding.bind_cpu_input("rows", rows)
+    binding.bind_cpu_input("width", np.array([width], np.int64))
+    binding.bind_output("out", "cpu", 0, np.float32, [len(rows), width], out.ctypes.data)
+    _cast_session().run_with_iobinding(binding)
+    return out
+
+
+@functools.cache
+def _cast_session() -> ort.InferenceSession:
+    """A session of one graph: rows (N, W) float16 -> their first `width` values as float32."""
+    from onnx import TensorProto, helper
+
+    nodes = [
+        helper.make_node("Slice", ["rows", "zero", "width", "one"], ["cut"]),
+        helper.make_node("Cast", ["cut"], ["out"], to=TensorProto.FLOAT),
+    ]
+    constants = [
+        helper.make_tensor("zero", TensorProto.INT64, [1], [0]),
+        helper.make_tensor("one", TensorProto.INT64, [1], [1]),
+    ]
+    graph = helper.make_graph(
+        nodes,
+        "leading_float32",
+        [
+            helper.make_tensor_value_info("rows", TensorProto.FLOAT16, [None, None]),
+            helper.make_tensor_value_info("width", TensorProto.INT64, [1]),
+        ],
+        [helper.make_tensor_value_info("out", TensorProto.FLOAT, [None, None])],
+        constants,
+    )
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)], ir_version=9)
+    opts = ort.SessionOptions()
+    opts.intra_op_num_threads, opts.inter_op_num_threads = 1, 1
+    return ort.InferenceSession(model.SerializeToString(), opts, providers=["CPUExecutionProvider"])
 
 
 def unit_cells(x: np.ndarray, grid: int, out: np.ndarray | None = None) -> np.ndarray:

@@ -33,6 +33,7 @@ from index.local import (
     cell_shares,
     cell_weights,
     l2,
+    leading_float32,
     relief,
     relief_distance,
     uncovered,
@@ -239,8 +240,9 @@ class LocalScore:
         """The prepared templates of `keys`, those not prepared yet read in one batch."""
         if new := [k for k in dict.fromkeys(keys) if k not in self._rows]:
             features = self._q.raw.shape[1]  # F (a cut is made first): how `StoredLocal.of` reads a row
-            stored = StoredLocal.of(np.stack([np.asarray(self.local[k]) for k in new]), features, self.grid)
-            self._t.add(stored.features, stored.silhouettes, stored.relief, None, self.grid, query=False)
+            rows = np.stack([np.asarray(self.local[k]) for k in new])
+            stored = StoredLocal.of(rows, features, self.grid)
+            self._t.add(rows, stored.silhouettes, stored.relief, None, self.grid, query=False, width=features)
             self._rows |= {k: len(self._rows) + i for i, k in enumerate(new)}
             self._grow()
         return np.array([self._rows[k] for k in keys], np.intp)
@@ -312,27 +314,35 @@ class _Prepared:
         grid: int,
         *,
         query: bool,
+        width: int | None = None,
     ) -> None:
-        """Rows of `features` (m, F) with their cells' `weights` (m, G * G) and relief where given: the
-        query's cuts (`query`: unit cells and raw features kept) or templates (their cells and inverse
-        lengths, where they have weights: silhouettes)."""
+        """Rows of `features` (m, F; `width`: F of wider rows, whose first F values are the features, as a
+        template's stored row) with their cells' `weights` (m, G * G) and relief where given: the query's
+        cuts (`query`: unit cells and raw features kept) or templates (their cells and inverse lengths,
+        where they have weights: silhouettes)."""
         m, self._cells = len(features), grid * grid
+        width = features.shape[1] if width is None else width
         parts = {"weights": weights, "relief": relief, "relief_shares": relief_shares}
         raw = query or weights is None  # the query's; templates without silhouettes are compared whole
         parts |= {
             "shares": None if weights is None else cell_shares(weights),
-            "raw": features if raw else None,
+            "raw": features[:, :width] if raw else None,
         }
         cells = query or weights is not None
         for name in ("cells", *parts):
             x = features if name == "cells" else parts[name]
             if x is None or (name == "cells" and not cells):
                 continue
-            into = self._room(name, m, x.shape[1:])
-            if name == "cells" and query:
-                unit_cells(x, grid, out=into)
+            if name == "cells" and not query:  # a template's stored row: its features are its first values
+                into = self._room(name, m, (width,))
+                if x.dtype == np.float16:
+                    leading_float32(x, width, into)
+                else:
+                    as_float32(x[:, :width], into)
+            elif name == "cells":
+                unit_cells(x, grid, out=(into := self._room(name, m, x.shape[1:])))
             else:
-                as_float32(x, into)
+                as_float32(x, into := self._room(name, m, x.shape[1:]))
             if name == "cells" and not query:
                 t = into.reshape(m, -1, self._cells)
                 inverse = self._room("inverse", m, (self._cells,))

@@ -180,3 +180,17 @@ def test_a_stored_row_splits_by_its_width():
     assert (oldest.silhouettes, oldest.relief) == (None, None)
     with pytest.raises(ValueError, match="fit neither"):
         StoredLocal.of(row[:, : f + 1], f, g)
+
+
+def test_leading_float32_converts_the_first_values_of_each_row_exactly():
+    """`leading_float32` (onnxruntime's Cast, written into the given array): the first `width` values of
+    float16 rows as float32, exactly as numpy converts them; an empty batch is no call."""
+    from index.local import leading_float32
+
+    rows = np.random.default_rng(3).normal(size=(7, 40)).astype(np.float16)
+    out = np.full((9, 30), np.nan, np.float32)
+    got = leading_float32(rows, 30, out[1:8])
+    np.testing.assert_array_equal(out[1:8], rows[:, :30].astype(np.float32))
+    assert np.shares_memory(got, out) and np.isnan(out[0]).all() and np.isnan(out[8]).all()
+    np.testing.assert_array_equal(leading_float32(rows, 40), rows.astype(np.float32))
+    assert leading_float32(rows[:0], 30).shape == (0, 30)
