@@ -104,8 +104,9 @@ def read_rgb(data: bytes, max_pixels: int) -> np.ndarray:
     if im.mode in ("I", "I;16", "I;16B", "I;16L", "F"):
         raise ApiError(422, "rgb: a 16-bit single-channel image; send depth as `depth`, colour as `rgb`")
     if im.format == "PNG":
-        return cv2.cvtColor(_decode_png(data, "rgb", cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
-    return np.asarray(_load(im, "rgb").convert("RGB"))  # JPEG: Pillow's libjpeg-turbo
+        return _decode_png(data, "rgb", cv2.IMREAD_COLOR_RGB)  # RGB as decoded: no BGR pass to turn
+    im = _load(im, "rgb")  # JPEG: Pillow's libjpeg-turbo
+    return np.asarray(im if im.mode == "RGB" else im.convert("RGB"))  # an RGB one as is: no copy to convert
 
 
 def read_depth(data: bytes, scale: float, max_pixels: int) -> np.ndarray:
@@ -121,7 +122,6 @@ def read_depth(data: bytes, scale: float, max_pixels: int) -> np.ndarray:
     d = _decode_png(data, "depth", cv2.IMREAD_UNCHANGED)
     if d.ndim != 2 or d.dtype != np.uint16:  # Pillow's "I" mode: a 16-bit PNG is all the header allows
         raise ApiError(422, "depth: not a single-channel 16-bit PNG in mm")
-    d = d.astype(np.float32)
-    if (d < 0).any():
-        raise ApiError(422, "depth: negative values")
-    return d * np.float32(scale)
+    out = d.astype(np.float32)  # unsigned: never negative
+    out *= np.float32(scale)  # in place: no second frame-sized array
+    return out

@@ -4,11 +4,10 @@ from __future__ import annotations
 
 import asyncio
 import logging
-import time
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 
-from fastapi import FastAPI, Request
+from fastapi import FastAPI
 from fastapi.concurrency import run_in_threadpool
 from fastapi_offline import FastAPIOffline
 
@@ -17,6 +16,7 @@ from service import errors, openapi
 from service.demo import DEMO_KEY, startup
 from service.deps import host_of, open_writes_refused, public
 from service.limits import BodyLimit
+from service.metrics import Observe
 from service.rejection import stale
 from service.routes import health, jobs, objects, page, recognize
 from service.settings import Settings
@@ -28,7 +28,6 @@ DESCRIPTION = """Recognises known 3-D objects in images and tells from which vie
 object's +z from +x towards +y, elevation above its xy plane, in-plane counter-clockwise in the image."""
 
 
-METHODS = frozenset({"GET", "HEAD", "POST", "PUT", "PATCH", "DELETE", "OPTIONS"})
 DOCS_ASSETS = "/docs-assets"
 
 
@@ -79,19 +78,7 @@ def create_app(settings: Settings | None = None, url: str | None = None) -> Fast
     for r in (recognize.router, objects.router, jobs.router, health.router, page.router):
         app.include_router(r)
 
-    @app.middleware("http")
-    async def observe(request: Request, call_next):
-        t0 = time.perf_counter()
-        response = await call_next(request)
-        state = getattr(request.app.state, "posedesc", None)
-        if state is not None:
-            route = request.scope.get("route")
-            path = getattr(route, "path", "unmatched")  # the template, so ids do not blow up the labels
-            # any token is a method to HTTP: unknown ones share a label, or each would add a series
-            method = request.method if request.method in METHODS else "other"
-            state.metrics.requests.labels(method, path, str(response.status_code)).inc()
-            state.metrics.latency.labels(path).observe(time.perf_counter() - t0)
-        return response
+    app.add_middleware(Observe)
 
     def limit_for(path: str) -> int | None:
         if path.startswith("/objects"):

@@ -1,10 +1,16 @@
-"""Prometheus metrics: requests, latency, store sizes. One registry per app, so test apps do not clash."""
+"""Prometheus metrics: requests, latency, store sizes. One registry per app, so test apps do not clash.
+`Observe` counts and times every request."""
 
 from __future__ import annotations
 
+import time
+
 from prometheus_client import CollectorRegistry, Counter, Gauge, Histogram, generate_latest
+from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from index.store import Snapshot
+
+METHODS = frozenset({"GET", "HEAD", "POST", "PUT", "PATCH", "DELETE", "OPTIONS"})
 
 
 class Metrics:
@@ -40,3 +46,36 @@ class Metrics:
         for m, mi in snap.models.items():
             self.templates.labels(m).set(mi.size)
         return generate_latest(self.registry)
+
+
+class Observe:
+    """Pure ASGI middleware: each answered request counted (method, route template, status) and timed into
+    the app's `Metrics`, once the app has sent it. A request that raises is left to the server's error
+    handler, uncounted. Not Starlette's `BaseHTTPMiddleware`, which runs the app as a second task and
+    passes the answer through a stream: 1.0 ms a `POST /recognize` more (medians of 400 requests to the app
+    in-process, the pipeline's answer canned, interleaved with this; the shared 2-core machine)."""
+
+    def __init__(self, app: ASGIApp):
+        self.app = app
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        t0 = time.perf_counter()
+        status = 500
+
+        async def seen_send(message: Message) -> None:
+            nonlocal status
+            if message["type"] == "http.response.start":
+                status = message["status"]
+            await send(message)
+
+        await self.app(scope, receive, seen_send)
+        state = getattr(scope["app"].state, "posedesc", None)
+        if state is not None:
+            path = getattr(scope.get("route"), "path", "unmatched")  # the template: ids would blow up labels
+            # any token is a method to HTTP: unknown ones share a label, or each would add a series
+            method = scope["method"] if scope["method"] in METHODS else "other"
+            state.metrics.requests.labels(method, path, str(status)).inc()
+            state.metrics.latency.labels(path).observe(time.perf_counter() - t0)

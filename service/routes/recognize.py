@@ -45,7 +45,7 @@ class RecognizeForm:
         )
 
 
-def recognize_form(
+async def recognize_form(
     rgb: Annotated[UploadFile | None, File(description="colour image, PNG or JPEG")] = None,
     depth: Annotated[UploadFile | None, File(description="depth image, 16-bit PNG")] = None,
     depth_scale: Annotated[float, Form(gt=0, le=1000, allow_inf_nan=False, description="mm per unit")] = 1.0,
@@ -94,7 +94,8 @@ def recognize_form(
     ] = None,
 ) -> RecognizeForm:
     """The form of `/recognize`, a dependency of each route that takes it (`KnownFieldsDep` reads its
-    fields through it)."""
+    fields through it). Async, though it awaits nothing: so FastAPI calls it on the event loop, not on its
+    thread pool (`service.deps.get_state`)."""
     fields = Query(
         None, None, depth_scale, fx, fy, cx, cy, u, v, distance_mm, k, max_detections, min_confidence
     )
@@ -132,10 +133,15 @@ RecognizeFormDep = Annotated[RecognizeForm, Depends(recognize_form)]
 async def recognize(state: StateDep, form: RecognizeFormDep) -> RecognizeOut:
     async with state.recognition_gate:  # bounds the memory of decoded images; waiting ones stay spooled
         q = await form.query()
-        if q.finds:
-            found = await asyncio.wrap_future(state.recognizer.submit(detect, state, q))
-            return found_out(found, q.camera)
-        result = await asyncio.wrap_future(state.recognizer.submit(recognise, state, q))
+        return await asyncio.wrap_future(state.recognizer.submit(answer, state, q))
+
+
+def answer(state: AppState, q: Query) -> RecognizeOut:
+    """What `POST /recognize` answers, made on a recognition thread: the answer's poses and models too
+    (~1 ms for k = 5), so the event loop goes on reading and sending other requests meanwhile."""
+    if q.finds:
+        return found_out(detect(state, q), q.camera)
+    result = recognise(state, q)
     matches = matches_out(result, q.camera)
     return RecognizeOut(
         matches=matches,
