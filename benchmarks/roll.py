@@ -49,7 +49,7 @@ from benchmarks import over_http, registration
 from benchmarks.objects import TURN_FREE_VARIANTS, ObjectSet, inplane_template_sets
 from benchmarks.server import Server
 from benchmarks.stores import fill_store
-from benchmarks.timing import Timing, measure
+from benchmarks.timing import measure
 from index.embed import MODEL_FILES, Embedder, fingerprint, load_models, store_key, store_keys
 from index.register import TemplateConfig
 from index.store import TemplateSet
@@ -430,9 +430,4 @@ def _served(
 
 def _http(url: str, req: over_http.Request, cfg: RollConfig, clients: int = 1) -> dict:
     over_http.load(url, req, clients, cfg.http_warmup)
-    lat, inner, wall, failed = over_http.load(url, req, clients, cfg.http_requests)
-    return Timing(tuple(lat)).ms() | {
-        "requests_per_s": len(lat) / wall,
-        "server_total_median_ms": statistics.median(inner) if inner else None,
-        "failed": failed,
-    }
+    return over_http.load(url, req, clients, cfg.http_requests).summary()
