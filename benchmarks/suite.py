@@ -475,6 +475,8 @@ def _roll_summary(ro: dict, s: dict) -> dict:
             for q in ("p50", "p90", "p99"):
                 out[f"roll_http_{short}_{q}_ms"] = sv[req][f"{q}_ms"]
             out[f"roll_http_{short}_requests_per_s"] = sv[req]["requests_per_s"]
+            if (around := sv[req].get("around_median_ms")) is not None:  # runs before it had none
+                out[f"roll_http_{short}_around_ms"] = around  # latency minus the server's total
         for key, row in sv.items():
             if key.startswith("frame_640x480_") and key.endswith("_clients"):
                 clients = key.removeprefix("frame_640x480_").removesuffix("_clients")

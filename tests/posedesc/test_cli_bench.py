@@ -80,7 +80,12 @@ def test_bench_quick(tmp_path, posedesc_models, capsys):
             assert positive(s[f"{key}_p50_ms_8_q{n}"]) and positive(s[f"{key}_p99_ms_8_q{n}"])
         assert positive(s[f"decoded_to_answer_vs_linemod_speedup_8_q{n}"])
         assert f"decoded_to_answer_p50_ms_100_q{n}" in result["targets"]
-    for key in ("roll_http_frame_p50_ms", "roll_register_20k_faces_s", "roll_register_embed_s"):
+    for key in (
+        "roll_http_frame_p50_ms",
+        "roll_http_frame_around_ms",
+        "roll_register_20k_faces_s",
+        "roll_register_embed_s",
+    ):
         assert positive(s[key]), key
     assert s["roll_model_fingerprint"] == ro["models"]["untrained"]["fingerprint"]
     # every key of the pipeline's timings_ms, median and p90, of the primary model's in-plane set-up
