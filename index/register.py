@@ -53,6 +53,11 @@ from index.windows import DIAMETER_KEY, WINDOW_KEY, object_window, window_class
 log = logging.getLogger(__name__)
 T = TypeVar("T")
 
+#: patches per network run when templates are embedded: the same descriptors as in runs of 150-512 (the
+#: activations of a few patches stay in the cache), for less CPU with one intra-op thread. Measured on the
+#: shipped rgb model, 300 patches, sizes interleaved, thread CPU time: descriptors 126 ms at 8 against 153
+#: at 150-300 (two threads at once: 267 against 322-327), local features 54 against 76 ms at 256
+EMBED_BATCH = 8
 #: chunks of viewpoints a registration renders and embeds in (`make_templates`): the first chunk's
 #: embedding starts when it is rendered, so the fewer the viewpoints a chunk, the sooner both cores work
 CHUNKS = 12
@@ -189,7 +194,9 @@ def embed_templates(
     depth = t.depth[idx] if embedder.modality in ("depth", "rgbd") else None
     views = [t.views[i] for i in idx]
     nominal = np.array([v.distance for v in views])
-    desc = embedder.embed_patches(rgb, depth, nominal, fill=False, window_mm=window)  # zeros: background
+    desc = embedder.embed_patches(  # zeros: background
+        rgb, depth, nominal, fill=False, window_mm=window, batch=EMBED_BATCH
+    )
     poses = np.array([(v.azimuth, v.elevation, v.inplane) for v in views], np.float32).reshape(-1, 3)
     if not (local_features and embedder.has_local):
         return TemplateSet(poses, desc)
@@ -202,6 +209,7 @@ def embed_templates(
         False,
         local=True,
         window_mm=window,
+        batch=EMBED_BATCH,
     )
     # where each template's object is: the re-ranking compares the cells it covers (`index.local`)
     # and the shape depth sees there, for queries with depth: stored for every model with local features,
