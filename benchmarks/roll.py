@@ -416,7 +416,8 @@ def _served(
     }
     frame = over_http.frame_request(modality)
     patch = over_http.patch_request(objects, modality)
-    with Server(data, served_models, env) as url:
+    server = Server(data, served_models, env)
+    with server as url:
         out["frame_640x480"] = _http(url, frame, cfg) | {
             "request": "README's demo frame: " + "+".join(frame.files) + " PNGs, camera fields, k = 5",
         }
@@ -424,7 +425,9 @@ def _served(
             "request": f"the same frame from {FRAME_CLIENTS} clients at once",
         }
         out["patch"] = _http(url, patch, cfg) | {"request": "the query patch as PNG, k = 5"}
-        out["register"] = registration.run(url, register_repeats) | {"store_objects_before": cfg.objects}
+        out["register"] = registration.run(url, register_repeats, server.pid) | {
+            "store_objects_before": cfg.objects
+        }
     return out
 
 

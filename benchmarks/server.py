@@ -45,6 +45,10 @@ class Server:
         self._wait_ready()
         return self.url
 
+    @property
+    def pid(self) -> int | None:
+        return None if self.proc is None else self.proc.pid
+
     def _environment(self) -> dict[str, str]:
         merged: dict[str, str | None] = {**os.environ, **self.env}
         return {k: v for k, v in merged.items() if v is not None}

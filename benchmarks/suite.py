@@ -354,11 +354,14 @@ def _service(cfg: BenchConfig, objects, setup) -> dict:
             steps = n * (len(setup) + 1)
             with tqdm(total=steps, desc=f"service store: {n} objects", unit="step", disable=None) as bar:
                 fill_data_dir(data_dir, setup, objects, n, bar.update)
-        with Server(data_dir, cfg.models, env) as url:
+        server = Server(data_dir, cfg.models, env)
+        with server as url:
             if "http" in cfg.sections and objects is not None:
                 out["http"] = over_http.run(url, objects, cfg.modality, replace(cfg.http, objects=n))
             if "register" in cfg.sections:
-                out["register"] = registration.run(url, cfg.register_repeats) | {"store_objects_before": n}
+                out["register"] = registration.run(url, cfg.register_repeats, server.pid) | {
+                    "store_objects_before": n
+                }
     return out
 
 
@@ -404,7 +407,7 @@ def _summary(sections: dict) -> dict:
         s["http_frame_p50_ms"] = h["frame_640x480"]["p50_ms"]
     if g := sections.get("register"):
         s["register_20k_faces_s"] = g["wall_s"]
-        for k in ("render_s", "embed_s", "store_s", "total_s", "cold_s"):
+        for k in ("render_s", "embed_s", "store_s", "total_s", "cold_s", "cpu_s"):
             if g.get(k) is not None:
                 s[f"register_{k}"] = g[k]
     if ro := sections.get("roll"):
@@ -484,7 +487,7 @@ def _roll_summary(ro: dict, s: dict) -> dict:
                 out[f"roll_http_frame_p50_ms_{clients}_clients"] = row["p50_ms"]
         g = sv["register"]
         out["roll_register_20k_faces_s"] = g["wall_s"]
-        for k in ("render_s", "embed_s", "store_s", "total_s", "cold_s"):
+        for k in ("render_s", "embed_s", "store_s", "total_s", "cold_s", "cpu_s"):
             if g.get(k) is not None:
                 out[f"roll_register_{k}"] = g[k]
     return out

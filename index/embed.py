@@ -182,13 +182,17 @@ class Embedder:
         fill: bool = True,
         local: bool = False,
         window_mm: float | None = None,
+        batch: int | None = None,
     ) -> np.ndarray:
         """Cropped patches (rgb (N, S, S, 3) uint8, depth (N, S, S) mm) -> descriptors (N, D), or with
         `local` the local features (N, F) instead. `window_mm`: the window they were cut through (an
-        object's class, `index.windows`), which depth is normalised by; None: the model's."""
+        object's class, `index.windows`), which depth is normalised by; None: the model's. `batch`:
+        patches per run (None: `__call__`'s and `local`'s own)."""
         window = self.info.window_mm if window_mm is None else window_mm
         x = batch_inputs(self.modality, rgb, depth, nominal_mm, window, fill)
-        return self.local(x) if local else self(x)
+        if batch is None:
+            return self.local(x) if local else self(x)
+        return self.local(x, batch) if local else self(x, batch)
 
 
 def _template_shape(e: Embedder) -> tuple:

@@ -34,6 +34,7 @@ import time
 from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
+from typing import TypeVar
 
 import numpy as np
 import trimesh
@@ -42,7 +43,7 @@ from index.embed import Embedder
 from index.local import with_relief, with_silhouettes
 from index.mesh import MeshError, diameter, load_mesh, simplify
 from index.pose import View
-from index.render import INVISIBLE, Renderer, RenderWorker, Templates
+from index.render import INVISIBLE, Renderer, RenderWorker, Templates, Uprights
 from index.store import ObjectRecord, TemplateSet, TemplateStore
 from index.surface import SURFACE_KEY, template_offsets
 from index.symmetry import SYMMETRIES
@@ -50,6 +51,16 @@ from index.viewpoints import inplane_steps, sphere_views
 from index.windows import DIAMETER_KEY, WINDOW_KEY, object_window, window_class
 
 log = logging.getLogger(__name__)
+T = TypeVar("T")
+
+#: patches per network run when templates are embedded: the same descriptors as in runs of 150-512 (the
+#: activations of a few patches stay in the cache), for less CPU with one intra-op thread. Measured on the
+#: shipped rgb model, 300 patches, sizes interleaved, thread CPU time: descriptors 126 ms at 8 against 153
+#: at 150-300 (two threads at once: 267 against 322-327), local features 54 against 76 ms at 256
+EMBED_BATCH = 8
+#: chunks of viewpoints a registration renders and embeds in (`make_templates`): the first chunk's
+#: embedding starts when it is rendered, so the fewer the viewpoints a chunk, the sooner both cores work
+CHUNKS = 12
 
 #: Told (stage, done, total) as a registration goes: the stage it is waiting on now ("render": the next
 #: chunk of views to be rendered; "embed": a chunk to be embedded by every model; they alternate), with
@@ -130,20 +141,34 @@ def render_templates(
     mesh: trimesh.Trimesh | Future[trimesh.Trimesh],
     views: list[View],
     windows: set[float],
-) -> Future[tuple[dict[float, Templates], float]]:
-    """Renders the views once per patch window (the models usually share one) on the render thread.
-    The future gives the templates by window and the seconds the render thread spent."""
+    then: Callable[[dict[float, Uprights]], T] | None = None,
+) -> Future[tuple[dict[float, Uprights], float, T | None]]:
+    """Renders the views' viewpoints once per patch window (the models usually share one) on the render
+    thread, upright (`Renderer.render_upright`: whoever takes them turns them into templates). The future
+    gives the renders by window, the seconds the render thread spent, and what `then` made of them there
+    (called on the render thread as soon as they are done, to hand them on at once)."""
 
-    def job(renderer: Renderer) -> tuple[dict[float, Templates], float]:
+    def job(renderer: Renderer) -> tuple[dict[float, Uprights], float, T | None]:
         t0, out, own = time.perf_counter(), {}, renderer.window_mm
         m = mesh.result() if isinstance(mesh, Future) else mesh
         try:
             for w in sorted(windows):
                 renderer.window_mm = w
-                out[w] = renderer.render(m, views)
+                out[w] = renderer.render_upright(m, views)
         finally:
             renderer.window_mm = own
-        return out, time.perf_counter() - t0
+        seconds = time.perf_counter() - t0
+        return out, seconds, None if then is None else then(out)
+
+    return worker.submit(job)
+
+
+def decimated(worker: RenderWorker, mesh: trimesh.Trimesh) -> Future[trimesh.Trimesh]:
+    """`mesh` at the renderer's level of detail, decimated on the render thread (once per registration,
+    not per chunk)."""
+
+    def job(renderer: Renderer) -> trimesh.Trimesh:
+        return simplify(mesh, renderer.max_faces) if len(mesh.faces) > renderer.max_faces else mesh
 
     return worker.submit(job)
 
@@ -169,7 +194,9 @@ def embed_templates(
     depth = t.depth[idx] if embedder.modality in ("depth", "rgbd") else None
     views = [t.views[i] for i in idx]
     nominal = np.array([v.distance for v in views])
-    desc = embedder.embed_patches(rgb, depth, nominal, fill=False, window_mm=window)  # zeros: background
+    desc = embedder.embed_patches(  # zeros: background
+        rgb, depth, nominal, fill=False, window_mm=window, batch=EMBED_BATCH
+    )
     poses = np.array([(v.azimuth, v.elevation, v.inplane) for v in views], np.float32).reshape(-1, 3)
     if not (local_features and embedder.has_local):
         return TemplateSet(poses, desc)
@@ -182,6 +209,7 @@ def embed_templates(
         False,
         local=True,
         window_mm=window,
+        batch=EMBED_BATCH,
     )
     # where each template's object is: the re-ranking compares the cells it covers (`index.local`)
     # and the shape depth sees there, for queries with depth: stored for every model with local features,
@@ -189,6 +217,27 @@ def embed_templates(
     local = with_silhouettes(local, t.depth[idx][up], embedder.local_grid)
     local = with_relief(local, t.depth[idx][up], nominal[up], embedder.local_grid, window)
     return TemplateSet(poses, desc, up, local)
+
+
+@dataclass(frozen=True)
+class _Part:
+    """What one embedding job made: a model's templates of some views of a chunk, whether any of them
+    shows the object, and when the job ran (perf_counter seconds)."""
+
+    templates: TemplateSet
+    visible: bool
+    start: float
+    end: float
+
+
+def _embed_part(
+    embedder: Embedder, uprights: Uprights, keep: Sequence[int], window_mm: float | None
+) -> _Part:
+    """The views at `keep` turned from their renders and embedded by one model."""
+    t0 = time.perf_counter()
+    t = uprights.templates(keep)
+    ts = embed_templates(embedder, {uprights.window_mm: t}, window_mm=window_mm)
+    return _Part(ts, t.visible, t0, time.perf_counter())
 
 
 def _concatenate(parts: Sequence[TemplateSet]) -> TemplateSet:
@@ -206,50 +255,37 @@ def _concatenate(parts: Sequence[TemplateSet]) -> TemplateSet:
 def make_templates(
     worker: RenderWorker,
     embedders: Mapping[str, Embedder],
-    mesh: trimesh.Trimesh,
+    mesh: trimesh.Trimesh | Future[trimesh.Trimesh],
     views: Mapping[str, list[View]],
     pool: ThreadPoolExecutor | None = None,
-    chunks: int = 4,
+    chunks: int = CHUNKS,
     progress: Progress | None = None,
     window_mm: float | None = None,
 ) -> tuple[dict[str, TemplateSet], dict[str, float], np.ndarray]:
     """Every model's templates of `mesh` from its `views` through `window_mm` (the object's window; None:
     each model's own), seconds spent rendering and embedding, and each viewpoint's surface offset
-    (`index.surface.template_offsets`, rows of azimuth, elevation, mm).
+    (`index.surface.template_offsets`, rows of azimuth, elevation, mm). `mesh` may be a future of it
+    already at the renderer's level of detail (`decimated`); else it is decimated here.
 
-    The union of the views goes to the render thread once, in `chunks` (whole viewpoints each); a chunk
-    is embedded while the next renders, each model embedding its own views of it, side by side on
-    `pool` (serially without one). The mesh is decimated once (on the render thread, to the renderer's
-    level of detail), not per chunk."""
-
-    def decimate(renderer: Renderer) -> trimesh.Trimesh:
-        return simplify(mesh, renderer.max_faces) if len(mesh.faces) > renderer.max_faces else mesh
-
-    light = worker.submit(decimate)
+    The union of the views goes to the render thread once, in `chunks` (whole viewpoints each). A chunk's
+    renders are handed to `pool` (serially without one) as soon as they are done, by the render thread
+    itself, so the render of the next chunk and the embedding of this one never wait for each other: each
+    model's views of it in halves (with a pool of two, one model's templates use both cores), each half
+    turned from the upright renders and embedded in one job."""
+    light = mesh if isinstance(mesh, Future) else decimated(worker, mesh)
     windows = {e.info.window_mm for e in embedders.values()} if window_mm is None else {window_mm}
     groups = _viewpoints(views)
     per = max(1, int(np.ceil(len(groups) / chunks)))
-    renders = [
-        render_templates(worker, light, [v for g in groups[i : i + per] for v in g], windows)
-        for i in range(0, len(groups), per)
-    ]
     wanted = {m: {(v.azimuth, v.elevation, v.inplane, v.distance) for v in vs} for m, vs in views.items()}
     twins = template_twins(embedders)
-    parts: dict[str, list[TemplateSet]] = {m: [] for m in embedders}
-    seconds = {"render": 0.0, "embed": 0.0}
-    visible = False
-    offsets = []
-    total, done_views = sum(len(g) for g in groups), 0
-    for fut in renders:
-        if progress:
-            progress("render", done_views, total)
-        rendered, render_s = fut.result()
-        seconds["render"] += render_s
-        if progress:
-            progress("embed", done_views, total)
-        t = rendered[min(rendered)]
-        offsets.append(template_offsets(t.depth, t.views, t.window_mm))
-        visible = visible or _visible(rendered)
+    submit = _now if pool is None else pool.submit
+    halves = 1 if pool is None else 2
+
+    def window_of(m: str) -> float:
+        return embedders[m].info.window_mm if window_mm is None else window_mm
+
+    def schedule(rendered: Mapping[float, Uprights]) -> list[tuple[str, Future[_Part]]]:
+        """A chunk's embedding jobs, submitted: each model's own views of it (a twin takes its source's)."""
         chunk = next(iter(rendered.values())).views
         keep = {
             m: [
@@ -257,29 +293,74 @@ def make_templates(
             ]
             for m in embedders
         }
-        t0 = time.perf_counter()
         own = [m for m in embedders if not (m in twins and keep[m] == keep[twins[m]])]
-        # each model's views in halves: with a pool of two, one model's templates use both cores
-        work = [(m, half) for m in own for half in _halves(keep[m], 2 if pool is not None else 1)]
-        if pool is None:
-            done = [embed_templates(embedders[m], rendered, k, window_mm=window_mm) for m, k in work]
-        else:
-            done = [
-                f.result()
-                for f in [
-                    pool.submit(embed_templates, embedders[m], rendered, k, window_mm=window_mm)
-                    for m, k in work
-                ]
-            ]
-        seconds["embed"] += time.perf_counter() - t0
-        sets = {m: _concatenate([ts for (w, _), ts in zip(work, done, strict=True) if w == m]) for m in own}
-        for m in embedders:
-            parts[m].append(sets[m] if m in sets else sets[twins[m]])
-        done_views += len(chunk)
+        return [
+            (m, submit(_embed_part, embedders[m], rendered[window_of(m)], part, window_mm))
+            for m in own
+            for part in _halves(keep[m], halves)
+        ]
+
+    chunked = [[v for g in groups[i : i + per] for v in g] for i in range(0, len(groups), per)]
+    renders = [
+        render_templates(worker, light, vs, windows, None if pool is None else schedule) for vs in chunked
+    ]
+    parts: dict[str, list[TemplateSet]] = {m: [] for m in embedders}
+    seconds = {"render": 0.0, "embed": 0.0}
+    ran: list[tuple[float, float]] = []  # when each embedding job ran
+    visible = False
+    offsets = []
+    total, done_views = sum(len(g) for g in groups), 0
+    try:
+        for fut, chunk in zip(renders, chunked, strict=True):
+            if progress:
+                progress("render", done_views, total)
+            rendered, render_s, jobs = fut.result()
+            seconds["render"] += render_s
+            if progress:
+                progress("embed", done_views, total)
+            jobs = schedule(rendered) if jobs is None else jobs
+            t = rendered[min(rendered)]
+            up = [i for i, v in enumerate(chunk) if abs(v.inplane) < 1e-3]
+            offsets.append(template_offsets(t.templates(up).depth, [chunk[i] for i in up], t.window_mm))
+            done = [(m, f.result()) for m, f in jobs]
+            ran += [(p.start, p.end) for _, p in done]
+            seen = {window_of(m): False for m, _ in done}
+            for m, p in done:
+                seen[window_of(m)] |= p.visible
+            visible = visible or all(seen.values())
+            sets = {m: _concatenate([p.templates for n, p in done if n == m]) for m in dict(done)}
+            for m in embedders:
+                parts[m].append(sets[m] if m in sets else sets[twins[m]])
+            done_views += len(chunk)
+    except BaseException:
+        for fut in renders:  # what has not started yet need not run
+            fut.cancel()
+        raise
+    seconds["embed"] = _covered(ran)
     if not visible:
         raise MeshError(INVISIBLE)
     out = {m: _concatenate(ps) for m, ps in parts.items()}
     return out, seconds, np.concatenate(offsets)
+
+
+def _now(fn: Callable[..., T], *args: object) -> Future[T]:
+    """`fn(*args)` run here and now, as a done future (`make_templates` without a pool)."""
+    fut: Future[T] = Future()
+    try:
+        fut.set_result(fn(*args))
+    except Exception as e:
+        fut.set_exception(e)
+    return fut
+
+
+def _covered(spans: Sequence[tuple[float, float]]) -> float:
+    """Seconds within at least one of the (start, end) spans."""
+    out, reach = 0.0, -np.inf
+    for a, b in sorted(spans):
+        if b > reach:
+            out += b - max(a, reach)
+            reach = b
+    return out
 
 
 def template_twins(embedders: Mapping[str, Embedder]) -> dict[str, str]:
@@ -305,10 +386,6 @@ def _halves(keep: Sequence[int], n: int) -> list[list[int]]:
     return [keep[i : i + cut] for i in range(0, len(keep), cut)]
 
 
-def _visible(rendered: Mapping[float, Templates]) -> bool:
-    return all(t.visible for t in rendered.values())
-
-
 def register(
     mesh: trimesh.Trimesh,
     name: str,
@@ -326,12 +403,13 @@ def register(
     (`index.windows`); raises MeshError when it cannot be used. `progress`, when given, is told how far
     it is (`Progress`)."""
     t0 = time.perf_counter()
+    light = decimated(worker, mesh)  # meanwhile, the diameter that decides the views
     size = diameter(mesh)
     model_window = min(e.info.window_mm for e in embedders.values())
     window = window_class(size, model_window)
     views = model_views(symmetry, cfg.through(window, model_window), embedders)
     sets, timings, offsets = make_templates(
-        worker, embedders, mesh, views, pool, progress=progress, window_mm=window
+        worker, embedders, light, views, pool, progress=progress, window_mm=window
     )
     t1 = time.perf_counter()
     stored = sum(len(ts.poses) for ts in sets.values())

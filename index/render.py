@@ -62,6 +62,31 @@ class Templates:
         return bool((self.depth > 0).any())
 
 
+@dataclass(frozen=True)
+class Uprights:
+    """Upright renders of `views`' viewpoints, `render_size(size)` px a side (`Renderer.render_upright`):
+    view i is render `of_view[i]` turned by its in-plane angle and cropped (`rotate_crop`).
+    rgb: (V, B, B, 3) uint8; depth: (V, B, B) float32 mm, 0 = empty."""
+
+    views: list[View]
+    of_view: np.ndarray
+    rgb: np.ndarray
+    depth: np.ndarray
+    size: int
+    window_mm: float
+
+    def templates(self, idx: Sequence[int] | None = None) -> Templates:
+        """The templates of the views at `idx` (default all), in that order."""
+        idx = range(len(self.views)) if idx is None else idx
+        s = self.size
+        rgb = np.zeros((len(idx), s, s, 3), np.uint8)
+        depth = np.zeros((len(idx), s, s), np.float32)
+        for j, i in enumerate(idx):
+            k = self.of_view[i]
+            rgb[j], depth[j] = rotate_crop(self.rgb[k], self.depth[k], self.views[i].inplane, s)
+        return Templates([self.views[i] for i in idx], rgb, depth, self.window_mm)
+
+
 def render_size(size: int) -> int:
     """Side of the render that holds a `size` patch turned by any angle."""
     return int(np.ceil(size * np.sqrt(2))) | 1  # odd, so the centre is a pixel centre both ways
@@ -108,25 +133,37 @@ class Renderer:
         """RGB and depth patches (size x size) of `mesh` from `views`, each centred on the object origin.
 
         Views that share azimuth, elevation and distance are rendered once and turned in-plane."""
+        return self.render_upright(mesh, views, lighting, progress).templates()
+
+    def render_upright(
+        self,
+        mesh: trimesh.Trimesh,
+        views: Sequence[View],
+        lighting: Lighting | None = None,
+        progress: Callable[[int], object] | None = None,
+    ) -> Uprights:
+        """The renders `render` turns into the templates of `views`: one per viewpoint (azimuth,
+        elevation, distance). Turning them (`Uprights.templates`) needs no GL context, so a registration
+        does it on its embedding threads, off this thread's back (`index.register`)."""
         self._check_thread()
         lighting = lighting or self.lighting
         if len(mesh.faces) > self.max_faces:
             mesh = simplify(mesh, self.max_faces)
         scene = self._scene(mesh, lighting)
-        n, s = len(views), self.size
-        rgb = np.zeros((n, s, s, 3), np.uint8)
-        depth = np.zeros((n, s, s), np.float32)
         groups: dict[tuple[float, float, float], list[int]] = {}
         for i, v in enumerate(views):
             groups.setdefault((v.azimuth, v.elevation, v.distance), []).append(i)
+        b = self.big
+        rgb = np.zeros((len(groups), b, b, 3), np.uint8)
+        depth = np.zeros((len(groups), b, b), np.float32)
+        of_view = np.zeros(len(views), np.int64)
         rig = self._rig(scene, lighting)  # camera and lights added once, moved for every view
-        for (az, el, dist), idx in groups.items():
-            big_rgb, big_depth = self._render_one(scene, View(az, el, 0.0, dist), rig)
-            for i in idx:
-                rgb[i], depth[i] = rotate_crop(big_rgb, big_depth, views[i].inplane, s)
+        for k, ((az, el, dist), idx) in enumerate(groups.items()):
+            rgb[k], depth[k] = self._render_one(scene, View(az, el, 0.0, dist), rig)
+            of_view[idx] = k
             if progress:
                 progress(len(idx))
-        return Templates(list(views), rgb, depth, self.window_mm)
+        return Uprights(list(views), of_view, rgb, depth, self.size, self.window_mm)
 
     def render_frame(
         self,

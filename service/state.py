@@ -135,17 +135,23 @@ class AppState:
             extra=extra,
             progress=progress,
         )
-        self.warm([reg.record.object_id])
+        self.warm([reg.record.object_id], {reg.record.object_id: mesh})
         return reg
 
-    def warm(self, object_ids: Iterable[int]) -> None:
+    def warm(self, object_ids: Iterable[int], meshes: Mapping[int, trimesh.Trimesh] | None = None) -> None:
         """The pose fit's models of these objects (`service.pipeline.fit.Shapes`: the colour one for the rgb
         model, the depth one for a model that reads depth) made on the fit thread, ahead of the first query
-        that needs them; as many as the cache keeps. Nothing with the pose fit off."""
+        that needs them; as many as the cache keeps. Nothing with the pose fit off. `meshes`: those of
+        the objects at hand (just registered), so their drawing meshes are made from them, not read back
+        from the store (`DrawMesh.as_stored`)."""
         if self.settings.pose_fit == 0:
             return
         caches = self.shapes.needed(self.embedders)
         for oid in list(object_ids)[:CAPACITY]:
+            if meshes is not None and oid in meshes:  # the fit thread takes its jobs in order: first this
+                self.fitter.submit(
+                    lambda o, m: self.draw_meshes.put(o, DrawMesh.as_stored(m)), oid, meshes[oid]
+                )
             for cache in caches:
                 self.fitter.submit(cache.get, oid)
 

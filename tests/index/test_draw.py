@@ -136,3 +136,29 @@ def test_mesh_cache_loads_once_and_forgets_the_deleted(l_shape):
     assert 1 not in cache and 2 in cache
     cache.get(3), cache.get(4)  # over capacity: the least recent goes
     assert 2 not in cache and loads == [1, 2, 3, 4]
+
+
+def test_a_registered_mesh_draws_as_its_stored_glb(l_shape):
+    """`DrawMesh.as_stored` (what the service keeps of a mesh it registers, without the GLB's round trip)
+    is what the store's GLB gives back: float32 vertices, the same faces, with vertex or face colours."""
+    faced = trimesh.creation.icosphere(subdivisions=3, radius=40.0)
+    colours = np.random.default_rng(0).integers(0, 255, (len(faced.faces), 4))
+    faced.visual = trimesh.visual.ColorVisuals(faced, face_colors=colours)
+    for mesh in (l_shape, faced):
+        mesh = mesh.copy()
+        mesh.vertices += 1e-4 / 3  # not float32 numbers
+        glb = mesh.export(file_type="glb")
+        a, b = DrawMesh.from_glb(glb), DrawMesh.as_stored(mesh)
+        assert a is not None
+        np.testing.assert_array_equal(a.vertices, b.vertices)
+        np.testing.assert_array_equal(a.faces, b.faces)
+        assert a.diameter == b.diameter
+
+
+def test_mesh_cache_keeps_what_it_is_given(l_shape):
+    cache = MeshCache(lambda oid: pytest.fail("loaded"), capacity=2)
+    given = DrawMesh.of(l_shape)
+    cache.put(1, given)
+    assert cache.get(1) is given
+    cache.put(2, None), cache.put(3, None)  # over capacity: the least recent goes
+    assert 1 not in cache and 3 in cache

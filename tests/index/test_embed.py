@@ -56,6 +56,19 @@ def test_concatenations_into_convolutions_are_padded_to_whole_blocks_without_cha
     np.testing.assert_allclose(b.run(None, {"patch": x})[0], a.run(None, {"patch": x})[0], atol=1e-4)
 
 
+@pytest.mark.parametrize("model", ["rgb", "depth"])
+def test_runs_of_any_size_give_the_same_outputs(model):
+    """Registration embeds templates a few at a time (`index.register.EMBED_BATCH`, for speed): the outputs
+    are, bit for bit, those of one run of them all."""
+    e = Embedder(SHIPPED_RGB.with_name(f"posedesc-{model}.onnx"), threads=1)
+    channels = 3 if model == "rgb" else 1
+    x = np.random.default_rng(1).normal(size=(37, channels, 64, 64)).astype(np.float32)
+    for batch in (1, 8, 16):
+        np.testing.assert_array_equal(e(x, batch=batch), e(x, batch=512))
+        if e.has_local:
+            np.testing.assert_array_equal(e.local(x, batch=batch), e.local(x, batch=256))
+
+
 def test_a_file_that_is_no_model_is_one_line(tmp_path):
     bad = tmp_path / "posedesc-rgb.onnx"
     bad.write_bytes(b"not an onnx file at all")

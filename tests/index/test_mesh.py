@@ -94,3 +94,13 @@ def test_a_mesh_that_simplifies_to_nothing_is_refused():
     copies = b"v 0 0 0\nv 100 0 0\nv 0 100 0\n" + b"f 1 2 3\n" * 1000  # one triangle, a thousand times
     with pytest.raises(MeshError, match="left none"):
         load_mesh(copies, file_type="obj", max_faces=100)
+
+
+def test_the_diameter_is_measured_again_when_the_mesh_changes(l_shape):
+    mesh = l_shape.copy()
+    size = diameter(mesh)
+    assert diameter(mesh) == size  # kept for the same vertices and faces
+    mesh.apply_scale(2.0)
+    assert diameter(mesh) == pytest.approx(2 * size)
+    other = l_shape.copy()  # another mesh of the same shape: its own
+    assert diameter(other) == size

@@ -12,7 +12,15 @@ import trimesh
 from index.embed import Embedder, ModelInfo, fingerprint, load_models, store_key, store_keys
 from index.mesh import MeshError
 from index.pose import View
-from index.register import TemplateConfig, embed_templates, reembed, register, template_views
+from index.register import (
+    TemplateConfig,
+    embed_templates,
+    make_templates,
+    model_views,
+    reembed,
+    register,
+    template_views,
+)
 from index.store import Store
 from index.viewpoints import hemisphere
 
@@ -190,6 +198,31 @@ def test_an_rgbd_model_made_from_the_rgb_one_shares_its_templates(
     rendered = render_worker.submit(lambda r: {200.0: r.render(l_shape, [view])}).result()
     (match,) = store.search("rgbd", embed_templates(rgbd, rendered).descriptors, 1)[0]
     assert (match.azimuth, match.elevation) == (view.azimuth, view.elevation) and match.distance < 1e-4
+
+
+def test_chunked_templates_are_those_of_one_render(l_shape, render_worker, posedesc_models):
+    """`make_templates` renders in chunks and turns and embeds each chunk on the pool while the next renders:
+    with a pool or without, its templates are, bit for bit, those of every view rendered in one go and
+    embedded whole by each model (the shipped models where they are: in-plane variants, local features)."""
+    shipped = Path(__file__).parents[2] / "models"
+    models = load_models(shipped if (shipped / "posedesc-rgb.onnx").is_file() else posedesc_models)
+    cfg = TemplateConfig(level=1)
+    views = model_views("none", cfg, models)
+    with ThreadPoolExecutor(2) as pool:
+        pooled, _, offsets = make_templates(render_worker, models, l_shape, views, pool, chunks=3)
+    serial, _, _ = make_templates(render_worker, models, l_shape, views, None, chunks=2)
+    whole = {
+        m: render_worker.submit(lambda r, vs=vs: {200.0: r.render(l_shape, vs)}).result()
+        for m, vs in views.items()
+    }
+    for m, e in models.items():
+        want = embed_templates(e, whole[m])
+        for got in (pooled[m], serial[m]):
+            for field in ("poses", "descriptors", "local_rows", "local"):
+                np.testing.assert_array_equal(
+                    getattr(got, field), getattr(want, field), err_msg=f"{m} {field}"
+                )
+    assert len(offsets) == len(hemisphere(1))
 
 
 def test_a_store_made_before_the_relief_makes_local_templates_again(embedders):

@@ -119,6 +119,7 @@ def test_a_full_disk_for_the_snapshots_keeps_the_commit_and_leaves_no_stale_tag(
 
     monkeypatch.setattr(index.snapshot_files.os, "fsync", no_space)
     b = add(store, "b", 5.0)  # committed in SQLite; the snapshot files cannot be written
+    store.flush()  # they are written after the write returns
     monkeypatch.undo()
     assert b in store.snapshot.objects
     assert not list(tmp_path.glob("*.tmp"))  # no half-written file takes up the space left

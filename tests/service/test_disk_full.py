@@ -40,6 +40,7 @@ def full_disk(client: TestClient, monkeypatch: pytest.MonkeyPatch) -> Iterator[N
     try:
         yield
     finally:
+        store.flush()  # the snapshot files of what was written meanwhile, written after each write returned
         monkeypatch.undo()
         with store._write:
             store._db.execute("PRAGMA max_page_count = 1073741823")
@@ -90,6 +91,7 @@ def test_a_full_disk_refuses_writes_and_keeps_serving(
         with full_disk(c, monkeypatch):  # a delete needs no new pages: SQLite commits it, the snapshots fail
             assert c.delete(f"/objects/{t_id}").status_code == 204
             assert found(c) == {l_id}
+            c.app.state.posedesc.store.flush()  # the snapshot files are written after the delete returns
             assert not list(settings.data_dir.glob("*.tmp"))  # no half-written snapshot left taking space
 
     with TestClient(create_app(settings)) as c:  # a restart: SQLite's state, the stale snapshots rebuilt
