@@ -14,6 +14,12 @@ Costs, measured with `.venv/bin/python benchmarks/serving.py` (2 cores shared wi
 models, a 21.8k-face mesh): 301 templates per model take render 2.5 s and embed 1.0 s, overlapping, 2.8 s
 in all (since then, on an idle machine: render 1.2 s, all 1.35 s; `posedesc bench`); in-plane variants
 cost no render but multiply embedding: +-45 in 45 steps (903) 4.4 s, 15 steps (2107) 7.6 s.
+The shipped models (rgb with 12 rolls a viewpoint, its RGB-D twin, upright depth) on a 100-object store,
+2 cores shared with other work (load 2-3): a registration's CPU is about 1.3 s the render thread, 1.1 s
+Mesa's rasterising threads, 2.5-3 s embedding (turning the variants included), 0.4 s the rest, so once
+render and embedding overlap throughout (`make_templates`) the two cores bound it: in-process 4.5-4.6 s
+before that (and before the store wrote its snapshot files after returning, `index.embedded_store`),
+3.6-3.8 s after (medians of 6, A/B alternating).
 
 Symmetric objects do not need every viewpoint: the views of a "180" object from azimuth a and a + 180
 are the same picture, so only azimuths in [0, 180) are kept; a "full" object looks the same from every
