@@ -26,6 +26,9 @@ README = ROOT / "README.md"
 RESULTS = ROOT / "docs" / "results"
 
 
+#: how a target shows a unit that is a format's name
+UNITS = {"x": "×", "rps": "/s", "mb": "MB"}
+
 # A column's `fmt` is a name here, optionally with a unit after a colon ("target:ms").
 FORMATS: dict[str, Callable[[Any, str], str]] = {
     "pct": lambda x, _: f"{100 * float(x):.1f}",  # a share 0..1 as percent, one decimal
@@ -34,8 +37,13 @@ FORMATS: dict[str, Callable[[Any, str], str]] = {
     "ms": lambda x, _: f"{float(x):.1f} ms",
     "s": lambda x, _: f"{float(x):.2f} s",
     # the bench's target as its JSON writes it ("<= 5"), with the unit
-    "target": lambda x, unit: f"{str(x).replace('<=', '≤').replace('>=', '≥')} {unit}".strip(),
+    "target": lambda x, unit: (
+        f"{str(x).replace('<=', '≤').replace('>=', '≥')} {UNITS.get(unit, unit)}".strip()
+    ),
     "met": lambda x, _: "met" if x else "**missed**",
+    "x": lambda x, _: f"{float(x):.1f}×",  # a ratio
+    "rps": lambda x, _: f"{float(x):.1f} /s",  # requests a second
+    "mb": lambda x, _: f"{float(x):.2f} MB",
 }
 
 
@@ -43,7 +51,9 @@ FORMATS: dict[str, Callable[[Any, str], str]] = {
 class Column:
     header: str
     fmt: str = "text"
-    path: str = ""  # default key path, dot-separated; `{name}` is filled from the row's `vars`
+    #: default key path, dot-separated; `{name}` is filled from the row's `vars`; `FILE::path`: the figure
+    #: of another file under docs/results/ (an earlier run's, beside the row's)
+    path: str = ""
 
 
 @dataclass(frozen=True)
@@ -191,10 +201,13 @@ ACCURACY = Table(
     ),
 )
 
-BENCH = "bench-roll-relief.json"
+BENCH = "bench-roll-28.json"
 BENCH_COMMAND = (
-    ".venv/bin/posedesc bench --only roll --roll-models shipped --json docs/results/bench-roll-relief.json"
+    ".venv/bin/posedesc bench --only recognition,roll --objects 100 --roll-models shipped "
+    "--json docs/results/bench-roll-28.json"
 )
+#: the same bench before issue 28's speed work (04250d9's code, an earlier and faster 2-core machine)
+BEFORE = "bench-roll-fit.json"
 
 
 def timed(label: str, key: str, suffix: str, file: str = BENCH, command: str = BENCH_COMMAND) -> Row:
@@ -211,6 +224,7 @@ def baseline(label: str, key: str, suffix: str, file: str = BENCH, command: str 
 
 FIT_BENCH = "bench-fit.json"
 FIT_BENCH_COMMAND = ".venv/bin/posedesc bench --only fit --json docs/results/bench-fit.json"
+MEMORY_BENCH_COMMAND = ".venv/bin/posedesc bench --only memory --memory-objects 100,300,1000 --json docs/results/bench-memory.json"
 
 # The shipped models, 100 objects (361,200 rgb templates), one query at a time, 2-core machine.
 SPEED = Table(
@@ -219,6 +233,7 @@ SPEED = Table(
         Column("what (100 objects, rgb model)"),
         Column("p50", "{unit}", "summary.{key}_p50{suffix}"),
         Column("p90", "{unit}", "summary.{key}_p90{suffix}"),
+        Column("before", "{unit}", f"{BEFORE}::summary.{{key}}_p50{{suffix}}"),
         Column("target", "target:{unit}", "targets.{key}_p50{suffix}.target"),
         Column("target met", "met", "targets.{key}_p50{suffix}.met"),
     ),
@@ -229,7 +244,46 @@ SPEED = Table(
         baseline(
             "baseline, same run: upright templates only (no roll)", "decoded_to_answer_upright", "_ms_100_q1"
         ),
+        Row(
+            "the first row over the upright baseline",
+            BENCH,
+            BENCH_COMMAND,
+            {"unit": "x"},
+            {
+                "p50": "summary.decoded_to_answer_vs_upright_100_q1",
+                "p90": "",
+                "before": "",
+                "target": "targets.decoded_to_answer_vs_upright_100_q1.target",
+                "target met": "targets.decoded_to_answer_vs_upright_100_q1.met",
+            },
+        ),
+        Row(
+            "the first row against LineMOD, same objects, same run (times faster)",
+            BENCH,
+            BENCH_COMMAND,
+            {"unit": "x"},
+            {
+                "p50": "summary.decoded_to_answer_vs_linemod_speedup_100_q1",
+                "p90": "",
+                "before": "",
+                "target": "",
+                "target met": "",
+            },
+        ),
         timed("`POST /recognize`, 640×480 PNG frame over HTTP, 1 client", "roll_http_frame", "_ms"),
+        Row(
+            "the same frame, 4 clients at once: requests a second (1 client in the row above: its rate)",
+            BENCH,
+            BENCH_COMMAND,
+            {"unit": "rps"},
+            {
+                "p50": "summary.roll_http_frame_requests_per_s_4_clients",
+                "p90": "summary.roll_http_frame_requests_per_s",
+                "before": "",
+                "target": "",
+                "target met": "",
+            },
+        ),
         baseline("`POST /recognize`, 64 px patch over HTTP, 1 client", "roll_http_patch", "_ms"),
         Row(
             "`POST /objects`, 21,848-face mesh, 3 models (median of 3)",
@@ -239,8 +293,22 @@ SPEED = Table(
             {
                 "p50": "summary.roll_register_20k_faces_s",
                 "p90": "",
+                "before": f"{BEFORE}::summary.roll_register_20k_faces_s",
                 "target": "targets.roll_register_20k_faces_s.target",
                 "target met": "targets.roll_register_20k_faces_s.met",
+            },
+        ),
+        Row(
+            "resident memory per registered object, 100 to 1,000 objects",
+            "bench-memory.json",
+            MEMORY_BENCH_COMMAND,
+            {"unit": "mb"},
+            {
+                "p50": "summary.memory_slope_mb_per_object",
+                "p90": "",
+                "before": "",
+                "target": "targets.memory_slope_mb_per_object.target",
+                "target met": "targets.memory_slope_mb_per_object.met",
             },
         ),
         Row(
@@ -251,6 +319,7 @@ SPEED = Table(
             {
                 "p50": "summary.fit_colour_p50_ms",
                 "p90": "summary.fit_colour_p90_ms",
+                "before": "",
                 "target": "targets.fit_colour_p50_ms.target",
                 "target met": "targets.fit_colour_p50_ms.met",
             },
@@ -263,11 +332,16 @@ SPEED = Table(
             {
                 "p50": "summary.fit_kinect_depth_p50_ms",
                 "p90": "summary.fit_kinect_depth_p90_ms",
+                "before": "",
                 "target": "targets.fit_depth_p50_ms.target",
                 "target met": "targets.fit_depth_p50_ms.met",
             },
         ),
     ),
+    note="Before: `bench-roll-fit.json`, the code before issue 28's speed work on an earlier 2-core machine "
+    "about twice as fast (its upright row: 2.0 ms); this run had other work beside it (load 4-5). Figures of "
+    "one run compare: the in-plane path was 12.3× the upright one before, 6.8× now. Ratios and rates in the "
+    "p50 column; the 4-client row's p90 cell is one client's rate in the same run.",
 )
 
 # Whole frames, no centre given (`--protocol detect`): the test frames, colour only, the 7 objects registered
@@ -407,7 +481,14 @@ def render(table: Table, results: Path = RESULTS) -> str:
         for col in table.columns[1:]:
             key = row.cells.get(col.header, col.path).format_map(row.vars)
             name, _, unit = col.fmt.format_map(row.vars).partition(":")
-            cells.append(FORMATS[name](lookup(cache[row.file], key, row.file), unit) if key else "")
+            file, _, key = (
+                key.rpartition("::") if "::" in key else (row.file, "", key)
+            )  # another file's figure
+            if file not in cache:
+                if not (results / file).is_file():
+                    raise TableError(f"{row.label}: no result file {results / file}")
+                cache[file] = json.loads((results / file).read_text())
+            cells.append(FORMATS[name](lookup(cache[file], key, file), unit) if key else "")
         source = f"[`{row.file}`](docs/results/{row.file})"
         if row.command:
             if row.command not in commands:

@@ -41,9 +41,9 @@ def test_a_changed_figure_changes_the_table(tables, tmp_path):
     (results / "test-rgb.json").write_text(json.dumps(rgb))
     new = tables.update(text, results=results)
     assert new != text and "| 12.3 |" in new
-    bench = json.loads((results / "bench-roll-relief.json").read_text())
+    bench = json.loads((results / tables.BENCH).read_text())
     bench["targets"]["roll_http_frame_p50_ms"]["met"] = True
-    (results / "bench-roll-relief.json").write_text(json.dumps(bench))
+    (results / tables.BENCH).write_text(json.dumps(bench))
     assert tables.update(text, results=results).count("| met |") == text.count("| met |") + 1
 
 
