@@ -22,8 +22,9 @@ from service.state import AppState
 async def get_state(request: Request) -> AppState:
     # async, as every dependency of `POST /recognize` that does no blocking work: FastAPI runs a plain
     # `def` dependency on its thread pool, a hop to another thread and back for each request. This one
-    # and the form's as `def` took 7.7 ms a request more (11.6 against 3.9 ms, medians of 400 requests to
-    # the app in-process, the pipeline's answer canned, interleaved; the shared 2-core machine, busy)
+    # and the form's as `def` took 1.2 ms a request more over HTTP (client p50 7.3 against 6.1 ms and
+    # as much more server CPU; `posedesc serve` with the pipeline's answer canned, 5 interleaved rounds of
+    # 400 requests; the shared 2-core machine)
     state = getattr(request.app.state, "posedesc", None)
     if state is None:
         raise ApiError(503, "the service is starting")

@@ -266,6 +266,26 @@ def test_health_ready_metrics(client):
     assert client.get("/openapi.json").json()["paths"]["/recognize"]["post"]["summary"]
 
 
+def test_metrics_count_and_time_every_answer(client):
+    """`service.metrics.Observe`: each answered request counted by method, route template and status, and
+    timed by route; a path no route takes is counted as `unmatched`."""
+
+    def value(line_start: str) -> float:
+        lines = [x for x in client.get("/metrics").text.splitlines() if x.startswith(line_start + " ")]
+        return float(lines[0].split()[-1]) if lines else 0.0
+
+    ok = 'posedesc_requests_total{method="POST",route="/recognize",status="200"}'
+    refused = 'posedesc_requests_total{method="POST",route="/recognize",status="422"}'
+    unmatched = 'posedesc_requests_total{method="GET",route="unmatched",status="404"}'
+    timed = 'posedesc_request_seconds_count{route="/recognize"}'
+    before = {k: value(k) for k in (ok, refused, unmatched, timed)}
+    assert client.post("/recognize", files={"rgb": ("g.png", png(GREY))}).status_code == 200
+    assert client.post("/recognize", data={"k": "5"}).status_code == 422  # no image
+    assert client.get("/no/such/path").status_code == 404
+    after = {k: value(k) for k in before}
+    assert {k: after[k] - before[k] for k in before} == {ok: 1, refused: 1, unmatched: 1, timed: 2}
+
+
 def test_api_key_and_upload_limits(tmp_path, posedesc_models, l_shape):
     settings = service_settings(
         tmp_path,
