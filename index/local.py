@@ -263,8 +263,9 @@ def relief(
     valid = depth > 0 if keep is None else (depth > 0) & keep
     near = np.asarray(distance, np.float32).reshape(-1, 1, 1)
     rel = np.where(valid, (depth - near) / window_mm, 0.0).astype(np.float32)
-    sums = rel.reshape(n, grid, k, grid, k).sum(axis=(2, 4)).reshape(n, -1)
-    counts = valid.reshape(n, grid, k, grid, k).sum(axis=(2, 4)).reshape(n, -1).astype(np.float32)
+    # (n, G * G), not (n, -1): a chunk of views without an upright one has none (n = 0)
+    sums = rel.reshape(n, grid, k, grid, k).sum(axis=(2, 4)).reshape(n, grid * grid)
+    counts = valid.reshape(n, grid, k, grid, k).sum(axis=(2, 4)).reshape(n, grid * grid).astype(np.float32)
     return sums / np.maximum(counts, 1.0), counts / (k * k)
 
 

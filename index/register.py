@@ -250,11 +250,16 @@ def _concatenate(parts: Sequence[TemplateSet]) -> TemplateSet:
     """One set from the sets of consecutive chunks of views."""
     starts = np.cumsum([0] + [len(p.poses) for p in parts[:-1]])
     has_local = all(p.local_rows is not None and p.local is not None for p in parts)
+    # a chunk without an upright view has no local rows (and its empty array not their width): left out
+    local = [
+        (p, s) for p, s in zip(parts, starts, strict=True) if p.local_rows is not None and len(p.local_rows)
+    ]
+    local = local or [(parts[0], 0)]
     return TemplateSet(
         np.concatenate([p.poses for p in parts]),
         np.concatenate([p.descriptors for p in parts]),
-        np.concatenate([p.local_rows + s for p, s in zip(parts, starts, strict=True)]) if has_local else None,
-        np.concatenate([p.local for p in parts]) if has_local else None,
+        np.concatenate([p.local_rows + s for p, s in local]) if has_local else None,
+        np.concatenate([p.local for p, _ in local]) if has_local else None,
     )
 
 
