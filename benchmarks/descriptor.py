@@ -1,10 +1,10 @@
 """Descriptor throughput: our network on onnxruntime at batch 1 and 256, against HOG on the same patches.
 
 Both start from the same real-looking patches and make the same network input first
-(`index.patches.batch_inputs`: per-channel normalisation, depth filled and normalised). "From the patch"
-includes that step: ours is `Embedder.embed_patches`, HOG the evaluation's `evaluation.hog.hog_descriptors`
+(`index.features.patches.batch_inputs`: per-channel normalisation, depth filled and normalised). "From the patch"
+includes that step: ours is `Embedder.embed_patches`, HOG the evaluation's `evaluation.baselines.hog.hog_descriptors`
 (OpenCV, one patch at a time: it has no batch mode). "Descriptor only" starts from inputs made
-beforehand: onnxruntime against `evaluation.hog.describe_inputs`."""
+beforehand: onnxruntime against `evaluation.baselines.hog.describe_inputs`."""
 
 from __future__ import annotations
 
@@ -12,8 +12,8 @@ from dataclasses import dataclass
 
 from benchmarks.objects import ObjectSet
 from benchmarks.timing import measure, ratio
-from index.embed import Embedder
-from index.patches import batch_inputs
+from index.features.embed import Embedder
+from index.features.patches import batch_inputs
 
 
 @dataclass(frozen=True)
@@ -24,7 +24,7 @@ class DescriptorConfig:
 
 
 def run(objects: ObjectSet, embedder: Embedder, cfg: DescriptorConfig) -> dict:
-    from evaluation.hog import describe_inputs, hog_descriptor, hog_descriptors
+    from evaluation.baselines.hog import describe_inputs, hog_descriptor, hog_descriptors
 
     modality, window = embedder.modality, embedder.info.window_mm
     all_rgb, all_depth = objects.patches(cfg.patches)

@@ -4,8 +4,8 @@ what `POST /recognize` runs for a frame sent with its intrinsics and no centre, 
 The state is built as `posedesc serve` builds it (`service.state.load_state` with the service's settings,
 `POSEDESC_*` overrides included, the benchmark's models dir as the models dir: the objectness model
 `posedesc-objectness.onnx` beside the descriptor models gives the colour proposals), in a temporary data
-dir. Objects are registered by the service's own registration (`index.register.register`, the window
-following each object's size): the LM-O meshes first, then generated shapes (`index.shapes.random_shape`)
+dir. Objects are registered by the service's own registration (`index.templates.register.register`, the window
+following each object's size): the LM-O meshes first, then generated shapes (`index.templates.shapes.random_shape`)
 up to each count, `shape_fill` of the model's window across. Each registration's seconds are kept by
 window class.
 
@@ -14,7 +14,7 @@ Colour rows: LM-O test frames of scene 2 (real 640x480 PNGs as stored, the camer
 `warmup` untimed detections (the first reads the meshes that boxes are drawn from). The RGB-D row: the
 real Kinect frame (`lmo-depth`, scene 2 frame 3: colour and 16-bit depth), at the smallest count, with
 the RGB-D model (depth and colour proposals). Each row gives the p50 / p90 of `timings_ms["total"]`, the
-median of every `timings_ms` key (decode, propose, verify, total) and how many proposals were verified.
+median of every `timings_ms` key (decode, propose, verify, merge, report, total) and how many proposals were verified.
 The query is what a user sends: default `max_detections` and floor (neither changes the work: every
 proposal is verified)."""
 
@@ -33,11 +33,11 @@ import trimesh
 from tqdm import tqdm
 
 from benchmarks.timing import ROOT
-from index.bop import BopDataset
-from index.embed import MODEL_FILES, fingerprint, load_models
-from index.objectness import OBJECTNESS_FILE
-from index.shapes import random_shape
-from index.windows import FILL_HIGH, FILL_LOW, WINDOW_KEY
+from index.data.bop import BopDataset
+from index.features.embed import MODEL_FILES, fingerprint, load_models
+from index.features.objectness import OBJECTNESS_FILE
+from index.templates.shapes import random_shape
+from index.templates.windows import FILL_HIGH, FILL_LOW, WINDOW_KEY
 from service.detection import detect
 from service.pipeline.query import Query
 from service.settings import Settings
@@ -74,7 +74,7 @@ class DetectConfig:
     lmo_depth: Path = LMO_DEPTH
     scene: int = 2
     # The generated shapes' diameters, in the rgb model's windows: the band of its window class
-    # (`index.windows`), so every object is seen through LM-O's window. A colour proposal is verified once
+    # (`index.templates.windows`), so every object is seen through LM-O's window. A colour proposal is verified once
     # per window class among the registered objects: shapes 80-300 mm across (random_shape's default) put
     # 18 of 100 in the classes either side of 200 mm, and a frame took 60 proposals and 7.3 s, against 40
     # and 4.3 s at 8 objects, one of them in another class (docs/results/bench-detect-mixed-windows.json)
@@ -213,7 +213,7 @@ def objects(
 ) -> list[tuple[str, trimesh.Trimesh, str]]:
     """The first `n` objects to register: (name, mesh in mm, symmetry), the dataset's meshes first (loaded
     as `POST /objects` loads a mesh: simplified to `max_faces`), then generated shapes `diameter_mm` across."""
-    from evaluation.templates import service_symmetry
+    from evaluation.paper.templates import service_symmetry
 
     lmo = dataset.obj_ids[:n]
     out = [(f"obj_{o:06d}", dataset.mesh(o, max_faces), service_symmetry(dataset.symmetry(o))) for o in lmo]

@@ -16,7 +16,7 @@ then with it, the order alternating frame by frame so neither setting always com
 
 - colour: LM-O's validation frames (the rgb model's `split_frames` "val") through the rgb model;
 - rendered depth: the same frames' colour with depth rendered from their ground truth
-  (`evaluation.samples.rendered_depth_frames`, the service protocol's way) through the RGB-D model;
+  (`evaluation.paper.samples.rendered_depth_frames`, the service protocol's way) through the RGB-D model;
 - Kinect: the real Kinect frame (`lmo-depth`), `kinect_repeats` times, through the RGB-D model.
 
 Each row: per setting, p50 / p90 of the call (`timings_ms["total"]`, the stages and the fit) and its wall
@@ -41,11 +41,11 @@ from tqdm import tqdm
 
 from benchmarks.detection import LMO, LMO_DEPTH
 from benchmarks.timing import ratio
+from evaluation.paper.samples import REAL, REAL_COLOUR_RENDERED_DEPTH, select_instances
 from evaluation.queries import frame_files, query
-from evaluation.samples import REAL, REAL_COLOUR_RENDERED_DEPTH, select_instances
 from evaluation.served import register_objects
-from index.bop import BopDataset, Instance
-from index.embed import Embedder, fingerprint, load_models
+from index.data.bop import BopDataset, Instance
+from index.features.embed import Embedder, fingerprint, load_models
 from service.errors import ApiError
 from service.pipeline.answer import Result
 from service.pipeline.query import Decoded, Query, decode
@@ -164,13 +164,13 @@ def run(cfg: FitConfig, models_dir: Path, level: int = 3) -> dict:
     if "rendered_depth" in out["rows"]:
         out["rows"]["rendered_depth"]["data"] = (
             "rendered: the same frames' real colour with depth rendered from their ground truth (every "
-            "annotated object, the table, the sensor model: evaluation.samples.rendered_depth_frames)"
+            "annotated object, the table, the sensor model: evaluation.paper.samples.rendered_depth_frames)"
         )
     return out
 
 
 def _frames(cfg: FitConfig, embedder: Embedder) -> list[int]:
-    from posedesc.commands.evaluate import split_frames
+    from evaluation.splits import split_frames
 
     frames = list(cfg.frames) if cfg.frames else split_frames(embedder.info.extra, cfg.lmo, cfg.scene, "val")
     if not frames:
@@ -226,7 +226,7 @@ def _kinect(cfg: FitConfig, obj_ids: Sequence[int]) -> tuple[BopDataset, list[In
 
 def _rendered(state, pair, dataset, instances, meshes, dataset_ids, cfg: FitConfig) -> dict:
     """The depth row of the colour frames, their depth rendered on this thread (not timed in the calls)."""
-    from index.render import Renderer
+    from index.templates.render import Renderer
 
     cache = dict(meshes)  # the frames' other annotated objects join it
     with closing(Renderer()) as renderer:

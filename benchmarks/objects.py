@@ -1,7 +1,7 @@
 """The objects the benchmarks measure on: a few procedural shapes rendered once, turned into as many
 distinct objects as a section needs, and real-looking query patches.
 
-Rendering 1,000 meshes would take most of an hour here, so `distinct` shapes (`index.shapes.random_shape`)
+Rendering 1,000 meshes would take most of an hour here, so `distinct` shapes (`index.templates.shapes.random_shape`)
 are rendered from the service's template views once, and object j is shape j % distinct seen through one
 of 48 exact image transforms (4 quarter turns x mirror x 6 orders of the colour channels; depth follows
 the geometric part). Every object then has templates of its own, as a new mesh would: the network sees
@@ -23,16 +23,16 @@ from dataclasses import dataclass, field
 import numpy as np
 import trimesh
 
-from index.embed import Embedder
-from index.local import with_relief, with_silhouettes
-from index.patches import batch_inputs
-from index.pose import View
-from index.register import TemplateConfig, embed_templates, template_twins, template_views
-from index.render import Renderer, Templates
-from index.sensor import SensorModel, random_background
-from index.shapes import random_shape
+from index.features.embed import Embedder
+from index.features.local import with_relief, with_silhouettes
+from index.features.patches import batch_inputs
+from index.geometry.pose import View
+from index.geometry.sensor import SensorModel, random_background
 from index.store import TemplateSet
-from index.viewpoints import sphere_views
+from index.templates.register import TemplateConfig, embed_templates, template_twins, template_views
+from index.templates.render import Renderer, Templates
+from index.templates.shapes import random_shape
+from index.templates.viewpoints import sphere_views
 
 PERMUTATIONS = list(itertools.permutations(range(3)))
 VARIANTS = 8 * len(PERMUTATIONS)  # dihedral group of the square x channel orders
@@ -54,7 +54,7 @@ def variant(
 
 def variant_inputs(x: np.ndarray, k: int, colour: bool) -> np.ndarray:
     """The network inputs (T, C, S, S) of variant k's templates from those of the identity's: a patch's
-    normalisation (`index.patches`: per-channel mean and spread, depth relative to the central square)
+    normalisation (`index.features.patches`: per-channel mean and spread, depth relative to the central square)
     does not see quarter turns or mirroring and follows the channels' order, so the inputs transform as
     the images do. `colour`: the first three channels are RGB."""
     turns, mirror, perm = k % 4, (k // 4) % 2, PERMUTATIONS[k // 8]
@@ -100,7 +100,7 @@ class ObjectSet:
         return Templates(self.views, rgb, depth, self.window_mm)
 
     def template_set(self, embedder: Embedder, j: int) -> TemplateSet:
-        """Object j's descriptors with one model, as `index.register` makes them (cached)."""
+        """Object j's descriptors with one model, as `index.templates.register` makes them (cached)."""
         key = (str(embedder.path), j)
         if key not in self._sets:
             self._sets[key] = embed_templates(embedder, {self.window_mm: self.templates(j)})
@@ -127,7 +127,7 @@ class ObjectSet:
                 self.depth[a] if depth else None,
                 nominal,
                 self.window_mm,
-                fill=False,  # a render's zeros are background, as in `index.register.embed_templates`
+                fill=False,  # a render's zeros are background, as in `index.templates.register.embed_templates`
             )
             for k in todo:
                 desc = embedder(variant_inputs(base, k, colour), batch=128)
@@ -204,8 +204,8 @@ def inplane_template_sets(
     progress: Callable[[int], object] | None = None,
 ) -> dict[str, list[TemplateSet]]:
     """Templates of objects 0..n-1 for every model in `models` (a name -> its embedder and its in-plane
-    angles, degrees), viewpoint-major as `index.register` orders them: each model's views are
-    `index.viewpoints.sphere_views(level, its angles)`, and each viewpoint is rendered once for the
+    angles, degrees), viewpoint-major as `index.templates.register` orders them: each model's views are
+    `index.templates.viewpoints.sphere_views(level, its angles)`, and each viewpoint is rendered once for the
     union of the angles and turned (`Renderer.render`, the registration's renderer). Object j is shape
     j % m (`shapes(m, seed)`, m = ceil(n / 12)) through transform `TURN_FREE_VARIANTS[j // m]`, applied
     to the network inputs (`variant_inputs`). Renders are kept for one shape at a time. `progress`
@@ -219,7 +219,7 @@ def inplane_template_sets(
     per_shape: dict[str, list[TemplateSet]] = {}
     renderer = Renderer(size=size, window_mm=window_mm)
     # a model making another's very templates (the RGB-D model exported from the rgb run) takes them, as
-    # registration does (`index.register.template_twins`)
+    # registration does (`index.templates.register.template_twins`)
     twins = {
         m: src
         for m, src in template_twins({name: e for name, (e, _) in models.items()}).items()
@@ -239,7 +239,7 @@ def inplane_template_sets(
                     t.depth[keep] if e.modality in ("depth", "rgbd") else None,
                     np.array([views[i].distance for i in keep]),
                     window_mm,
-                    fill=False,  # a render's zeros are background, as in `index.register.embed_templates`
+                    fill=False,  # a render's zeros are background, as in `index.templates.register.embed_templates`
                 )
                 poses = np.array([(views[i].azimuth, views[i].elevation, views[i].inplane) for i in keep])
                 up = np.flatnonzero(np.abs(poses[:, 2]) < 1e-3)  # local features: upright ones, as stored

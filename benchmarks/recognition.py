@@ -3,7 +3,7 @@
 Ours: the query patch -> network input -> descriptor (onnxruntime, batch 1) -> the k nearest templates
 (`Snapshot.search`, exact FAISS), the calls `service/recognition.py` makes after decoding. LineMOD: the
 same patch matched by `cv2.linemod` against the same templates, in the evaluation's set-up
-(`evaluation.linemod.LineModIndex`: its feature counts, pyramid, padding and threshold), then its k best.
+(`evaluation.baselines.linemod.LineModIndex`: its feature counts, pyramid, padding and threshold), then its k best.
 Both run on one thread. LineMOD's templates are added incrementally, so the largest count costs one
 build; counts above `linemod_max_objects` are not measured for LineMOD and are listed as capped."""
 
@@ -17,9 +17,9 @@ import numpy as np
 from tqdm import tqdm
 
 from benchmarks.objects import ObjectSet
-from benchmarks.stores import flat_snapshot
+from benchmarks.stores.build import flat_snapshot
 from benchmarks.timing import measure, ratio
-from index.embed import Embedder
+from index.features.embed import Embedder
 from index.store import Snapshot
 
 
@@ -34,7 +34,7 @@ class RecognitionConfig:
 
 def run(objects: ObjectSet, embedder: Embedder, embed_setup: Embedder, cfg: RecognitionConfig) -> dict:
     """`embedder` is timed (the service's threads); `embed_setup` makes the templates' descriptors."""
-    from evaluation.linemod import LineModIndex, top_k
+    from evaluation.baselines.linemod import LineModIndex, top_k
 
     modality = embedder.modality
     counts = sorted(c for c in cfg.counts if c <= objects.capacity)

@@ -14,9 +14,9 @@ import time
 import numpy as np
 import trimesh
 
-from index.mesh import load_mesh
-from index.render import Renderer
-from index.viewpoints import sphere_views
+from index.templates.mesh import load_mesh
+from index.templates.render import Renderer
+from index.templates.viewpoints import sphere_views
 
 
 def mesh_20k(path: str | None) -> trimesh.Trimesh:

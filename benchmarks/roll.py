@@ -45,14 +45,14 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from benchmarks import over_http, registration
 from benchmarks.objects import TURN_FREE_VARIANTS, ObjectSet, inplane_template_sets
-from benchmarks.server import Server
-from benchmarks.stores import fill_store
+from benchmarks.serving import over_http, registration
+from benchmarks.serving.server import Server
+from benchmarks.stores.build import fill_store
 from benchmarks.timing import measure
-from index.embed import MODEL_FILES, Embedder, fingerprint, load_models, store_key, store_keys
-from index.register import TemplateConfig
+from index.features.embed import MODEL_FILES, Embedder, fingerprint, load_models, store_key, store_keys
 from index.store import TemplateSet
+from index.templates.register import TemplateConfig
 
 MODEL_KINDS = ("shipped", "untrained")
 #: concurrent clients of the frame's throughput over HTTP (issue 28: 4 clients, beside one)
@@ -266,7 +266,7 @@ def _describe(m: Model, level: int) -> dict:
 
 
 def _viewpoints(level: int) -> int:
-    from index.viewpoints import hemisphere
+    from index.templates.viewpoints import hemisphere
 
     return len(hemisphere(level))
 

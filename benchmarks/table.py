@@ -197,7 +197,7 @@ def _detect(de: dict) -> list[str]:
             f"{w} mm: {b['objects']} at {b['median_s']:.2f} s" for w, b in reg["by_window_mm"].items()
         )
         lines.append(
-            f"registrations (index.register, the window following the size): median {reg['median_s']:.2f} s "
+            f"registrations (index.templates.register, the window following the size): median {reg['median_s']:.2f} s "
             f"of {reg['objects']}; by window: {by}"
         )
     return lines

@@ -29,7 +29,7 @@ class TrainStepConfig:
 def run(modality: str, cfg: TrainStepConfig, seed: int = 0) -> dict:
     import torch
 
-    from index.viewpoints import sphere_views
+    from index.templates.viewpoints import sphere_views
     from training.batches import BatchBuilder, bootstrap_triplets
     from training.losses import DescriptorLoss
     from training.model import DescriptorNet, NetConfig

@@ -28,7 +28,7 @@ class Config:
     inplane_max: float | None = None  # service protocol: the service's setting (None: the settings')
     query_turns: int | None = None  # service protocol: the service's setting (None: the settings')
     #: True: synthetic scenes; None: only when the dataset lacks the images (the service protocol renders
-    #: just the depth where only depth is missing: `evaluation.samples.served_data`)
+    #: just the depth where only depth is missing: `evaluation.paper.samples.served_data`)
     synthetic: bool | None = None
     linemod_threshold: float = 50.0
     #: service protocol: each frame sent black outside the instance's ground-truth visible mask (the

@@ -15,9 +15,9 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 import trimesh
 
-from index.bop import Instance, table_depth
-from index.render import Renderer
-from index.sensor import SensorModel
+from index.data.bop import Instance, table_depth
+from index.geometry.sensor import SensorModel
+from index.templates.render import Renderer
 
 
 def visible_masks(
@@ -49,7 +49,7 @@ def rendered_depth(
 ) -> np.ndarray:
     """The depth (H, W) float32 mm a sensor would have measured of a frame's ground truth: every annotated
     instance `everyone` (all of the frame's, not only those asked about: they all occlude) at its pose,
-    the table (`index.bop.table_depth`) where no object is, 0 where neither; through `sensor` (holes at
+    the table (`index.data.bop.table_depth`) where no object is, 0 where neither; through `sensor` (holes at
     depth edges, noise, quantisation; None: clean) with `rng`."""
     # one render of all meshes: the z-buffer keeps the nearest surface
     _, objects = renderer.render_frame([(meshes[i.obj_id], i.R, i.t) for i in everyone], everyone[0].K, w, h)

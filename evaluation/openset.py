@@ -10,7 +10,7 @@ run without the object, which filtering one collection's answers afterwards woul
 as a user sends it (`evaluation.queries.query`) with the service's settings, with re-ranking on (the
 local-feature distance, when the model has local features) and off (the descriptor distance). A dataset
 without depth (LM-O) is sent with its real colour and depth rendered from the ground truth, as `posedesc
-evaluate --protocol service` sends it (`evaluation.samples.served_data`)."""
+evaluate --protocol service` sends it (`evaluation.paper.samples.served_data`)."""
 
 from __future__ import annotations
 
@@ -24,14 +24,14 @@ from pathlib import Path
 
 import numpy as np
 
+from evaluation.paper.samples import RENDERED, select_instances, served_data
 from evaluation.progress import bar
 from evaluation.queries import frame_files, query
-from evaluation.samples import RENDERED, select_instances, served_data
 from evaluation.served import register_objects
-from index.bop import BopDataset
-from index.embed import Embedder
-from index.render import Renderer
+from index.data.bop import BopDataset
+from index.features.embed import Embedder
 from index.store import Match
+from index.templates.render import Renderer
 from service.errors import ApiError
 from service.recognition import recognise
 from service.rejection import LISTED as REJECT_LISTED
@@ -50,7 +50,7 @@ class Answers:
     the registered set), frame; per score kind ("local", "descriptor") the answers' dataset object ids
     (n, LISTED), -1 past the last (a refused query has none) and their distances (n, LISTED), nan past the
     last. `settings`: what the answers were made with (`service.rejection.settings_of`); `data`: what
-    the frames were (`evaluation.samples.served_data`)."""
+    the frames were (`evaluation.paper.samples.served_data`)."""
 
     obj: list[int] = field(default_factory=list)
     registered: list[bool] = field(default_factory=list)

@@ -12,8 +12,8 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from evaluation.results import Evaluation  # noqa: E402
-from index.pose_error import within  # noqa: E402
-from index.sheet import depth_to_colour  # noqa: E402
+from index.geometry.pose_error import within  # noqa: E402
+from index.templates.sheet import depth_to_colour  # noqa: E402
 
 COLOURS = {"ours": "tab:blue", "hog": "tab:orange", "linemod": "tab:green"}
 LABELS = {"ours": "ours", "hog": "HOG", "linemod": "LineMOD"}

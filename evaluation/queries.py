@@ -13,10 +13,10 @@ import cv2
 import numpy as np
 import trimesh
 
-from evaluation.metric import K_MAX
-from evaluation.samples import RENDERED, SYNTHETIC, by_frame, rendered_depth_frames, synthetic_frames
-from index.bop import BopDataset, Instance
-from index.render import Renderer
+from evaluation.paper.metric import K_MAX
+from evaluation.paper.samples import RENDERED, SYNTHETIC, by_frame, rendered_depth_frames, synthetic_frames
+from index.data.bop import BopDataset, Instance
+from index.templates.render import Renderer
 from service.pipeline.query import Query
 
 #: what a user may send as an image file; anything else is encoded as PNG first
@@ -34,7 +34,7 @@ def frame_files(
     max_faces: int = 200_000,
 ) -> Iterator[tuple[list[Instance], bytes | None, bytes | None, float]]:
     """Per frame: its instances, and the rgb and depth files a user would send, with the depth scale.
-    `kind`: `evaluation.samples.served_data`; the rendered-depth kinds need `renderer` (of this thread)
+    `kind`: `evaluation.paper.samples.served_data`; the rendered-depth kinds need `renderer` (of this thread)
     and `meshes` (dataset object id -> mesh; objects it lacks are added, with at most `max_faces`)."""
     colour, ranged = modality in ("rgb", "rgbd"), modality in ("depth", "rgbd")
     if kind == SYNTHETIC:

@@ -51,7 +51,7 @@ def rejected_text(summary: dict) -> str:
 
 
 def bop_text(summary: dict) -> str:
-    """The BOP figures of the service's best answers (`evaluation.bop_scores`), percent; "" without them."""
+    """The BOP figures of the service's best answers (`evaluation.bop.scores`), percent; "" without them."""
     b = summary.get("bop")
     if not b:
         return ""
@@ -213,8 +213,8 @@ def _descriptors_3d(ev: Evaluation, path: Path, model_3d: Path | None) -> Path |
         return None
     keep = np.array([v.inplane == 0 for v in t.views])
     if model_3d is not None:
-        from evaluation.ours import embed
-        from index.embed import Embedder
+        from evaluation.paper.ours import embed
+        from index.features.embed import Embedder
 
         emb = Embedder(model_3d)
         if emb.dim != 3 or emb.modality != ev.config.modality:

@@ -8,12 +8,12 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from evaluation.bop_csv import Estimate
+from evaluation.bop.csv import Estimate
 from evaluation.config import Config
-from evaluation.metric import K_MAX, WRONG_OBJECT, accuracy
-from evaluation.samples import Samples
-from evaluation.templates import RenderedTemplates
-from index.symmetry import Symmetry
+from evaluation.paper.metric import K_MAX, WRONG_OBJECT, accuracy
+from evaluation.paper.samples import Samples
+from evaluation.paper.templates import RenderedTemplates
+from index.geometry.symmetry import Symmetry
 
 
 @dataclass
@@ -66,7 +66,7 @@ class Evaluation:
     seconds: dict[str, float] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
     extra: dict[str, object] = field(default_factory=dict)  # what the run was, for the JSON
-    #: the service protocol's best answers as BOP19 results rows (`evaluation.bop_scores.estimates`)
+    #: the service protocol's best answers as BOP19 results rows (`evaluation.bop.scores.estimates`)
     bop_estimates: list[Estimate] = field(default_factory=list)
 
     def summary(self, ks: Sequence[int] = range(1, K_MAX + 1)) -> dict:

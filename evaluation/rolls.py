@@ -23,7 +23,7 @@ from dataclasses import dataclass, field, replace
 import cv2
 import numpy as np
 
-from index.bop import Instance
+from index.data.bop import Instance
 
 
 def parse_rolls(text: str) -> tuple[float, ...]:

@@ -1,7 +1,7 @@
 """The service protocol (`posedesc evaluate --protocol service`): the evaluation that is the service.
 
 Every object of the dataset (or of `--objects`) is registered by the service's own registration
-(`index.register.register` into a real store in a temporary folder, with the service's settings:
+(`index.templates.register.register` into a real store in a temporary folder, with the service's settings:
 `POSEDESC_*` variables, overridden by the command's options). Every test instance is then sent to
 `service.recognition.recognise`, the function `POST /recognize` runs, as a user sends it
 (`evaluation.queries`): the frame as image bytes, the camera, the centre (u, v) where the object's origin
@@ -12,7 +12,7 @@ ground truth (`evaluation.masks.rendered_depth`, 16-bit PNG in mm), unless synth
 
 Each of the k = 22 distinct answers gives a pose: view_to_pose(View(azimuth, elevation, in-plane)) along
 the ray through (u, v). It is scored by the 3-D rotation error against the annotated R (symmetry-aware,
-in-plane included) and by the viewing-direction error (`index.pose_error`); a wrong object counts 180°.
+in-plane included) and by the viewing-direction error (`index.geometry.pose_error`); a wrong object counts 180°.
 The open set is on, as for a user: a query the service answers "no known object" (best: null, the
 rejection of `service.rejection`) is a miss at every k (`evaluation.results.open_set`); the figures as
 ranked, with nothing rejected, are kept beside them ("open_set_off" in the JSON).
@@ -34,27 +34,27 @@ import cv2
 import numpy as np
 import trimesh
 
-from evaluation import ours
-from evaluation.bop_recall import MSPD_REFERENCE_WIDTH
-from evaluation.bop_scores import Best, bop_block, estimates, object_model
+from evaluation.bop.recall import MSPD_REFERENCE_WIDTH
+from evaluation.bop.scores import Best, bop_block, estimates, object_model
 from evaluation.config import Config
 from evaluation.masks import black_outside, visible_masks
-from evaluation.methods import rank
-from evaluation.metric import K_MAX, WRONG_OBJECT
-from evaluation.neighbours import distinct_rows
+from evaluation.paper import ours
+from evaluation.paper.methods import rank
+from evaluation.paper.metric import K_MAX, WRONG_OBJECT
+from evaluation.paper.neighbours import distinct_rows
+from evaluation.paper.samples import RENDERED, SYNTHETIC, SYNTHETIC_NOTE, Samples, instances_of, served_data
+from evaluation.paper.templates import render_template_set, service_symmetry
 from evaluation.progress import bar
 from evaluation.queries import frame_files, png, query
 from evaluation.results import Evaluation, MethodResult, open_set
 from evaluation.rolls import RolledFrames
-from evaluation.samples import RENDERED, SYNTHETIC, SYNTHETIC_NOTE, Samples, instances_of, served_data
-from evaluation.templates import render_template_set, service_symmetry
-from index.bop import BopDataset, Instance
-from index.embed import Embedder
-from index.pose import View, pose_to_view, view_to_pose
-from index.pose_error import rotation_errors, view_errors
-from index.register import template_views
-from index.render import Renderer
-from index.symmetry import Symmetry
+from index.data.bop import BopDataset, Instance
+from index.features.embed import Embedder
+from index.geometry.pose import View, pose_to_view, view_to_pose
+from index.geometry.pose_error import rotation_errors, view_errors
+from index.geometry.symmetry import Symmetry
+from index.templates.register import template_views
+from index.templates.render import Renderer
 from service.errors import ApiError
 from service.pipeline.answer import Result
 from service.pipeline.query import Query, cut, decode
@@ -232,7 +232,7 @@ def _best(result: Result, obj_id: int, seconds: float) -> Best | None:
 def _bop_scores(
     dataset: BopDataset, instances: Sequence[Instance], bop: _BopAnswers, min_visib: float, modality: str
 ) -> dict:
-    """The JSON's "bop" block (`evaluation.bop_scores`): models from the full meshes and models_info."""
+    """The JSON's "bop" block (`evaluation.bop.scores`): models from the full meshes and models_info."""
     if len(bop.widths) > 1:
         raise ValueError(f"frames of several widths {sorted(bop.widths)}: MSPD's thresholds need one")
     width = bop.widths.pop() if bop.widths else MSPD_REFERENCE_WIDTH  # every query refused: all missing

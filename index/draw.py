@@ -1,11 +1,11 @@
 """Answers drawn over the image they answer: each object's silhouette at its pose, tinted and outlined, its
 axes and a label (name and confidence). Pure numpy and OpenCV, no GL: the renderer's one thread belongs to
-registration (`index.render.RenderWorker`), and a drawing must never wait behind a registration.
+registration (`index.templates.render.RenderWorker`), and a drawing must never wait behind a registration.
 
 The silhouette is every projected triangle filled on a mask (no z-buffer: a silhouette is the union of all
 faces, front or back), cut to `MAX_DRAW_FACES` faces first. Poses are BOP's (`R`, `t` model to camera,
 OpenCV axes, mm) with OpenCV intrinsics `K`: pixel (i, j) is centred on the integer coordinates, as
-`index.render.Renderer.render_frame` renders."""
+`index.templates.render.Renderer.render_frame` renders."""
 
 from __future__ import annotations
 
@@ -19,8 +19,8 @@ import cv2
 import numpy as np
 import trimesh
 
-from index.mesh import diameter, load_mesh, simplify
-from index.patches import PatchSpec, patch_camera
+from index.features.patches import PatchSpec, patch_camera
+from index.templates.mesh import diameter, load_mesh, simplify
 
 #: faces projected per object: a 20k-face silhouette is filled in ~0.1 s on one core and shows the outline
 #: of a 640 x 480 frame's object as the full mesh does (LM-O's meshes hold 5k-40k faces)
@@ -56,7 +56,7 @@ class DrawMesh:
 
     @classmethod
     def from_glb(cls, glb: bytes | None) -> DrawMesh | None:
-        """From a stored mesh (GLB, mm, as registration keeps it: `index.register`); None for none."""
+        """From a stored mesh (GLB, mm, as registration keeps it: `index.templates.register`); None for none."""
         return None if glb is None else cls.of(load_mesh(glb, file_type="glb", max_faces=None))
 
     @classmethod
@@ -200,7 +200,7 @@ def draw_label(
 
 def patch_view(patch: np.ndarray, spec: PatchSpec, distance_mm: float) -> tuple[np.ndarray, np.ndarray]:
     """A patch (square, any size) upscaled to `PATCH_DRAW_PX` and the intrinsics its answers are drawn
-    with: the patch camera (`index.patches.patch_camera`, the answers' camera) at the same scale."""
+    with: the patch camera (`index.features.patches.patch_camera`, the answers' camera) at the same scale."""
     s = PATCH_DRAW_PX
     big = cv2.resize(patch, (s, s), interpolation=cv2.INTER_LINEAR if patch.shape[0] < s else cv2.INTER_AREA)
     scale = s / spec.size

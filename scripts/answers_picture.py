@@ -17,8 +17,8 @@ import cv2
 import numpy as np
 
 from evaluation.served import register_objects
-from index.bop import BopDataset
-from index.embed import load_models
+from index.data.bop import BopDataset
+from index.features.embed import load_models
 from service.pipeline.context import Query
 from service.routes.recognize import drawing
 from service.settings import Settings

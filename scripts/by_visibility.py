@@ -23,7 +23,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from index.bop import BopDataset  # noqa: E402
+from index.data.bop import BopDataset  # noqa: E402
 
 #: bands of the visible share: [low, high)
 BANDS = ((0.0, 0.5), (0.5, 0.8), (0.8, 0.95), (0.95, 1.01))

@@ -43,9 +43,10 @@ from evaluation.calibration import (  # noqa: E402
     rejection_curve,
 )
 from evaluation.openset import Answers, best_values, collect  # noqa: E402
-from index.bop import BopDataset  # noqa: E402
-from index.embed import Embedder  # noqa: E402
-from posedesc.commands.evaluate import parse_ids, split_frames  # noqa: E402
+from evaluation.splits import split_frames  # noqa: E402
+from index.data.bop import BopDataset  # noqa: E402
+from index.features.embed import Embedder  # noqa: E402
+from posedesc.commands.evaluate import parse_ids  # noqa: E402
 from service.rejection import REJECT_KEY, SCORE_KINDS, STATISTICS, Calibration  # noqa: E402
 from service.settings import Settings  # noqa: E402
 

@@ -1,4 +1,4 @@
-"""How well `index.depth_proposals` finds the annotated objects of depth frames.
+"""How well `service.detection.depth_segments` finds the annotated objects of depth frames.
 
 On the real Kinect frame (../shared/data/lmo-depth) and on synthetic depth made from LM-O colour frames'
 ground truth (every annotated object at its pose standing on the table through the bottoms of their
@@ -38,9 +38,9 @@ import cv2
 import numpy as np
 
 from evaluation.masks import rendered_depth
-from index.bop import BopDataset, Instance
-from index.depth_proposals import Proposal, depth_proposals
-from index.render import Renderer
+from index.data.bop import BopDataset, Instance
+from index.templates.render import Renderer
+from service.detection.depth_segments import Proposal, depth_proposals
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"
 MIN_VISIB = 0.5

@@ -11,10 +11,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from index.bop import BopDataset, instance_patch
-from index.render import Renderer
-from index.sensor import SensorModel, random_background
-from index.viewpoints import sphere_views
+from index.data.bop import BopDataset, instance_patch
+from index.geometry.sensor import SensorModel, random_background
+from index.templates.render import Renderer
+from index.templates.viewpoints import sphere_views
 
 
 def main() -> None:
@@ -46,7 +46,7 @@ def main() -> None:
     # 2. one object from every 8th template viewpoint, rgb above depth
     obj = ds.obj_ids[len(ds.obj_ids) // 2]
     t = r.render(meshes[obj], sphere_views(3)[::8])
-    from index.sheet import depth_to_colour
+    from index.templates.sheet import depth_to_colour
 
     rgb = np.concatenate(list(t.rgb[:19]), axis=1)
     dep = np.concatenate([depth_to_colour(d) for d in t.depth[:19]], axis=1)

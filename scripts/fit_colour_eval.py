@@ -1,4 +1,4 @@
-"""The colour refinement (`index.fit_colour`) on real LM-O frames, from the service's own best answers.
+"""The colour refinement (`index.refine.colour`) on real LM-O frames, from the service's own best answers.
 
 Each row of a BOP19 CSV (`posedesc evaluate ... --bop-csv`, centre and distance given) is matched to the
 annotated instance (visib_fract >= 0.5) whose centre its translation projects nearest to; rows of the
@@ -25,10 +25,10 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
-from evaluation.bop_csv import read_bop_csv
-from index.bop import BopDataset, Instance
-from index.fit_colour import ColourModel, fit_colour
-from index.pose_error import rotation_error
+from evaluation.bop.csv import read_bop_csv
+from index.data.bop import BopDataset, Instance
+from index.geometry.pose_error import rotation_error
+from index.refine.colour import ColourModel, fit_colour
 
 SHIFT_PX = 5.0
 SCALES = (0.9, 1.1)

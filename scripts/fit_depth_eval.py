@@ -1,4 +1,4 @@
-"""The depth refinement (`index.fit_depth`) measured: ADD(-S) < 0.1 d, rotation < 5 deg and 5 deg 5 cm of
+"""The depth refinement (`index.refine.depth`) measured: ADD(-S) < 0.1 d, rotation < 5 deg and 5 deg 5 cm of
 each start pose and of its refinement, the refinement's time per answer (p50, one thread) and a
 DepthModel's time and bytes. JSON to --json.
 
@@ -33,11 +33,11 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from index.bop import BopDataset, Instance
-from index.fit import rotation_of
-from index.fit_depth import DepthModel, fit_depth
-from index.pose_error import ADD_FRACTION, add, adi, rotation_error, within_deg_cm
-from index.symmetry import transformations_from_bop
+from index.data.bop import BopDataset, Instance
+from index.geometry.pose import rotation_of
+from index.geometry.pose_error import ADD_FRACTION, add, adi, rotation_error, within_deg_cm
+from index.geometry.symmetry import transformations_from_bop
+from index.refine.depth import DepthModel, fit_depth
 
 SCENE = 2
 MIN_VISIB = 0.5
@@ -52,8 +52,8 @@ SLIDE_MM = (10.0, 30.0)  # the perturbed starts' translation error: where the se
 def instances(dataset: BopDataset, frames: str, model: Path) -> list[Instance]:
     wanted = None
     if frames != "all":
-        from index.embed import Embedder
-        from posedesc.commands.evaluate import split_frames
+        from evaluation.splits import split_frames
+        from index.features.embed import Embedder
 
         wanted = split_frames(Embedder(model, 1).info.extra, dataset.root, SCENE, frames)
         if wanted is None:
@@ -65,11 +65,11 @@ def instances(dataset: BopDataset, frames: str, model: Path) -> list[Instance]:
 
 def ask_service(dataset: BopDataset, insts: list[Instance], model: Path, modality: str) -> dict:
     """Each instance's best answer from the service (in process) and the depth it was sent, per frame."""
+    from evaluation.paper.samples import served_data
     from evaluation.queries import frame_files, query
-    from evaluation.samples import served_data
     from evaluation.served import register_objects
-    from index.embed import Embedder
-    from index.render import Renderer
+    from index.features.embed import Embedder
+    from index.templates.render import Renderer
     from service.pipeline.query import Query, decode
     from service.poses import match_pose
     from service.recognition import recognise

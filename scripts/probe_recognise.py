@@ -45,18 +45,18 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from evaluation import ours  # noqa: E402
 from evaluation.config import Config  # noqa: E402
 from evaluation.masks import visible_masks  # noqa: E402
-from evaluation.metric import K_MAX  # noqa: E402
+from evaluation.paper import ours  # noqa: E402
+from evaluation.paper.metric import K_MAX  # noqa: E402
+from evaluation.paper.samples import RENDERED, by_frame, instances_of, select_instances, served_data  # noqa: E402
 from evaluation.queries import frame_files, query  # noqa: E402
 from evaluation.rolls import RolledFrames, parse_rolls, roll_instance  # noqa: E402
-from evaluation.samples import RENDERED, by_frame, instances_of, select_instances, served_data  # noqa: E402
 from evaluation.served import register_objects, score  # noqa: E402
-from index.bop import BopDataset  # noqa: E402
-from index.embed import Embedder  # noqa: E402
-from index.render import Renderer  # noqa: E402
-from posedesc.commands.evaluate import split_frames  # noqa: E402
+from evaluation.splits import split_frames  # noqa: E402
+from index.data.bop import BopDataset  # noqa: E402
+from index.features.embed import Embedder  # noqa: E402
+from index.templates.render import Renderer  # noqa: E402
 from service.pipeline.query import cut  # noqa: E402
 from service.recognition import recognise  # noqa: E402
 from service.settings import Settings  # noqa: E402

@@ -387,7 +387,7 @@ DETECTION = Table(
 
 # The pose fit (`service/pipeline/fit.py`, POSE_FIT): each set-up run twice on the test frames, the fit off
 # (POSEDESC_POSE_FIT=0) and on (the shipped default), k = 1, the open set on. BOP's block of each JSON
-# (`evaluation.bop_scores`): AR over MSSD and MSPD (targets at least half visible for the service
+# (`evaluation.bop.scores`): AR over MSSD and MSPD (targets at least half visible for the service
 # protocol, at least a tenth for whole frames, as BOP counts them), ADD(-S) < 0.1 d and 5 deg 5 cm.
 OFF = "POSEDESC_POSE_FIT=0 "
 FIT_COLUMNS = (

@@ -1,7 +1,7 @@
-"""The sensor model (`index/sensor.py`) against a real Kinect depth frame.
+"""The sensor model (`index/geometry/sensor.py`) against a real Kinect depth frame.
 
 The frame's depth is rendered from the ground-truth poses of its annotated objects standing on their table
-(`index.bop.table_depth`), passed through `SensorModel`, and both it and the real depth are measured the
+(`index.data.bop.table_depth`), passed through `SensorModel`, and both it and the real depth are measured the
 same way on the same pixels: missing depth overall, on object pixels and by distance from the render's
 depth edges; the residual against the clean render on object pixels (median, MAD: calibration and pose
 offsets), the colour/depth misregistration (the shift of the real depth that fits the render best);
@@ -25,9 +25,9 @@ import cv2
 import numpy as np
 from scipy import ndimage
 
-from index.bop import BopDataset, Instance, table_depth
-from index.render import Renderer
-from index.sensor import SensorModel
+from index.data.bop import BopDataset, Instance, table_depth
+from index.geometry.sensor import SensorModel
+from index.templates.render import Renderer
 
 EDGE_BINS = ((0, 1), (2, 3), (4, 6))  # px from the render's depth edges; the sensor model drops at <= 1
 TABLE_TOLERANCE_MM = 25.0  # a pixel shows the modelled table when its (filled) real depth is this close
@@ -214,7 +214,7 @@ def picture(path: Path, real: np.ndarray, synth: np.ndarray, reg: dict, label: n
             ax.set_xticks([])
             ax.set_yticks([])
     fig.suptitle(
-        "LM-O scene 2 frame 3: real depth against its render through index/sensor.py (mm, near = blue; "
+        "LM-O scene 2 frame 3: real depth against its render through index/geometry/sensor.py (mm, near = blue; "
         "dark grey: pixels not compared)"
     )
     fig.tight_layout()
@@ -292,7 +292,7 @@ def main() -> None:
     print(
         f"{args.data} scene {args.scene} frame {frame_id}: {len(insts)} instances, "
         f"{int(reg['scene'].sum())} px compared, {int(reg['objects'].sum())} on objects; "
-        f"sensor model {args.sensor or 'as in index/sensor.py'}, {args.seeds} draws"
+        f"sensor model {args.sensor or 'as in index/geometry/sensor.py'}, {args.seeds} draws"
     )
     print(format_table(real_stats, synth_stats, synth_sd))
     per_object = dict(

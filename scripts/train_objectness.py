@@ -5,7 +5,7 @@
     scripts/train_objectness.py measure --model models/posedesc-objectness.onnx --split val \
         --json docs/results/objectness-val.json
 
-`measure` runs the exported ONNX model through `index.objectness.propose` (no torch) on the frames of one
+`measure` runs the exported ONNX model through `index.features.objectness.propose` (no torch) on the frames of one
 split and writes recall at the top 5/10/20/30 proposals and the median time of one `propose` call on a
 640 x 480 frame (one thread)."""
 
@@ -72,8 +72,9 @@ def _export(args: argparse.Namespace) -> int:
 
 
 def _measure(args: argparse.Namespace) -> int:
-    from index.objectness import ObjectnessNet, propose, recall
+    from index.features.objectness import ObjectnessNet, propose
     from training.objectness import load_frames
+    from training.objectness.recall import recall
 
     net = ObjectnessNet(args.model, threads=1)
     frames = load_frames(args.data, args.split)

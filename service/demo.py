@@ -1,6 +1,6 @@
 """Start-up work before /readyz says ready: templates a changed model lacks, and the demo objects.
 
-The demo objects are generated shapes (`index.shapes.demo_shapes`), registered through the same code path
+The demo objects are generated shapes (`index.templates.shapes.demo_shapes`), registered through the same code path
 as `POST /objects`, so the README's first `POST /recognize` finds them: once, and only into a data dir
 that has never held an object (`Store.has_held_objects`), so they never mix with a user's objects, nor
 come back after the user removed every object."""
@@ -9,8 +9,8 @@ from __future__ import annotations
 
 import logging
 
-from index.register import reembed
 from index.store import NameTaken
+from index.templates.register import reembed
 from service.state import AppState
 
 log = logging.getLogger("service")
@@ -45,7 +45,7 @@ def seed(state: AppState) -> None:
             log.info("no demo objects: %s holds or has held objects", state.settings.data_dir)
             return
         store.set_meta(SEEDING, "1")
-    from index.shapes import demo_shapes
+    from index.templates.shapes import demo_shapes
 
     present = {r.name for r in store.snapshot.objects.values()}
     for name, mesh in demo_shapes().items():

@@ -12,12 +12,12 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
-from index.records import StoreError
+from index.store.records import StoreError
 from service.schemas import ErrorOut
 
 log = logging.getLogger("service")
 
-# What a write that hit a full disk answers: the store rolled it back (index/store.py).
+# What a write that hit a full disk answers: the store rolled it back (index/store/__init__.py).
 DISK_FULL = "the server's disk is full: nothing was changed; retry once space is freed"
 
 MEANING = {

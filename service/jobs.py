@@ -20,7 +20,7 @@ from collections import OrderedDict
 from dataclasses import dataclass, field
 from typing import Any
 
-from index.shared_files import SharedFiles
+from index.store.shared_files import SharedFiles
 
 FIELDS = ("job_id", "name", "status", "created", "result", "error", "code", "progress")  # shared files
 STALE = 5.0  # seconds without a heartbeat: the replica running a job is gone
@@ -39,14 +39,14 @@ class Job:
     code: int | None = None
     replica: str = ""
     #: how far a registration is: {"stage": render | embed | store, "done": n, "total": N}
-    #: (`index.register.Progress`); replaced whole, so a reader never sees half an update
+    #: (`index.templates.register.Progress`); replaced whole, so a reader never sees half an update
     progress: dict[str, Any] | None = None
 
     def fail(self, code: int, error: str) -> None:
         self.code, self.error, self.status = code, error, "failed"
 
     def advance(self, stage: str, done: int, total: int) -> None:
-        """An `index.register.Progress`: what `GET /jobs/{id}` shows while the job runs."""
+        """An `index.templates.register.Progress`: what `GET /jobs/{id}` shows while the job runs."""
         self.progress = {"stage": stage, "done": done, "total": total}
 
 

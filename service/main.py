@@ -11,11 +11,11 @@ from fastapi import FastAPI
 from fastapi.concurrency import run_in_threadpool
 from fastapi_offline import FastAPIOffline
 
-from index.search import Snapshot
+from index.store.search import Snapshot
 from service import errors, openapi
 from service.demo import DEMO_KEY, startup
 from service.deps import host_of, open_writes_refused, public
-from service.limits import BodyLimit
+from service.inputs.limits import BodyLimit
 from service.metrics import Observe
 from service.rejection import stale
 from service.routes import health, jobs, objects, page, recognize

@@ -1,12 +1,12 @@
 """Each answer's pose in the query's camera, as BOP writes it (`cam_R_m2c`, `cam_t_m2c`): the answer's
 viewpoint and in-plane angle seen along the ray through the object's centre, at the distance the query was
-cut at (`index.pose.view_to_pose`; the conventions are stated there)."""
+cut at (`index.geometry.pose.view_to_pose`; the conventions are stated there)."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from index.pose import View, view_to_pose
+from index.geometry.pose import View, view_to_pose
 from index.store import Match
 
 

@@ -33,9 +33,9 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from functools import lru_cache
 
-from index.embed import Embedder
-from index.register import TemplateConfig
+from index.features.embed import Embedder
 from index.store import Match
+from index.templates.register import TemplateConfig
 from service.settings import Settings
 
 log = logging.getLogger(__name__)
@@ -53,7 +53,7 @@ LISTED = 40
 
 def settings_of(settings: Settings, embedder: Embedder, score: str) -> dict[str, object]:
     """The settings a `score` kind's answers of this model depend on (`Calibration.settings`): the
-    templates (level, in-plane step and extent, as `index.register.TemplateConfig` makes them for the
+    templates (level, in-plane step and extent, as `index.templates.register.TemplateConfig` makes them for the
     model), the query's turns, and with "local" the re-ranking's settings; the mask's and the relief's
     weights only where the model has a mask and depth."""
     cfg = TemplateConfig(settings.level, settings.inplane_step, settings.inplane_max)

@@ -46,7 +46,7 @@ class Settings(BaseSettings):
     max_k: int = Field(100, gt=0, description="largest k of /recognize")
 
     threads: int = Field(1, ge=1, description="onnxruntime intra-op and FAISS OpenMP threads per call")
-    # In-plane (roll): by default each model's own metadata decides (`index.register.TemplateConfig`):
+    # In-plane (roll): by default each model's own metadata decides (`index.templates.register.TemplateConfig`):
     # templates over the whole turn for a model trained with roll, upright ones for a legacy model.
     inplane_step: float | None = Field(
         None, ge=0, lt=360, description="template in-plane step for every model, degrees (0: upright only); "
@@ -122,7 +122,7 @@ class Settings(BaseSettings):
     # A choice, not a measurement (docs/conventions.md): a patch has no camera, its answers are in the patch camera
     # on the optical axis, and a colour patch's object and rotation do not depend on this (the network reads
     # no distance from colour; the patch camera spans the window at any distance): only the answers' t does.
-    # A depth patch without depth at its centre is also read against it (`index.patches.batch_inputs`)
+    # A depth patch without depth at its centre is also read against it (`index.features.patches.batch_inputs`)
     patch_distance_mm: float = Field(
         400.0, gt=0, le=100_000, description="a colour patch sent without distance_mm (and a depth patch "
         "without depth at its centre) is taken to be this far away, mm",

@@ -15,18 +15,17 @@ from pathlib import Path
 import trimesh
 
 from index.draw import DrawMesh, MeshCache
-from index.embed import Embedder, load_models, store_keys
-from index.objectness import OBJECTNESS_FILE, ObjectnessNet
-from index.objectness import propose as propose_objects
-from index.register import Progress, Registration, TemplateConfig, register
-from index.render import RenderWorker
-from index.shared_files import SharedFiles
+from index.features.embed import Embedder, load_models, store_keys
+from index.features.objectness import OBJECTNESS_FILE, Colour, ObjectnessNet
+from index.features.objectness import propose as propose_objects
 from index.store import EMBEDDED, TemplateStore, open_store
+from index.store.shared_files import SharedFiles
+from index.templates.register import Progress, Registration, TemplateConfig, register
+from index.templates.render import RenderWorker
 from service.jobs import Jobs
 from service.metrics import Metrics
 from service.pipeline import Pipeline
 from service.pipeline.fit import CAPACITY, Shapes
-from service.proposals import Colour
 from service.settings import Settings, screening
 from service.threads import limit_threads, worker_pool
 
@@ -60,7 +59,7 @@ class AppState:
     draw_meshes: MeshCache[DrawMesh] = field(init=False)
     #: what the pose fit needs of each object, made from `draw_meshes` (`service.pipeline.fit`)
     shapes: Shapes = field(init=False)
-    #: colour proposals for finding objects in a whole frame (`service.proposals`): the objectness model
+    #: colour proposals for finding objects in a whole frame (`service.detection.proposals`): the objectness model
     #: of the models dir, or None without one
     colour_proposals: Colour | None = None
     jobs: Jobs = field(default_factory=Jobs)
@@ -122,7 +121,7 @@ class AppState:
         progress: Progress | None = None,
     ) -> Registration:
         """`mesh` registered into this state's store with its renderer, models and pools, as `POST /objects`
-        registers it (`index.register.register`)."""
+        registers it (`index.templates.register.register`)."""
         reg = register(
             mesh,
             name,

@@ -37,7 +37,7 @@ def l_shape() -> trimesh.Trimesh:
 
 @pytest.fixture(scope="session")
 def renderer():
-    from index.render import Renderer
+    from index.templates.render import Renderer
 
     r = Renderer()
     yield r
@@ -69,7 +69,7 @@ def posedesc_models(tmp_path_factory) -> Path:
 @pytest.fixture(scope="session")
 def render_worker():
     """One render thread for the whole session (EGL: one context per thread)."""
-    from index.render import RenderWorker
+    from index.templates.render import RenderWorker
 
     worker = RenderWorker()
     yield worker
@@ -81,7 +81,7 @@ def milvus(tmp_path_factory):
     """The real standalone Milvus server (PyPI `milvus` 2.3.5), started once per session of tests on free
     loopback ports in a temporary directory, stopped at the end. Tests keep apart by collection prefix."""
     pytest.importorskip("milvus")
-    from benchmarks.milvus_server import LocalMilvus
+    from benchmarks.stores.milvus_server import LocalMilvus
 
     server = LocalMilvus(tmp_path_factory.mktemp("milvus"))
     server.start()

@@ -1,14 +1,14 @@
 """Training data in memory, and the network inputs of a batch (`training/render_cache.py` renders it).
 
-- Objects: the meshes of the BOP datasets given, plus `shapes` procedural objects (`index.shapes`): the
+- Objects: the meshes of the BOP datasets given, plus `shapes` procedural objects (`index.templates.shapes`): the
   service registers meshes the network never saw, so it must learn views of objects in general.
 - Templates: clean renders at the 301 template viewpoints (black background), each turned in-plane every
   `template_inplane_step` degrees over the whole turn, as the index of a roll-trained model has them: a
   real camera rolls, so a rolled view must be told from a change of view. Kept as one upright render a
-  viewpoint, wide enough to turn (`index.render.render_size`), turned when a batch asks for it.
+  viewpoint, wide enough to turn (`index.templates.render.render_size`), turned when a batch asks for it.
 - Synthetic samples: renders from the 1241 training viewpoints with random lighting and a random
   in-plane turn (the whole turn by default), composited at batch time over a random background,
-  sometimes partly hidden behind another object, and passed through the sensor model (`index.sensor`).
+  sometimes partly hidden behind another object, and passed through the sensor model (`index.geometry.sensor`).
 - Real samples: patches of annotated BOP instances cut at the true centre, turned to a random in-plane
   angle (the annotated one is undone first). Most are cut out by their visible mask (rendered from the
   ground-truth pose, nearer objects winning) and pasted on a random background, so the network learns
@@ -28,10 +28,10 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
-from index.patches import MODALITY_CHANNELS, PatchSpec, crop, network_input, patch_camera
-from index.pose import View
-from index.render import rotate_crop
-from index.sensor import SensorModel, plane_depth, random_background, support_plane, with_support
+from index.features.patches import MODALITY_CHANNELS, PatchSpec, crop, network_input, patch_camera
+from index.geometry.pose import View
+from index.geometry.sensor import SensorModel, plane_depth, random_background, support_plane, with_support
+from index.templates.render import rotate_crop
 from training.augment import colour_jitter, soft_edges
 from training.similarity import rotations
 from training.splits import SplitConfig

@@ -10,8 +10,8 @@ import onnx
 import torch
 from torch import nn
 
-from index.embed import INPUT_NAME, LOCAL_NAME, MASK_NAME, OUTPUT_NAME, ModelInfo
-from training.mask import MaskNet
+from index.features.embed import INPUT_NAME, LOCAL_NAME, MASK_NAME, OUTPUT_NAME, ModelInfo
+from training.heads.mask import MaskNet
 from training.model import DescriptorNet
 from training.trunk import Trunk
 
@@ -19,7 +19,7 @@ from training.trunk import Trunk
 class WithLocal(nn.Module):
     """The network and, as a second output, its frozen trunk's map L2-normalised and flattened: what
     the service re-ranks its nearest answers by (local similarity of early pretrained features, measured
-    to double the answers within 20 deg on validation frames); with a mask head (`training/mask.py`) on
+    to double the answers within 20 deg on validation frames); with a mask head (`training/heads/mask.py`) on
     the same trunk (or on its own fine-tuned copy: `MaskNet.own_stem`), a third output: the logits of the
     centred object's pixels. Shape: (B, C, S, S) -> (B, D), (B, F)[, (B, 1, S, S)]."""
 
@@ -47,8 +47,8 @@ class ColourAndDepthMask(nn.Module):
     features, as the rgb model's), and the depth channel says where the centred object is: the mask's
     logits are positive where the depth lies between `near_mm` in front of the surface at the patch's
     centre and `far_mm` behind it (the input's depth channel is (d - surface) / (window / 2), empty +1;
-    `index.patches.normalise_depth`). Clutter in front of or behind the object falls out of the
-    re-ranking's score (`index.local.masked_cosine`). Shape: (B, 4, S, S) -> (B, D), (B, F), (B, 1, S, S)."""
+    `index.features.patches.normalise_depth`). Clutter in front of or behind the object falls out of the
+    re-ranking's score (`index.features.local.masked_cosine`). Shape: (B, 4, S, S) -> (B, D), (B, F), (B, 1, S, S)."""
 
     def __init__(self, net: DescriptorNet, near_mm: float, far_mm: float, window_mm: float):
         super().__init__()
@@ -104,7 +104,7 @@ def export_onnx(
     )
     model = onnx.load(str(out))
     extra = dict(extra or {})
-    if depth_mask is not None:  # the band, for what reads the file (`training.graft`)
+    if depth_mask is not None:  # the band, for what reads the file (`training.heads.graft`)
         extra.setdefault(
             "mask", json.dumps({"from": "depth", "near_mm": depth_mask[0], "far_mm": depth_mask[1]})
         )

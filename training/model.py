@@ -7,7 +7,7 @@
   the map's layout until the last layers (pooling it away destroys the pose, measured in issue 11).
 - `pca`: the same frozen trunk and nothing trained by the metric loss: its map average-pooled `pool` x
   `pool`, L2-normalised and projected on the principal components of the templates of procedural
-  shapes (`training/pca.py`). Template matching on early pretrained features, made compact enough for
+  shapes (`training/heads/pca.py`). Template matching on early pretrained features, made compact enough for
   the index; it never sees a BOP object, so every object is one it was never trained on."""
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import torch
 from torch import nn
 
-from index.patches import MODALITY_CHANNELS
+from index.features.patches import MODALITY_CHANNELS
 from training.trunk import TRUNK_CHANNELS, Trunk
 
 ARCHS = ("paper", "trunk", "pca")
@@ -60,7 +60,7 @@ class DescriptorNet(nn.Module):
                 )
             )
             for p in self.body.parameters():
-                p.requires_grad_(False)  # fitted by `training.pca.fit`, not by gradients
+                p.requires_grad_(False)  # fitted by `training.heads.pca.fit`, not by gradients
             return
         if cfg.arch == "trunk":
             if cfg.modality != "rgb":

@@ -19,11 +19,11 @@ import numpy as np
 import trimesh
 from tqdm import tqdm
 
-from index.bop import BopDataset, Instance, table_depth
-from index.pose import View, pose_to_view
-from index.render import Lighting, Renderer, render_size
-from index.shapes import random_shape
-from index.viewpoints import hemisphere, sphere_views
+from index.data.bop import BopDataset, Instance, table_depth
+from index.geometry.pose import View, pose_to_view
+from index.templates.render import Lighting, Renderer, render_size
+from index.templates.shapes import random_shape
+from index.templates.viewpoints import hemisphere, sphere_views
 from training.data import DataConfig, TrainingData
 from training.similarity import rotations
 from training.splits import frames_of, split_frames

@@ -1,8 +1,8 @@
 """Symmetry-aware pose similarity, in-plane rotation included: which template is "the same pose" as a
 training sample, and which of two templates is closer to it (the paper's triplet condition).
 
-A pose here is the rotation R_m2c of a view with the object on the optical axis (`index.pose.view_to_pose`),
-so azimuth, elevation and in-plane all count. Distances are `index.pose_error.rotation_error`, vectorised:
+A pose here is the rotation R_m2c of a view with the object on the optical axis (`index.geometry.pose.view_to_pose`),
+so azimuth, elevation and in-plane all count. Distances are `index.geometry.pose_error.rotation_error`, vectorised:
 the smallest angle between R_a and any R_b @ S with S a symmetry of the object; for "full" (any turn
 about z) only where the object's z axis points is observable."""
 
@@ -12,8 +12,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from index.pose import View, view_to_pose
-from index.symmetry import symmetry_rotations
+from index.geometry.pose import View, view_to_pose
+from index.geometry.symmetry import symmetry_rotations
 
 Symmetry = str | Sequence[np.ndarray]
 
@@ -26,7 +26,7 @@ def rotations(views: Sequence[View]) -> np.ndarray:
 def pose_distances(R_a: np.ndarray, R_b: np.ndarray, symmetry: Symmetry = "none") -> np.ndarray:
     """Symmetry-aware angles (degrees) between every R_a and every R_b. Shape: (A, 3, 3), (B, 3, 3) -> (A, B).
 
-    Equals `index.pose_error.rotation_error(R_a[i], R_b[j], symmetry)` for every pair."""
+    Equals `index.geometry.pose_error.rotation_error(R_a[i], R_b[j], symmetry)` for every pair."""
     R_a, R_b = np.asarray(R_a, float).reshape(-1, 3, 3), np.asarray(R_b, float).reshape(-1, 3, 3)
     if isinstance(symmetry, str) and symmetry == "full":
         cos = np.einsum("ai,bi->ab", R_a[:, :, 2], R_b[:, :, 2])  # where each pose puts the object's z

@@ -2,7 +2,7 @@
 against the clean templates of all objects (their in-plane variants included); it counts at a threshold
 when the object is right and the pose error is strictly below it. Two errors: the 3-D rotation angle
 (in-plane included, `training.similarity.pose_distances`, symmetry-aware) and the angle between viewing
-directions (`index.pose_error.view_error`)."""
+directions (`index.geometry.pose_error.view_error`)."""
 
 from __future__ import annotations
 
@@ -12,12 +12,12 @@ from dataclasses import dataclass
 import numpy as np
 import trimesh
 
-from index.patches import batch_inputs
-from index.pose import View
-from index.pose_error import view_error
-from index.render import Renderer
-from index.sensor import SensorModel, random_background
-from index.viewpoints import sphere_views
+from index.features.patches import batch_inputs
+from index.geometry.pose import View
+from index.geometry.pose_error import view_error
+from index.geometry.sensor import SensorModel, random_background
+from index.templates.render import Renderer
+from index.templates.viewpoints import sphere_views
 from training.data import TrainingData, test_input
 from training.similarity import pose_distances, rotations
 

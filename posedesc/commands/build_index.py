@@ -14,8 +14,8 @@ from posedesc.cli import UserError
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    from index.mesh import FORMATS_TEXT
-    from index.units import UNITS
+    from index.geometry.units import UNITS
+    from index.templates.mesh import FORMATS_TEXT
     from service.settings import default_store
 
     p.add_argument("--meshes", type=Path, required=True, help=f"folder of meshes: {FORMATS_TEXT}")
@@ -40,12 +40,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from index.embed import load_models, store_keys
-    from index.mesh import FORMATS_TEXT, MESH_FORMATS, MeshError, load_mesh
-    from index.register import TemplateConfig, register
-    from index.render import RenderWorker
+    from index.features.embed import load_models, store_keys
     from index.store import StoreError, open_store
-    from index.windows import DIAMETER_KEY, WINDOW_KEY
+    from index.templates.mesh import FORMATS_TEXT, MESH_FORMATS, MeshError, load_mesh
+    from index.templates.register import TemplateConfig, register
+    from index.templates.render import RenderWorker
+    from index.templates.windows import DIAMETER_KEY, WINDOW_KEY
 
     if not args.meshes.is_dir():
         raise UserError(f"--meshes {args.meshes}: not a folder")

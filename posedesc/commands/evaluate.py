@@ -13,6 +13,7 @@ import sys
 import time
 from pathlib import Path
 
+from evaluation.splits import heldout_frames, split_frames
 from posedesc.cli import UserError
 
 METHODS = ("ours", "hog", "linemod")
@@ -30,29 +31,6 @@ def parse_ids(text: str) -> list[int]:
         except ValueError:
             raise UserError(f"not a list of numbers and ranges: {text!r} (e.g. 3,8,100-120)") from None
     return sorted(set(out))
-
-
-def heldout_frames(meta: dict[str, str], dataset: Path, scene: int) -> list[int] | None:
-    """The frames of `dataset`'s scene a model was not trained on, from its `heldout_frames` metadata
-    ({"<dataset folder>/<scene>": [frame ids]}, written by `posedesc export`); None when it has none."""
-    try:
-        heldout = json.loads(meta.get("heldout_frames", "{}"))
-    except json.JSONDecodeError:
-        return None
-    frames = heldout.get(f"{dataset.resolve().name}/{scene:06d}")
-    return sorted(int(f) for f in frames) if frames else None
-
-
-def split_frames(meta: dict[str, str], dataset: Path, scene: int, split: str) -> list[int] | None:
-    """The frames of `dataset`'s scene in the model's `split` ("train", "val", "test"), from its
-    `split_frames` metadata ({"<dataset folder>/<scene>": {"train": [...], "val": [...], "test": [...]}},
-    written by `posedesc export`); None when it has none."""
-    try:
-        splits = json.loads(meta.get("split_frames", "{}"))
-    except json.JSONDecodeError:
-        return None
-    frames = (splits.get(f"{dataset.resolve().name}/{scene:06d}") or {}).get(split)
-    return sorted(int(f) for f in frames) if frames else None
 
 
 def _frames(args: argparse.Namespace, embedder) -> list[int] | None:
@@ -93,7 +71,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "the true in-plane angle, viewing-direction error. full: true centre and distance, "
                    "templates with in-plane variants over the whole turn, 3-D rotation error. detect: every "
                    "frame sent whole with its intrinsics only to the service's detector; recall, precision, "
-                   "AP50, poses within 20 deg, distance errors, per object (evaluation/detect_run.py)")  # fmt: skip
+                   "AP50, poses within 20 deg, distance errors, per object (evaluation/detect/run.py)")  # fmt: skip
     p.add_argument("--methods", default=",".join(METHODS), help="comma-separated: ours,hog,linemod")
     p.add_argument("--unseen", default="", help="ids of objects the model never saw (reported apart)")
     p.add_argument("--frames", default=None,
@@ -156,12 +134,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from pydantic import ValidationError
 
-    from evaluation.bop_csv import write_bop_csv
+    from evaluation.bop.csv import write_bop_csv
     from evaluation.config import Config
     from evaluation.report import tables_text, write_json, write_report
     from evaluation.rolls import parse_rolls
     from evaluation.run import evaluate
-    from index.embed import Embedder
+    from index.features.embed import Embedder
 
     methods = tuple(m.strip() for m in args.methods.split(",") if m.strip())
     if not methods or set(methods) - set(METHODS):
@@ -250,11 +228,11 @@ def bad_setting(e) -> UserError:
 
 
 def _detect(args: argparse.Namespace, embedder) -> int:
-    """`--protocol detect`: the JSON and a table (`evaluation.detect_run`)."""
+    """`--protocol detect`: the JSON and a table (`evaluation.detect.run`)."""
     from pydantic import ValidationError
 
-    from evaluation.bop_csv import write_bop_csv
-    from evaluation.detect_run import DetectConfig, evaluate_detect, table
+    from evaluation.bop.csv import write_bop_csv
+    from evaluation.detect.run import DetectConfig, evaluate_detect, table
     from evaluation.report import bop_text
 
     if args.max_detections is not None and not (1 <= args.max_detections <= 100):

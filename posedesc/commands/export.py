@@ -45,7 +45,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         metavar="MODEL.onnx",
         help="put the --mask head (one trained with --mask-finetune) into this exported rgb model, or join "
         "this RGB-D model's depth mask, and/or the --local features, without the descriptor's run "
-        "(training/graft.py)",
+        "(training/heads/graft.py)",
     )
     p.add_argument(
         "--as-rgbd",
@@ -111,7 +111,7 @@ def run(args: argparse.Namespace) -> int:
                 extra[k] = json.dumps({a: b for a, b in r[k].items() if a != "bands"})
     head = None
     if args.mask is not None:
-        from training.mask import load_mask
+        from training.heads.mask import load_mask
 
         mask_net, mask_state = load_mask(args.mask)
         head = mask_net
@@ -151,9 +151,9 @@ def _graft(args: argparse.Namespace) -> int:
         raise UserError(f"--onto: no such model file: {args.onto}")
     import tempfile
 
-    from training.graft import graft_local, graft_mask
-    from training.local import load_local
-    from training.mask import load_mask
+    from training.heads.graft import graft_local, graft_mask
+    from training.heads.local import load_local
+    from training.heads.mask import load_mask
 
     try:
         with tempfile.TemporaryDirectory() as tmp:

@@ -7,7 +7,7 @@ as POST /objects refuses it.
 `--patches DIR` writes what a user can send to `POST /recognize` as it is, from a few views of the mesh
 (`QUERY_VIEWS`) before a plain wall, in a Kinect-like camera (LineMOD's intrinsics, 640 x 480), for each
 view NN: `query-NN-rgb.png` and `query-NN-depth.png` (16-bit, mm), the whole frame; `query-NN-patch-rgb.png`
-and `query-NN-patch-depth.png`, the patch the service cuts from that frame (`index.patches.crops`, the
+and `query-NN-patch-depth.png`, the patch the service cuts from that frame (`index.features.patches.crops`, the
 model's window at the object's distance); and `query-NN.json`: `form`, the frame's form fields (fx, fy,
 cx, cy, u, v, distance_mm), `pose`, the truth (azimuth, elevation, inplane, and BOP's R, t in the frame's
 camera), `files`, and `patch` (its size, window and the distance it was cut at; its pose is the same view
@@ -30,7 +30,7 @@ from posedesc.cli import UserError
 if TYPE_CHECKING:
     import trimesh
 
-    from index.render import Renderer
+    from index.templates.render import Renderer
 
 #: the query frames' camera: LineMOD's Kinect intrinsics, as the README's example frame
 FRAME_K = ((572.4, 0.0, 325.3), (0.0, 573.6, 242.0), (0.0, 0.0, 1.0))
@@ -48,8 +48,8 @@ WALL_MM, WALL_RGB = 1500.0, (60, 60, 60)
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    from index.mesh import FORMATS_TEXT
-    from index.units import UNITS
+    from index.geometry.units import UNITS
+    from index.templates.mesh import FORMATS_TEXT
 
     p.add_argument("mesh", type=Path, help=f"the mesh: {FORMATS_TEXT}")
     p.add_argument("--out", type=Path, help="output folder of the templates and their contact sheet")
@@ -67,8 +67,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from index.mesh import MeshError, load_mesh
-    from index.render import Renderer
+    from index.templates.mesh import MeshError, load_mesh
+    from index.templates.render import Renderer
 
     if args.out is None and args.patches is None:
         raise UserError("say where to write: --out DIR (templates), --patches DIR (query files), or both")
@@ -94,9 +94,9 @@ def run(args: argparse.Namespace) -> int:
 
 def write_templates(renderer: Renderer, mesh: trimesh.Trimesh, args: argparse.Namespace) -> None:
     """templates.json and sheet.png of the mesh's template views."""
-    from index.render import INVISIBLE
-    from index.sheet import contact_sheet
-    from index.viewpoints import inplane_steps, sphere_views
+    from index.templates.render import INVISIBLE
+    from index.templates.sheet import contact_sheet
+    from index.templates.viewpoints import inplane_steps, sphere_views
 
     views = sphere_views(args.level, inplane_steps(args.inplane_step, args.inplane_max), args.distance_mm)
     t0 = time.perf_counter()
@@ -106,7 +106,7 @@ def write_templates(renderer: Renderer, mesh: trimesh.Trimesh, args: argparse.Na
     if not templates.visible:  # e.g. an object far from its origin, where the camera looks
         raise UserError(f"{args.mesh}: {INVISIBLE}")
     if args.noisy:
-        from index.sensor import SensorModel, random_background
+        from index.geometry.sensor import SensorModel, random_background
 
         rng = np.random.default_rng(args.seed)
         sensor = SensorModel()
@@ -135,9 +135,9 @@ def write_queries(renderer: Renderer, mesh: trimesh.Trimesh, out: Path, mesh_nam
     import cv2
     import trimesh
 
-    from index.patches import PatchSpec, crops
-    from index.pose import View, view_to_pose
-    from index.render import INVISIBLE
+    from index.features.patches import PatchSpec, crops
+    from index.geometry.pose import View, view_to_pose
+    from index.templates.render import INVISIBLE
 
     K = np.array(FRAME_K)
     spec = PatchSpec(renderer.size, renderer.window_mm)

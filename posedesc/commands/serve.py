@@ -54,7 +54,7 @@ def run(args: argparse.Namespace) -> int:
     import uvicorn
     from pydantic import ValidationError
 
-    from index.embed import MODEL_FILES
+    from index.features.embed import MODEL_FILES
     from index.store import EMBEDDED, StoreError, check_location, check_store
     from service.main import create_app
     from service.settings import Settings

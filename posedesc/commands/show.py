@@ -49,7 +49,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from index.draw import draw_answers, patch_view
-    from index.patches import PatchSpec
+    from index.features.patches import PatchSpec
 
     if args.draw_k < 1:
         raise UserError(f"--draw-k must be at least 1, got {args.draw_k}")

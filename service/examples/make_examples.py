@@ -14,12 +14,12 @@ import numpy as np
 import trimesh
 from PIL import Image
 
-from index.mesh import diameter
-from index.patches import PatchSpec, crop
-from index.pose import View, view_to_pose
-from index.render import Renderer
-from index.shapes import demo_shapes
-from index.units import fits
+from index.features.patches import PatchSpec, crop
+from index.geometry.pose import View, view_to_pose
+from index.geometry.units import fits
+from index.templates.mesh import diameter
+from index.templates.render import Renderer
+from index.templates.shapes import demo_shapes
 
 HERE = Path(__file__).parent
 K = np.array([[572.4, 0.0, 325.3], [0.0, 573.6, 242.0], [0.0, 0.0, 1.0]])

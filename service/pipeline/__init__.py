@@ -19,7 +19,7 @@ query's frozen `context.Context` and hands on a new one (or None: nothing to do 
 that a model or the settings leave out is not in its pipeline (`build` returns None). Adding a stage is a
 new module and one line in `STAGES`.
 
-Window classes: each object is seen through the window its size asks for (`index.windows`). A query with a
+Window classes: each object is seen through the window its size asks for (`index.templates.windows`). A query with a
 centre (a frame) is cut once per class among the registered objects, the stages run once per class on a
 snapshot that sees that class's objects only, and the answers are merged by distance
 (`service.pipeline.answer`); with one class (every store before this) it is one run, as before. A patch
@@ -41,10 +41,10 @@ from __future__ import annotations
 import time
 from collections.abc import Mapping
 
-from index.embed import Embedder
-from index.register import TemplateConfig
+from index.features.embed import Embedder
 from index.store import Snapshot
-from index.windows import window_classes
+from index.templates.register import TemplateConfig
+from index.templates.windows import window_classes
 from service.errors import ApiError
 from service.pipeline.answer import Result, answer, judged
 from service.pipeline.context import Context, Stage

@@ -5,7 +5,7 @@ the ray (`origin_distances`): the distance its `t` is at.
 `distance_mm`, sent or not, means one thing: from the camera to the object's origin along the ray through
 the centre (‖t‖). Sent, it is the answer's distance. Measured from depth, it is the surface at the centre
 (the median of the central quarter of the patch, as the templates measure theirs), and each answer adds its
-own template's offset (origin minus surface for that object from that viewpoint, `index.surface`): the
+own template's offset (origin minus surface for that object from that viewpoint, `index.templates.surface`): the
 surface of a mug seen from the side lies its radius in front of its origin, seen from above its half height.
 
 A query cut through several windows (one per window class of the store's objects: `service.pipeline`)
@@ -20,11 +20,11 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from index.embed import Embedder
-from index.fit import Fit
-from index.patches import surface_depth
+from index.features.embed import Embedder
+from index.features.patches import surface_depth
+from index.refine.fit import Fit
 from index.store import Match, Snapshot
-from index.surface import offset_of
+from index.templates.surface import offset_of
 from service.pipeline.context import Context
 from service.poses import match_pose
 from service.rejection import LISTED, judge, read_calibrations, served_score

@@ -9,7 +9,7 @@ from typing import Protocol
 
 import numpy as np
 
-from index.embed import Embedder
+from index.features.embed import Embedder
 from index.store import Match, Snapshot
 
 Key = tuple[int, float, float]  # `index.store.local_key`: object, azimuth, elevation
@@ -120,7 +120,7 @@ class Context:
     scored: the same template against the same cut of the query scores the same, so none is scored
     twice); `score`: what the answers' distances are ("local" once re-ranked); `wanted`: how many answers
     are ranked, k or more when the open-set verdict reads past the best (`service.rejection.LISTED`);
-    `window_mm`: the window the query is cut through, its objects' class's (`index.windows`; None: the
+    `window_mm`: the window the query is cut through, its objects' class's (`index.templates.windows`; None: the
     model's), `snapshot` then seeing that class's objects only when the store holds several."""
 
     query: Query

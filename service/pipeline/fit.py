@@ -1,8 +1,8 @@
 """The pose fit: after the answers are assembled, each of the best `pose_fit` answers of a frame sent with
 its camera is moved from its template's pose (a viewpoint on the template sphere, a roll on the template
 grid, the distance the query was cut at) to the pose that best explains the frame, over all six degrees of
-freedom: with depth, the mesh's points against the measured surface (`index.fit_depth`: trimmed
-point-to-plane ICP); with colour only, the mesh's outline against the image (`index.fit_colour`). A fit
+freedom: with depth, the mesh's points against the measured surface (`index.refine.depth`: trimmed
+point-to-plane ICP); with colour only, the mesh's outline against the image (`index.refine.colour`). A fit
 that explains the frame no better than the template's pose leaves the answer where it was.
 
 The fits run on the query's worker thread with numpy and OpenCV, never on the renderer's thread (a
@@ -20,9 +20,9 @@ from typing import TypeVar
 import numpy as np
 
 from index.draw import DrawMesh, MeshCache
-from index.fit import Fit
-from index.fit_colour import ColourModel, fit_colour
-from index.fit_depth import DepthModel, fit_depth
+from index.refine.colour import ColourModel, fit_colour
+from index.refine.depth import DepthModel, fit_depth
+from index.refine.fit import Fit
 from service.pipeline.answer import Result
 from service.pipeline.context import Context, Decoded, Query
 

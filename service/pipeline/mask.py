@@ -1,4 +1,4 @@
-"""The query's mask: with a model that has one (`index.embed.MASK_NAME`: a head on the trunk, or an RGB-D
+"""The query's mask: with a model that has one (`index.features.embed.MASK_NAME`: a head on the trunk, or an RGB-D
 model's depth), what is not the centred object is made black (colour) and empty (depth), as a template's
 background is, before the descriptor and the local features read the patch."""
 
@@ -8,9 +8,9 @@ from dataclasses import replace
 
 import numpy as np
 
-from index.embed import Embedder
-from index.patches import batch_inputs, fill_depth
-from index.register import TemplateConfig
+from index.features.embed import Embedder
+from index.features.patches import batch_inputs, fill_depth
+from index.templates.register import TemplateConfig
 from service.pipeline.context import Context
 from service.pipeline.query import Decoded, Patches
 from service.settings import Settings
@@ -33,7 +33,7 @@ class Mask:
 
 
 def foreground(d: Decoded, p: Patches, window_mm: float) -> tuple[Patches, np.ndarray]:
-    """The query's patches with what the model's mask (`index.embed.MASK_NAME`) says is not the centred
+    """The query's patches with what the model's mask (`index.features.embed.MASK_NAME`) says is not the centred
     object black (colour) and empty (depth), as a template's background is, and that mask (N, S, S)
     bool. The descriptor and the local features then see the object, not what stands around it:
     measured on validation frames (docs/experiments.md), the rgb network within 20 deg 44 -> 50 % with its
@@ -48,7 +48,7 @@ def foreground(d: Decoded, p: Patches, window_mm: float) -> tuple[Patches, np.nd
 
 
 def filled(p: Patches) -> Patches:
-    """The patches with their depth's holes filled (`index.patches.fill_depth`), as the network takes
+    """The patches with their depth's holes filled (`index.features.patches.fill_depth`), as the network takes
     them. Before a mask: filling after it filled the emptied background from the object, 15 ms a query
     of the RGB-D re-ranking for nothing its network reads (measured on validation frames)."""
     return p if p.depth is None else replace(p, depth=fill_depth(p.depth))

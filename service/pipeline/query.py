@@ -13,12 +13,12 @@ from typing import Protocol
 import cv2
 import numpy as np
 
-from index.embed import Embedder
-from index.patches import PatchSpec, crops, patch_camera
-from index.register import TemplateConfig
-from service.depth_units import check_frame_distance, check_given_distance, check_patch_distance
+from index.features.embed import Embedder
+from index.features.patches import PatchSpec, crops, patch_camera
+from index.templates.register import TemplateConfig
 from service.errors import ApiError
-from service.images import read_depth, read_rgb
+from service.inputs.depth_units import check_frame_distance, check_given_distance, check_patch_distance
+from service.inputs.images import read_depth, read_rgb
 from service.pipeline.context import Context, Decoded, Patches, Query
 from service.settings import Settings
 

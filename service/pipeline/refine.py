@@ -15,9 +15,9 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from index.embed import Embedder
-from index.pose import camera_centre, wrap_degrees
-from index.register import TemplateConfig
+from index.features.embed import Embedder
+from index.geometry.pose import camera_centre, wrap_degrees
+from index.templates.register import TemplateConfig
 from service.pipeline.context import Context, Key
 from service.pipeline.rerank import reranks
 from service.settings import Settings

@@ -7,10 +7,10 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
-from index.embed import Embedder
-from index.register import TemplateConfig
-from index.search import Found
+from index.features.embed import Embedder
 from index.store import Match, local_key
+from index.store.search import Found
+from index.templates.register import TemplateConfig
 from service.pipeline.context import Context, Key, Ranked
 from service.pipeline.score import LocalScore, QueryCuts, ScoreConfig
 from service.rejection import served_score
@@ -25,7 +25,7 @@ def reranks(settings: Settings, embedder: Embedder) -> bool:
 
 def keys_and_rolls(matches: Sequence[Match]) -> tuple[list[Key], list[float]]:
     """Each match's viewpoint as its local features are found (`local_key`) and its roll to 1e-3 degrees:
-    read from the search's arrays (`index.search.Found`) when it gave them."""
+    read from the search's arrays (`index.store.search.Found`) when it gave them."""
     if isinstance(matches, Found):
         return matches.keys(), matches.rolls()
     keys = [local_key(m.object_id, m.azimuth, m.elevation) for m in matches]

@@ -1,14 +1,14 @@
 """The re-ranking's score, one implementation for every stage that scores a pose (`rerank`, `sweep`,
-`refine`): a stored template's local features (`index.embed.LOCAL_NAME`, the pretrained trunk's map)
+`refine`): a stored template's local features (`index.features.embed.LOCAL_NAME`, the pretrained trunk's map)
 against the query's, cut upright at the pose's roll, cell by cell where the object is
-(`index.local.masked_distance`: the template's silhouette, and the query's mask when the model has one),
-plus with depth the distance of their reliefs (`index.local.relief_distance`, weighed by
+(`index.features.local.masked_distance`: the template's silhouette, and the query's mask when the model has one),
+plus with depth the distance of their reliefs (`index.features.local.relief_distance`, weighed by
 `relief_weight`). Templates stored without silhouettes (older stores) are compared as whole maps (`l2`).
 
 Two shapes of one score: `pairs` (each template at its own roll) and `table` (every template at every one
 of some rolls). They share every step but the cells' cosines, where each has its kernel: pairs one product
 per roll over that roll's templates, the table one small matrix product per cell
-(`index.local.cell_dots_across`, so a template read once serves every roll). The same table as two large
+(`index.features.local.cell_dots_across`, so a template read once serves every roll). The same table as two large
 matrix products over all templates and rolls (each template weighed by its silhouette first) was 3-5x
 slower than the per-cell products here (150 templates x 12 rolls, numpy, busy machine).
 
@@ -26,7 +26,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from index.local import (
+from index.features.local import (
     StoredLocal,
     as_float32,
     cell_dots_across,
@@ -39,7 +39,7 @@ from index.local import (
     uncovered,
     unit_cells,
 )
-from index.patches import batch_inputs, turn_masks
+from index.features.patches import batch_inputs, turn_masks
 from service.pipeline.context import Key, Pose
 from service.pipeline.mask import filled, foreground, masked
 from service.pipeline.query import Decoded, Query, cut
@@ -48,8 +48,8 @@ from service.settings import Settings
 
 @dataclass(frozen=True)
 class ScoreConfig:
-    """`coverage`: `index.local.masked_distance`'s weight of the query's mask left outside a template's
-    silhouette (`Settings.mask_coverage`). `relief`: the weight of `index.local.relief_distance` added
+    """`coverage`: `index.features.local.masked_distance`'s weight of the query's mask left outside a template's
+    silhouette (`Settings.mask_coverage`). `relief`: the weight of `index.features.local.relief_distance` added
     where both have depth (`Settings.relief_weight`), its residuals clipped at `relief_clip_mm`."""
 
     coverage: float
@@ -64,7 +64,7 @@ class ScoreConfig:
 @dataclass(frozen=True)
 class RollCut:
     """The query cut upright at one roll, as the score compares it: the local features (F,), its mask
-    (S, S) bool or None, and its relief (`index.local.relief`: values and shares, (G * G,) each) or None
+    (S, S) bool or None, and its relief (`index.features.local.relief`: values and shares, (G * G,) each) or None
     without depth."""
 
     features: np.ndarray
@@ -77,7 +77,7 @@ class QueryCuts:
     earlier one cut. `mask`: (in-plane, mask (S, S)) of the query cut at that in-plane, as the mask stage
     found it: turned to each roll (`turn_masks`) rather than found again, which would run the mask head
     once a roll. `patch_distance_mm`: as `service.pipeline.query.cut` takes it; `window_mm`: the window
-    the query is cut through (its objects' class, `index.windows`; None: the model's)."""
+    the query is cut through (its objects' class, `index.templates.windows`; None: the model's)."""
 
     def __init__(
         self,
@@ -126,12 +126,12 @@ class LocalScore:
     asking again for a pose an earlier one scored gets the number back, not a second computation.
     `window_mm`: the model's; the relief's clip is `relief_clip_mm` / `window_mm` windows whatever window
     the query is cut through: `relief_clip_mm` is the clip at the model's window, and scales with an
-    object's (`index.windows`).
+    object's (`index.templates.windows`).
 
     Each template is read and prepared once per query, when a stage first scores it (`_Prepared`): its
     values as float32 with one over each cell's length, its silhouette's weights as shares
-    (`index.local.cell_shares`); each cut of the query with its cells made unit vectors
-    (`index.local.unit_cells`) and its mask's weights as shares. The cells' cosines are then dot products
+    (`index.features.local.cell_shares`); each cut of the query with its cells made unit vectors
+    (`index.features.local.unit_cells`) and its mask's weights as shares. The cells' cosines are then dot products
     times those lengths, and `masked_distance` weighted sums of them: the same formula (tested against
     it: `tests/index/test_local.py`). Templates stored without silhouettes (older stores) are compared as
     whole maps (`l2`)."""
@@ -185,7 +185,7 @@ class LocalScore:
     def _distance(self, rows: np.ndarray, cols: np.ndarray, pairs: bool = False) -> np.ndarray:
         """Scores of the prepared templates `rows` (n,) against the prepared cuts `cols`: every one of them
         (r,) -> (n, r), or with `pairs` each template against its own (n,) -> (n,); from their cells'
-        cosines as `index.local.masked_distance`, plus the relief's distance."""
+        cosines as `index.features.local.masked_distance`, plus the relief's distance."""
         t, q, c = self._t, self._q, self.config
         if t.shares is None or t.inverse is None:  # no silhouettes stored: whole maps
             diff = t.raw[rows][:, None, :] - q.raw[cols][None]

@@ -6,8 +6,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 
-from index.embed import Embedder
-from index.register import TemplateConfig
+from index.features.embed import Embedder
+from index.templates.register import TemplateConfig
 from service.pipeline.context import Context
 from service.settings import Settings
 

@@ -9,9 +9,9 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from index.embed import Embedder
-from index.pose import wrap_degrees
-from index.register import TemplateConfig
+from index.features.embed import Embedder
+from index.geometry.pose import wrap_degrees
+from index.templates.register import TemplateConfig
 from service.pipeline.context import Context
 from service.pipeline.rerank import reranks
 from service.settings import Settings

@@ -12,10 +12,10 @@ from typing import Annotated, Literal
 from fastapi import APIRouter, File, Form, Response, UploadFile
 from fastapi.responses import JSONResponse
 
-from index.mesh import FORMATS_TEXT, MeshError, MeshTooLarge, load_mesh
+from index.geometry.units import LARGEST_MM, ORDINARY_MM, SMALLEST_MM, Units
 from index.store import NameTaken, StoreError
-from index.units import LARGEST_MM, ORDINARY_MM, SMALLEST_MM, Units
-from index.windows import DIAMETER_KEY, WINDOW_KEY, object_window
+from index.templates.mesh import FORMATS_TEXT, MeshError, MeshTooLarge, load_mesh
+from index.templates.windows import DIAMETER_KEY, WINDOW_KEY, object_window
 from service.demo import DEMO_KEY
 from service.deps import ApiKeyDep, KnownFieldsDep, StateDep
 from service.errors import DISK_FULL, ApiError, responses

@@ -11,7 +11,7 @@ import numpy as np
 from fastapi import APIRouter, Depends, File, Form, Response, UploadFile
 
 from index.draw import PATCH_DRAW_PX, Drawn, draw_answers, grey_to_rgb, patch_view
-from index.pose import pose_to_view
+from index.geometry.pose import pose_to_view
 from service.deps import KnownFieldsDep, StateDep
 from service.detection import Found, check, detect, detect_decoded
 from service.errors import ApiError, responses
@@ -156,7 +156,7 @@ def answer(state: AppState, q: Query) -> RecognizeOut:
 def matches_out(result: Result, K: np.ndarray | None) -> list[MatchOut]:
     """A result's matches as the API answers them, each with its confidence and pose: the fitted pose
     where the pose fit moved it (`Result.pose`), its angles read back along the ray through its origin
-    (`index.pose.pose_to_view`), and where its origin projects in a frame of intrinsics `K`."""
+    (`index.geometry.pose.pose_to_view`), and where its origin projects in a frame of intrinsics `K`."""
     out = []
     for i, (m, c) in enumerate(zip(result.matches, result.confidences, strict=True)):
         R, t = result.pose(i)

@@ -10,13 +10,13 @@ from pathlib import Path
 import pytest
 
 from benchmarks.detection import DetectConfig, run
-from benchmarks.suite import _detect_summary
+from benchmarks.summary import detect_summary
 from benchmarks.table import _detect
-from index.bop import BopDataset
-from index.objectness import OBJECTNESS_FILE
+from index.data.bop import BopDataset
+from index.features.objectness import OBJECTNESS_FILE
 from service.settings import Settings
 
-STAGES = {"decode", "propose", "verify", "total"}
+STAGES = {"decode", "propose", "verify", "merge", "report", "total"}
 
 
 @pytest.fixture(scope="module")
@@ -74,7 +74,7 @@ def test_a_tiny_detect_run(lmo: Path, models: Path):
     reg = out["register"]
     assert reg["objects"] == 8 and sum(b["objects"] for b in reg["by_window_mm"].values()) == 8
     assert reg["by_window_mm"].keys() == {"200"}
-    s = _detect_summary(out)
+    s = detect_summary(out)
     assert s["detect_p50_ms_8"] == eight["colour"]["p50_ms"] and s["detect_proposals_2"] >= 1
     assert {f"detect_{k}_ms_8" for k in STAGES - {"total"}} <= set(s)
     assert ("detect_rgbd_p50_ms_2" in s) == kinect
@@ -93,4 +93,4 @@ def test_without_an_objectness_model_colour_rows_are_left_out(lmo: Path, posedes
 def test_without_lmo_the_section_says_so(tmp_path: Path):
     out = run(DetectConfig(lmo=tmp_path / "lmo"), tmp_path)
     assert out["by_objects"] == {} and out["register"]["objects"] == 0
-    assert "no LM-O at" in out["notes"][0] and _detect(out) == [] and _detect_summary(out) == {}
+    assert "no LM-O at" in out["notes"][0] and _detect(out) == [] and detect_summary(out) == {}

@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from benchmarks.fit import FitConfig, run, summary
-from benchmarks.suite import _targets
+from benchmarks.summary import targets_met
 from benchmarks.table import render
 
 FRAME = 224  # the first of the shipped rgb model's val frames; ape (1) and can (5) are in it
@@ -47,7 +47,7 @@ def test_a_tiny_fit_run(lmo: Path, posedesc_models: Path):
     assert s["fit_colour_call_p50_ms_off"] == out["rows"]["colour"]["off"]["call_p50_ms"]
     depth_row = "kinect_depth" if kinect else "rendered_depth"
     assert s["fit_depth_p50_ms"] == out["rows"][depth_row]["on"]["fit_p50_ms"]
-    targets = _targets(s)
+    targets = targets_met(s)
     assert targets["fit_colour_p50_ms"]["value"] == s["fit_colour_p50_ms"]
     assert targets["fit_depth_p50_ms"]["value"] == s["fit_depth_p50_ms"]
     text = render({"machine": {"cores_usable": 2, "cpu": "x", "load_average_at_start": [0], "load_average_at_end": [0]},

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from benchmarks.memory import MemoryConfig, run
+from benchmarks.stores.memory import MemoryConfig, run
 from benchmarks.table import render
 
 pytestmark = pytest.mark.slow

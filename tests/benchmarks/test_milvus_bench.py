@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import pytest
 
-from benchmarks.milvus import MilvusConfig, run
+from benchmarks.stores.milvus import MilvusConfig, run
 from benchmarks.table import render
 
 pytestmark = pytest.mark.slow

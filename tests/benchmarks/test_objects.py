@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 
 from benchmarks.objects import VARIANTS, ObjectSet, variant
-from index.embed import load_models
-from index.pose import View
+from index.features.embed import load_models
+from index.geometry.pose import View
 
 
 def tiny_set(shapes: int = 2) -> ObjectSet:
@@ -35,7 +35,7 @@ def test_embed_all_equals_the_service_path(posedesc_models):
         fast = ObjectSet(s.views, s.rgb, s.depth, s.window_mm, s.query_rgb, s.query_depth)
         fast.embed_all(e, 40)
         for j in (0, 1, 5, 9, 18, 27, 39):  # identity, other shape, turns, mirrors, channel orders
-            slow = s.template_set(e, j)  # index.register.embed_templates on the variant's images
+            slow = s.template_set(e, j)  # index.templates.register.embed_templates on the variant's images
             got = fast.template_set(e, j)
             np.testing.assert_allclose(
                 got.descriptors, slow.descriptors, rtol=1e-4, atol=1e-4, err_msg=modality
@@ -45,11 +45,11 @@ def test_embed_all_equals_the_service_path(posedesc_models):
 
 def test_inplane_sets_are_what_registration_makes(posedesc_models, renderer):
     """Templates with in-plane variants: object j is shape j % m through a transform without a quarter
-    turn; its descriptors are `index.register.embed_templates` of the turned renders, in its order."""
+    turn; its descriptors are `index.templates.register.embed_templates` of the turned renders, in its order."""
     from benchmarks.objects import TURN_FREE_VARIANTS, inplane_template_sets, shapes
-    from index.register import embed_templates
-    from index.render import Templates
-    from index.viewpoints import inplane_steps, sphere_views
+    from index.templates.register import embed_templates
+    from index.templates.render import Templates
+    from index.templates.viewpoints import inplane_steps, sphere_views
 
     models = load_models(posedesc_models)
     angles = inplane_steps(90.0, 180.0)  # -90, 0, 90, 180

@@ -18,7 +18,7 @@ import pytest
 import trimesh
 from PIL import Image
 
-from index.pose import View
+from index.geometry.pose import View
 
 pytestmark = [pytest.mark.container, pytest.mark.slow]
 COMPOSE_FILE = Path(__file__).resolve().parents[2] / "deploy" / "docker-compose.yml"

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from index.pose import View, view_to_pose
+from index.geometry.pose import View, view_to_pose
 
 K = np.array([[572.4, 0.0, 325.3], [0.0, 573.6, 242.0], [0.0, 0.0, 1.0]])
 N_FRAMES = 6

@@ -1,10 +1,10 @@
-"""BOP19 results files (`evaluation.bop_csv`): the exact format, and a round trip that loses nothing."""
+"""BOP19 results files (`evaluation.bop.csv`): the exact format, and a round trip that loses nothing."""
 
 import numpy as np
 import pytest
 
-from evaluation.bop_csv import Estimate, read_bop_csv, write_bop_csv
-from index.pose import View, view_to_pose
+from evaluation.bop.csv import Estimate, read_bop_csv, write_bop_csv
+from index.geometry.pose import View, view_to_pose
 
 
 def test_round_trip_keeps_every_number(tmp_path):

@@ -1,9 +1,9 @@
-"""Recall and AR as BOP19 scores them (`evaluation.bop_recall`), on hand-counted cases."""
+"""Recall and AR as BOP19 scores them (`evaluation.bop.recall`), on hand-counted cases."""
 
 import numpy as np
 import pytest
 
-from evaluation.bop_recall import MSPD_THRESHOLDS, MSSD_THRESHOLDS, VSD_TAUS, bop_matches, bop_recall, recall
+from evaluation.bop.recall import MSPD_THRESHOLDS, MSSD_THRESHOLDS, VSD_TAUS, bop_matches, bop_recall, recall
 
 
 def test_bop19_thresholds():

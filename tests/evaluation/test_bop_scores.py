@@ -1,4 +1,4 @@
-"""The service protocol scored the BOP way (`evaluation.bop_scores`): the assembly on hand-made instances,
+"""The service protocol scored the BOP way (`evaluation.bop.scores`): the assembly on hand-made instances,
 and `posedesc evaluate --protocol service --bop-csv` on two real LM-O frames with the shipped rgb model; the
 detect protocol's matching of several scored estimates an image (`detections_block`)."""
 
@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 import trimesh
 
-from evaluation.bop_csv import Estimate, read_bop_csv
-from evaluation.bop_recall import bop_recall
-from evaluation.bop_scores import (
+from evaluation.bop.csv import Estimate, read_bop_csv
+from evaluation.bop.recall import bop_recall
+from evaluation.bop.scores import (
     MAX_POINTS,
     Best,
     bop_block,
@@ -22,8 +22,8 @@ from evaluation.bop_scores import (
     model_points,
     object_model,
 )
-from index.bop import Instance
-from index.pose import View, view_to_pose
+from index.data.bop import Instance
+from index.geometry.pose import View, view_to_pose
 from posedesc.cli import main
 
 K = np.array([[572.4, 0.0, 325.3], [0.0, 573.6, 242.0], [0.0, 0.0, 1.0]])

@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from evaluation.bop_csv import read_bop_csv
-from index.objectness import OBJECTNESS_FILE
+from evaluation.bop.csv import read_bop_csv
+from index.features.objectness import OBJECTNESS_FILE
 from posedesc.cli import main
 
 ROOT = Path(__file__).resolve().parents[2]

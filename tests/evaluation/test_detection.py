@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from evaluation.detection import (
+from evaluation.detect.score import (
     FALSE,
     IGNORED,
     TRUE,
@@ -15,7 +15,7 @@ from evaluation.detection import (
     scores,
     xywh_box,
 )
-from index.pose import roll_rotation
+from index.geometry.pose import roll_rotation
 
 F = (2, 0)  # scene 2, frame 0
 T_GT = np.array([0.0, 0.0, 1000.0])

@@ -8,9 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from evaluation.baselines.hog import HOG_DIM_PER_CHANNEL, hog_descriptors
 from evaluation.config import Config
-from evaluation.hog import HOG_DIM_PER_CHANNEL, hog_descriptors
-from evaluation.metric import THRESHOLDS
+from evaluation.paper.metric import THRESHOLDS
 from evaluation.run import evaluate
 from posedesc.cli import main
 from tests.evaluation.conftest import N_FRAMES
@@ -112,7 +112,8 @@ def test_bad_input_is_one_line(tiny_bop, untrained_models, tmp_path, capsys):
 
 
 def test_heldout_frames_come_from_the_models_metadata(tiny_bop, untrained_models, tmp_path, capsys):
-    from posedesc.commands.evaluate import heldout_frames, parse_ids
+    from evaluation.splits import heldout_frames
+    from posedesc.commands.evaluate import parse_ids
 
     meta = {"heldout_frames": json.dumps({f"{tiny_bop.name}/000002": [3, 1, 2], "other/000002": [9]})}
     assert heldout_frames(meta, tiny_bop, 2) == [1, 2, 3]
@@ -135,7 +136,7 @@ def test_heldout_frames_come_from_the_models_metadata(tiny_bop, untrained_models
 
 
 def test_split_frames_come_from_the_models_metadata(tiny_bop):
-    from posedesc.commands.evaluate import split_frames
+    from evaluation.splits import split_frames
 
     splits = {f"{tiny_bop.name}/000002": {"train": [0, 1], "val": [3], "test": [5, 4]}}
     meta = {"split_frames": json.dumps(splits)}
@@ -179,7 +180,7 @@ def test_the_true_view_scores_zero(tiny_bop):
     """The service protocol's scoring: an answer giving the annotated view, placed along the ray through
     the object's centre, is the annotated pose (both errors ~0); another object counts 180°."""
     from evaluation.served import score
-    from index.bop import BopDataset
+    from index.data.bop import BopDataset
 
     instances = list(BopDataset(tiny_bop).instances(2))[:4]
     views = np.array([[[i.view.azimuth, i.view.elevation, i.view.inplane]] * 2 for i in instances])

@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from evaluation.linemod import LineModIndex, top_k
-from index.pose import View
+from evaluation.baselines.linemod import LineModIndex, top_k
+from index.geometry.pose import View
 
 
 def test_indices_continue_across_adds(renderer, l_shape):

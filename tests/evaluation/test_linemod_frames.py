@@ -6,10 +6,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from evaluation.detection import iou
-from evaluation.linemod_frames import LineModFrames, suppress, window_sizes
-from index.pose import View, view_to_pose
-from index.pose_error import rotation_error
+from evaluation.baselines.linemod_frames import LineModFrames, suppress, window_sizes
+from evaluation.detect.score import iou
+from index.geometry.pose import View, view_to_pose
+from index.geometry.pose_error import rotation_error
 from tests.evaluation.conftest import K, make_mug
 
 VIEWS = [

@@ -4,9 +4,9 @@
 import numpy as np
 import pytest
 
-from evaluation.metric import K_MAX, Poses, accuracy, neighbour_errors, pose_errors, same_object
-from index.pose import View, view_to_pose
-from index.pose_error import rotation_error, view_error
+from evaluation.paper.metric import K_MAX, Poses, accuracy, neighbour_errors, pose_errors, same_object
+from index.geometry.pose import View, view_to_pose
+from index.geometry.pose_error import rotation_error, view_error
 
 
 def errors_of(template_views, sample_view, symmetry, protocol):

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from evaluation.masks import rendered_depth, visible_masks
-from evaluation.samples import (
+from evaluation.paper.samples import (
     REAL,
     REAL_COLOUR_RENDERED_DEPTH,
     RENDERED_DEPTH,
@@ -20,7 +20,7 @@ from evaluation.samples import (
     select_instances,
     served_data,
 )
-from index.bop import BopDataset, table_depth
+from index.data.bop import BopDataset, table_depth
 
 FRAMES = [3, 17]  # 6 and 5 instances; in frame 17 the cat's centre is hidden behind another object
 

@@ -14,7 +14,7 @@ import pytest
 from evaluation.masks import visible_masks
 from evaluation.queries import frame_files
 from evaluation.rolls import RolledFrames, homography, inside, parse_rolls, roll_image, roll_instance
-from index.bop import BopDataset
+from index.data.bop import BopDataset
 from posedesc.cli import main
 
 

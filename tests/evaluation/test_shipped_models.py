@@ -14,11 +14,11 @@ import numpy as np
 import pytest
 
 from evaluation.config import Config
-from evaluation.paper import evaluate_templates, protocol_views
+from evaluation.paper.protocol import evaluate_templates, protocol_views
+from evaluation.paper.templates import render_template_set
 from evaluation.run import evaluate
-from evaluation.templates import render_template_set
-from index.bop import BopDataset
-from index.embed import Embedder
+from index.data.bop import BopDataset
+from index.features.embed import Embedder
 from posedesc.cli import main
 from tests.evaluation.test_evaluate import check_table
 

@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from index.answers import distinct
+from index.store.answers import distinct
 
 
 def test_one_answer_per_key_at_its_best_best_first():

@@ -6,9 +6,9 @@ import cv2
 import numpy as np
 import pytest
 
-from index.bop import BopDataset, instance_patch
-from index.pose import View, view_to_pose
-from index.symmetry import symmetry_rotations
+from index.data.bop import BopDataset, instance_patch
+from index.geometry.pose import View, view_to_pose
+from index.geometry.symmetry import symmetry_rotations
 
 
 def test_lmo_models_and_symmetries(lmo):
@@ -71,7 +71,7 @@ def test_patch_of_a_scene_written_here(tmp_path, renderer, l_shape):
 
 def test_annotated_rotations_are_rotations(lmo):
     """LM-O stores cam_R_m2c to a few digits (up to 1 % off orthonormal): the reader gives rotations."""
-    from index.bop import BopDataset
+    from index.data.bop import BopDataset
 
     ds = BopDataset(lmo)
     for inst in list(ds.instances(ds.scene_dirs("test")[0]))[:50]:

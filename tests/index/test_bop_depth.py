@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 import pytest
 
-from index.bop import BopDataset, instance_patch
+from index.data.bop import BopDataset, instance_patch
 
 LMO_DEPTH = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "lmo-depth"
 

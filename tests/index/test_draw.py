@@ -18,8 +18,8 @@ from index.draw import (
     patch_view,
     silhouette,
 )
-from index.patches import PatchSpec
-from index.pose import View, view_to_pose
+from index.features.patches import PatchSpec
+from index.geometry.pose import View, view_to_pose
 
 K = np.array([[572.4, 0.0, 325.3], [0.0, 573.6, 242.0], [0.0, 0.0, 1.0]])
 W, H = 640, 480

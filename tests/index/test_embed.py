@@ -6,7 +6,7 @@ import numpy as np
 import onnxruntime as ort
 import pytest
 
-from index.embed import LOCAL_NAME, MASK_NAME, OUTPUT_NAME, Embedder
+from index.features.embed import LOCAL_NAME, MASK_NAME, OUTPUT_NAME, Embedder
 
 SHIPPED_RGB = Path(__file__).resolve().parents[2] / "models" / "posedesc-rgb.onnx"
 
@@ -33,7 +33,7 @@ def test_concatenations_into_convolutions_are_padded_to_whole_blocks_without_cha
     import onnx.shape_inference
     import onnx.utils
 
-    from index.embed import CHANNEL_BLOCK, pad_concat_channels
+    from index.features.embed import CHANNEL_BLOCK, pad_concat_channels
 
     mask = onnx.utils.Extractor(onnx.load(str(SHIPPED_RGB))).extract_model(["patch"], [MASK_NAME])
     padded = pad_concat_channels(mask)
@@ -58,7 +58,7 @@ def test_concatenations_into_convolutions_are_padded_to_whole_blocks_without_cha
 
 @pytest.mark.parametrize("model", ["rgb", "depth"])
 def test_runs_of_any_size_give_the_same_outputs(model):
-    """Registration embeds templates a few at a time (`index.register.EMBED_BATCH`, for speed): the outputs
+    """Registration embeds templates a few at a time (`index.templates.register.EMBED_BATCH`, for speed): the outputs
     are, bit for bit, those of one run of them all."""
     e = Embedder(SHIPPED_RGB.with_name(f"posedesc-{model}.onnx"), threads=1)
     channels = 3 if model == "rgb" else 1

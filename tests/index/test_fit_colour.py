@@ -1,4 +1,4 @@
-"""The colour refinement (`index.fit_colour`) on a synthetic frame: a procedurally made, asymmetric mesh
+"""The colour refinement (`index.refine.colour`) on a synthetic frame: a procedurally made, asymmetric mesh
 (a block with a peg and a fin) filled at a known pose over a textured background. Its real data figures
 are `scripts/fit_colour_eval.py`'s."""
 
@@ -10,9 +10,9 @@ import pytest
 import trimesh
 
 from index.draw import DrawMesh, silhouette
-from index.fit import apply_twist
-from index.fit_colour import MODEL_PX, ColourModel, fit_colour, look_from
-from index.pose_error import rotation_error
+from index.geometry.pose_error import rotation_error
+from index.refine.colour import MODEL_PX, ColourModel, fit_colour, look_from
+from index.refine.fit import apply_twist
 
 K = np.array([[572.4, 0.0, 325.3], [0.0, 573.6, 242.0], [0.0, 0.0, 1.0]])
 H, W = 480, 640

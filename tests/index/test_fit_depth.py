@@ -1,4 +1,4 @@
-"""The depth refinement (`index.fit_depth`) on the real Kinect frame of ../shared/data/lmo-depth (LM-O scene
+"""The depth refinement (`index.refine.depth`) on the real Kinect frame of ../shared/data/lmo-depth (LM-O scene
 2 frame 3, skipped where absent): from the ground truth turned 10 deg and slid 20 mm (seeded), the six
 instances over half visible come back within ADD(-S) < 0.1 d; the truth itself is not moved away; what it
 cannot fit (no depth, a pose behind the camera) leaves the start as it was. And the model it takes: seeded
@@ -12,11 +12,11 @@ import numpy as np
 import pytest
 import trimesh
 
-from index.bop import BopDataset
+from index.data.bop import BopDataset
 from index.draw import DrawMesh
-from index.fit import rotation_of
-from index.fit_depth import DepthModel, fit_depth
-from index.pose_error import ADD_FRACTION, add, adi
+from index.geometry.pose import rotation_of
+from index.geometry.pose_error import ADD_FRACTION, add, adi
+from index.refine.depth import DepthModel, fit_depth
 
 LMO_DEPTH = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "lmo-depth"
 TURN_DEG, SLIDE_MM = 10.0, 20.0  # a start as far off as the service's answers usually are

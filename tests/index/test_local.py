@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from index.local import (
+from index.features.local import (
     cell_cosines,
     cell_cosines_across,
     cell_weights,
@@ -66,7 +66,7 @@ def test_clutter_outside_the_mask_does_not_count_but_inside_it_does():
 def test_coverage_charges_the_query_mask_a_silhouette_leaves_out():
     """`uncovered`: the share of the query's mask outside the template's silhouette (an occluder cutting
     the query's mask costs nothing); `masked_distance` adds it times `coverage`, and only with a mask."""
-    from index.local import masked_distance, uncovered
+    from index.features.local import masked_distance, uncovered
 
     q = np.array([[1.0, 1.0, 0.0, 0.0], [1.0, 1.0, 0.0, 0.0], [0.0, 0.0, 0.0, 0.0]])
     sil = np.array([[1.0, 1.0, 1.0, 1.0], [1.0, 0.0, 0.0, 1.0], [1.0, 0.0, 0.0, 0.0]])
@@ -118,7 +118,7 @@ def test_distances_across_rolls_are_the_pairwise_ones():
 def test_relief_is_each_cells_depth_from_the_distance_over_the_pixels_with_depth():
     """`relief`: cell means of depth - distance in windows, over pixels with depth (and inside `keep`), and
     the share of each cell's pixels that have one."""
-    from index.local import relief
+    from index.features.local import relief
 
     depth = np.zeros((1, 8, 8), np.float32)
     depth[0, :4, :4] = 1010.0  # cell (0, 0) of a 2 x 2 grid: 10 mm behind the distance
@@ -135,7 +135,7 @@ def test_relief_is_each_cells_depth_from_the_distance_over_the_pixels_with_depth
 def test_relief_distance_ignores_the_offset_and_clips_an_occluded_cell():
     """Two reliefs of one shape at different distances are 0 apart; a cell 30 mm off (an occluder) adds at
     most the clip; a shape tilted the other way is far; fewer than `RELIEF_MIN_CELLS` shared cells: 0."""
-    from index.local import RELIEF_MIN_CELLS, relief_distance
+    from index.features.local import RELIEF_MIN_CELLS, relief_distance
 
     g2 = 16
     shape = np.linspace(-0.1, 0.1, g2, dtype=np.float32)  # a slope, in windows
@@ -167,7 +167,7 @@ def test_relief_distance_ignores_the_offset_and_clips_an_occluded_cell():
 def test_a_stored_row_splits_by_its_width():
     """`StoredLocal.of`: features alone, with silhouettes, with silhouettes and relief; any other width is
     refused."""
-    from index.local import StoredLocal
+    from index.features.local import StoredLocal
 
     f, g = 6, 2
     row = np.arange(f + 2 * g * g, dtype=np.float32)[None]
@@ -185,7 +185,7 @@ def test_a_stored_row_splits_by_its_width():
 def test_leading_float32_converts_the_first_values_of_each_row_exactly():
     """`leading_float32` (onnxruntime's Cast, written into the given array): the first `width` values of
     float16 rows as float32, exactly as numpy converts them; an empty batch is no call."""
-    from index.local import leading_float32
+    from index.features.local import leading_float32
 
     rows = np.random.default_rng(3).normal(size=(7, 40)).astype(np.float16)
     out = np.full((9, 30), np.nan, np.float32)

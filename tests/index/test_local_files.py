@@ -1,5 +1,5 @@
 """The embedded store's local features in memory-mapped files, and two models sharing one index
-(`index.local_files`, `index.embedded_store`): real SQLite, FAISS and files in a temporary data dir,
+(`index.store.local_files`, `index.store.embedded`): real SQLite, FAISS and files in a temporary data dir,
 hand-made templates."""
 
 from __future__ import annotations
@@ -9,10 +9,10 @@ import sqlite3
 
 import numpy as np
 
-from index.local_files import LOCAL_DIR
 from index.store import Store, TemplateSet, local_key
+from index.store.local_files import LOCAL_DIR
 
-#: rgbd takes rgb's templates (as `index.register.template_twins` gives them); depth has its own
+#: rgbd takes rgb's templates (as `index.templates.register.template_twins` gives them); depth has its own
 MODELS = {"rgb": (4, "fp-rgb"), "depth": (3, "fp-depth"), "rgbd": (4, "fp-rgbd")}
 
 

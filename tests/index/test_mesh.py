@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from index.mesh import FORMATS_TEXT, MESH_FORMATS, MeshError, diameter, load_mesh
+from index.templates.mesh import FORMATS_TEXT, MESH_FORMATS, MeshError, diameter, load_mesh
 
 
 def export(mesh: trimesh.Trimesh, path, fmt: str):

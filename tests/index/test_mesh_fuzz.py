@@ -10,8 +10,8 @@ import numpy as np
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
-from benchmarks.hostile import ABSURD, DAMAGE_KINDS, Damage, damage, glb_index_outside, valid_mesh
-from index.mesh import MESH_FORMATS, MeshError, load_mesh
+from benchmarks.serving.hostile import ABSURD, DAMAGE_KINDS, Damage, damage, glb_index_outside, valid_mesh
+from index.templates.mesh import MESH_FORMATS, MeshError, load_mesh
 
 FORMATS = [f for f in MESH_FORMATS if f != "gltf"]  # glTF's JSON points at buffers: as GLB, in one file
 

@@ -7,9 +7,9 @@ from __future__ import annotations
 import pytest
 import trimesh
 
-from benchmarks.hostile import DECLARING, gltf_placed, ply_polygons
-from index.mesh import MeshTooLarge, load_mesh
-from index.mesh_limits import MAX_PARTS, Size, declared
+from benchmarks.serving.hostile import DECLARING, gltf_placed, ply_polygons
+from index.templates.mesh import MeshTooLarge, load_mesh
+from index.templates.mesh_limits import MAX_PARTS, Size, declared
 
 
 def as_bytes(data: bytes | str) -> bytes:

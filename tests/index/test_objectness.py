@@ -1,4 +1,4 @@
-"""index/objectness.py: the shipped proposal network on real frames, its pixel conventions, its recall."""
+"""index/features/objectness.py: the shipped proposal network on real frames, its pixel conventions, its recall."""
 
 from __future__ import annotations
 
@@ -9,19 +9,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from index.bop import BopDataset
-from index.objectness import (
-    ObjectnessNet,
-    Proposal,
-    Truth,
-    decode,
-    hit_rank,
-    level_input,
-    propose,
-    recall,
-    suppress,
-    truth_of,
-)
+from index.data.bop import BopDataset
+from index.features.objectness import ObjectnessNet, Proposal, decode, level_input, propose, suppress
+from training.objectness.recall import Truth, hit_rank, recall, truth_of
 
 ROOT = Path(__file__).resolve().parents[2]
 MODEL = ROOT / "models" / "posedesc-objectness.onnx"
@@ -45,7 +35,7 @@ def _frame(lmo: Path, frame_id: int) -> tuple[np.ndarray, list[Truth]]:
 def test_the_shipped_model_loads_and_runs_without_torch(lmo: Path) -> None:
     code = (
         "import sys, numpy as np\n"
-        "from index.objectness import ObjectnessNet, propose\n"
+        "from index.features.objectness import ObjectnessNet, propose\n"
         f"net = ObjectnessNet({str(MODEL)!r})\n"
         "ps = propose(net, np.full((240, 320, 3), 128, np.uint8))\n"
         "assert 'torch' not in sys.modules, 'torch was imported'\n"

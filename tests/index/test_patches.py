@@ -2,7 +2,7 @@ import cv2
 import numpy as np
 import pytest
 
-from index.patches import (
+from index.features.patches import (
     MODALITY_CHANNELS,
     PatchSpec,
     batch_inputs,
@@ -200,7 +200,7 @@ def test_turned_masks_are_those_of_the_patch_cut_at_the_other_in_plane(a, b):
 def test_crops_at_many_rolls_are_each_rolls_own_cut():
     """`crops` (the geometry once, the rolls as a batch) cuts at each roll what the homography of that
     roll alone gives: frame pixel = K align(ray) roll(θ) Kv⁻¹ patch pixel; depth along the virtual axis."""
-    from index.pose import align_rotation, roll_rotation
+    from index.geometry.pose import align_rotation, roll_rotation
 
     rng = np.random.default_rng(5)
     frame = rng.integers(0, 256, (480, 640, 3), dtype=np.uint8)

@@ -1,16 +1,16 @@
-"""The pose conventions of index/pose.py, pinned."""
+"""The pose conventions of index/geometry/pose.py, pinned."""
 
 import numpy as np
 import pytest
 
-from index.pose import (
+from index.geometry.pose import (
     View,
     camera_centre,
     lookat_rotation,
     pose_to_view,
     view_to_pose,
 )
-from index.pose_error import rotation_error
+from index.geometry.pose_error import rotation_error
 
 
 def project_dir(R: np.ndarray, v_obj) -> np.ndarray:

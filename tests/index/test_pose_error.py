@@ -1,11 +1,11 @@
-"""The one pose error (`index.pose_error`): vectorised, symmetry-aware, and "within" strictly below; BOP's
+"""The one pose error (`index.geometry.pose_error`): vectorised, symmetry-aware, and "within" strictly below; BOP's
 model-based errors on hand-made objects whose answers are known."""
 
 import numpy as np
 import pytest
 
-from index.pose import View, camera_centre, view_to_pose
-from index.pose_error import (
+from index.geometry.pose import View, camera_centre, view_to_pose
+from index.geometry.pose_error import (
     add,
     add_s_correct,
     adi,
@@ -20,7 +20,7 @@ from index.pose_error import (
     within,
     within_deg_cm,
 )
-from index.symmetry import continuous_steps, symmetry_transformations
+from index.geometry.symmetry import continuous_steps, symmetry_transformations
 
 K = np.array([[572.4, 0.0, 325.3], [0.0, 573.6, 242.0], [0.0, 0.0, 1.0]])  # LM-O's camera
 

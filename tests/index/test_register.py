@@ -9,10 +9,11 @@ import numpy as np
 import pytest
 import trimesh
 
-from index.embed import Embedder, ModelInfo, fingerprint, load_models, store_key, store_keys
-from index.mesh import MeshError
-from index.pose import View
-from index.register import (
+from index.features.embed import Embedder, ModelInfo, fingerprint, load_models, store_key, store_keys
+from index.geometry.pose import View
+from index.store import Store
+from index.templates.mesh import MeshError
+from index.templates.register import (
     TemplateConfig,
     embed_templates,
     make_templates,
@@ -21,8 +22,7 @@ from index.register import (
     register,
     template_views,
 )
-from index.store import Store
-from index.viewpoints import hemisphere
+from index.templates.viewpoints import hemisphere
 
 CFG = TemplateConfig(level=2)  # 71 viewpoints: the same code path as level 3, four times faster
 
@@ -168,7 +168,7 @@ def test_an_rgbd_model_made_from_the_rgb_one_shares_its_templates(
     depth) makes the rgb model's very templates: registration embeds them once and stores them for both.
     Another colour network (other weights), or depth alone, is not a twin."""
     torch = pytest.importorskip("torch")
-    from index.register import template_twins
+    from index.templates.register import template_twins
     from training.export import export_onnx
     from training.model import DescriptorNet, NetConfig
 

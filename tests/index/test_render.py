@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 import trimesh
 
-from index.patches import PatchSpec, crop
-from index.pose import View, view_to_pose
-from index.viewpoints import sphere_views
+from index.features.patches import PatchSpec, crop
+from index.geometry.pose import View, view_to_pose
+from index.templates.viewpoints import sphere_views
 
 K = np.array([[572.4, 0, 325.3], [0, 573.6, 242.0], [0, 0, 1]])
 
@@ -103,7 +103,7 @@ def test_renderer_refuses_other_threads(renderer, l_shape):
 
 
 def test_render_worker_owns_its_context(l_shape):
-    from index.render import RenderWorker
+    from index.templates.render import RenderWorker
 
     w = RenderWorker()
     try:
@@ -119,7 +119,7 @@ def test_render_worker_owns_its_context(l_shape):
 def test_textured_mesh(renderer):
     from PIL import Image
 
-    from index.mesh import load_mesh
+    from index.templates.mesh import load_mesh
 
     box = trimesh.creation.box(extents=[100, 100, 100])
     uv = (box.vertices[:, :2] - box.vertices[:, :2].min(0)) / 100.0

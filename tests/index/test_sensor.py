@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from index.sensor import SensorModel, fractal_noise, random_background
+from index.geometry.sensor import SensorModel, fractal_noise, random_background
 
 
 def test_sensor_noise_grows_with_distance():
@@ -41,8 +41,8 @@ def test_fractal_noise_range():
 
 
 def test_support_plane_depth_meets_the_object_bottom():
-    from index.pose import View, view_to_pose
-    from index.sensor import plane_depth, support_plane
+    from index.geometry.pose import View, view_to_pose
+    from index.geometry.sensor import plane_depth, support_plane
 
     K = np.array([[300.0, 0, 63.5], [0, 300.0, 63.5], [0, 0, 1]])
     R, t = view_to_pose(View(30.0, 40.0, 0.0, 400.0))
@@ -59,8 +59,8 @@ def test_support_plane_depth_meets_the_object_bottom():
 def test_fit_plane_and_table_of_real_frames(lmo):
     from pathlib import Path
 
-    from index.bop import BopDataset, table_depth
-    from index.sensor import fit_plane
+    from index.data.bop import BopDataset, table_depth
+    from index.geometry.sensor import fit_plane
 
     n, d, residual = fit_plane(np.array([[0, 0, 1000.0], [100, 0, 1000], [0, 100, 1100], [100, 100, 1100]]))
     assert residual < 1e-6 and n @ np.array([0, 0, 1000.0]) == pytest.approx(d) and d < 0

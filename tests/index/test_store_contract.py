@@ -27,7 +27,7 @@ def open_store(request, tmp_path) -> Opener:
             opened.append(EmbeddedStore(tmp_path, models))
             return opened[-1]
     else:
-        from index.milvus_store import MilvusStore
+        from index.store.milvus import MilvusStore
 
         server = request.getfixturevalue("milvus")
         prefix = f"c{uuid.uuid4().hex[:10]}"

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import index.snapshot_files
+import index.store.snapshot_files
 from index.store import Store, StoreError, TemplateSet, check_store
 
 MODELS = {"rgb": (4, "fp-rgb"), "depth": (4, "fp-depth")}
@@ -117,7 +117,7 @@ def test_a_full_disk_for_the_snapshots_keeps_the_commit_and_leaves_no_stale_tag(
     def no_space(fd: int) -> None:
         raise OSError(errno.ENOSPC, "No space left on device")
 
-    monkeypatch.setattr(index.snapshot_files.os, "fsync", no_space)
+    monkeypatch.setattr(index.store.snapshot_files.os, "fsync", no_space)
     b = add(store, "b", 5.0)  # committed in SQLite; the snapshot files cannot be written
     store.flush()  # they are written after the write returns
     monkeypatch.undo()
@@ -146,7 +146,7 @@ def test_a_full_disk_at_start_up_serves_from_sqlite(tmp_path, monkeypatch, caplo
     def no_space(fd: int) -> None:
         raise OSError(errno.ENOSPC, "No space left on device")
 
-    monkeypatch.setattr(index.snapshot_files.os, "fsync", no_space)
+    monkeypatch.setattr(index.store.snapshot_files.os, "fsync", no_space)
     with caplog.at_level("WARNING", logger="index.store"):
         store = Store(tmp_path, MODELS)
     assert "could not save the rgb index snapshot" in caplog.text and "serving from SQLite" in caplog.text

@@ -1,12 +1,12 @@
-"""`index.surface`: how far the origin lies behind the surface at a template's centre, per viewpoint."""
+"""`index.templates.surface`: how far the origin lies behind the surface at a template's centre, per viewpoint."""
 
 from __future__ import annotations
 
 import pytest
 import trimesh
 
-from index.pose import View
-from index.surface import SURFACE_KEY, offset_of, template_offsets
+from index.geometry.pose import View
+from index.templates.surface import SURFACE_KEY, offset_of, template_offsets
 
 
 def test_a_box_s_origin_lies_half_its_depth_behind_the_face_seen(renderer):

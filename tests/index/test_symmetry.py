@@ -1,10 +1,10 @@
-"""Symmetry transformations (`index.symmetry.symmetry_transformations`): what BOP's MSSD and MSPD
+"""Symmetry transformations (`index.geometry.symmetry.symmetry_transformations`): what BOP's MSSD and MSPD
 minimise over, continuous symmetries sampled by BOP's max-distance rule."""
 
 import numpy as np
 import pytest
 
-from index.symmetry import (
+from index.geometry.symmetry import (
     MAX_SYM_DISC_STEP,
     continuous_steps,
     from_bop,
@@ -82,8 +82,8 @@ def test_bop_continuous_symmetries_turn_about_their_axis_through_its_offset():
 def test_bop_discrete_symmetries_of_lmo_map_the_eggbox_onto_itself(lmo):
     """On LM-O's eggbox (10) and glue (11), BOP's own symmetry, offset kept, costs no MSSD; `from_bop`'s
     exact half-turn about z (what the service uses) costs 1.7 mm of it."""
-    from index.bop import BopDataset
-    from index.pose_error import mssd
+    from index.data.bop import BopDataset
+    from index.geometry.pose_error import mssd
 
     ds = BopDataset(lmo)
     for o in (10, 11):

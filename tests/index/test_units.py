@@ -5,7 +5,7 @@ from pathlib import Path
 
 import pytest
 
-from index.units import LARGEST_MM, ORDINARY_MM, SMALLEST_MM, UNIT_SCALE, UNITS, fits, size_problem
+from index.geometry.units import LARGEST_MM, ORDINARY_MM, SMALLEST_MM, UNIT_SCALE, UNITS, fits, size_problem
 
 
 def test_the_size_bounds():

@@ -1,6 +1,6 @@
 import numpy as np
 
-from index.viewpoints import hemisphere, icosphere, inplane_steps, sphere_views
+from index.templates.viewpoints import hemisphere, icosphere, inplane_steps, sphere_views
 
 
 def test_paper_template_and_training_sets():

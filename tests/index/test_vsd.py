@@ -1,10 +1,10 @@
-"""VSD (`index.pose_error.vsd`) on hand-made depth maps, and its render helper on the real renderer."""
+"""VSD (`index.geometry.pose_error.vsd`) on hand-made depth maps, and its render helper on the real renderer."""
 
 import numpy as np
 import pytest
 import trimesh
 
-from index.pose_error import VSD_DELTA, distance_map, render_depths, vsd
+from index.geometry.pose_error import VSD_DELTA, distance_map, render_depths, vsd
 
 TAUS = [5.0, 20.0, 40.0]
 

@@ -7,9 +7,9 @@ import json
 import numpy as np
 import pytest
 
-from index.records import ObjectRecord
-from index.units import LARGEST_MM, SMALLEST_MM
-from index.windows import (
+from index.geometry.units import LARGEST_MM, SMALLEST_MM
+from index.store.records import ObjectRecord
+from index.templates.windows import (
     FILL_HIGH,
     FILL_LOW,
     STEP,

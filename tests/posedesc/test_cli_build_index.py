@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from index.embed import load_models, store_keys
+from index.features.embed import load_models, store_keys
 from index.store import Store
 from posedesc.cli import main
 

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from index.pose_error import view_error
-from index.viewpoints import hemisphere
+from index.geometry.pose_error import view_error
+from index.templates.viewpoints import hemisphere
 
 ROOT = Path(__file__).resolve().parents[2]
 

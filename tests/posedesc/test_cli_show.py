@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from index.draw import PATCH_DRAW_PX
-from index.pose import View, view_to_pose
+from index.geometry.pose import View, view_to_pose
 
 ROOT = Path(__file__).resolve().parents[2]
 K = np.array([[572.4, 0.0, 325.3], [0.0, 573.6, 242.0], [0.0, 0.0, 1.0]])

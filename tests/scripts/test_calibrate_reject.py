@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from evaluation.openset import Answers, best_values
-from index.embed import Embedder
+from index.features.embed import Embedder
 from service.rejection import Calibration, read_calibrations
 
 

@@ -19,7 +19,7 @@ import pytest
 import trimesh
 from PIL import Image
 
-from index.pose import View, view_to_pose
+from index.geometry.pose import View, view_to_pose
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -217,7 +217,7 @@ class Server:
 def expected_templates(models: Path, modality: str, viewpoints: int = 71) -> int:
     """Templates an object without symmetry gets from `models`' model of `modality` at the tests' level
     (2: 71 viewpoints): times its in-plane variants when its metadata says it was trained with roll."""
-    from index.embed import Embedder
+    from index.features.embed import Embedder
 
     step = Embedder(models / f"posedesc-{modality}.onnx").info.inplane_step
     return viewpoints * (int(round(360.0 / step)) if step > 0 else 1)

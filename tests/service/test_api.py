@@ -26,8 +26,8 @@ from service_helpers import (
     wait_ready,
 )
 
-from index.pose import View, view_to_pose
-from index.pose_error import view_error
+from index.geometry.pose import View, view_to_pose
+from index.geometry.pose_error import view_error
 from service.main import create_app
 
 TRUE_VIEW = View(azimuth=37.0, elevation=28.0, inplane=0.0, distance=600.0)  # between template viewpoints

@@ -11,7 +11,7 @@ import time
 import pytest
 from service_helpers import ROOT, Server, frame, free_port, ply_bytes, png
 
-from index.pose import View
+from index.geometry.pose import View
 from posedesc.client import ApiError, Client
 
 KEY = "s3cret"

@@ -1,4 +1,4 @@
-"""The depth-units checks on their own (`service.depth_units`): which distances are refused, and the scale
+"""The depth-units checks on their own (`service.inputs.depth_units`): which distances are refused, and the scale
 each refusal suggests. The real Kinect frame sent in the wrong units is in test_real_depth.py."""
 
 from __future__ import annotations
@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from service.depth_units import check_frame_distance, check_given_distance, check_patch_distance
 from service.errors import ApiError
+from service.inputs.depth_units import check_frame_distance, check_given_distance, check_patch_distance
 
 F, WINDOW, SIZE = 572.0, 200.0, 64  # a Kinect's focal length, the shipped models' window and input
 

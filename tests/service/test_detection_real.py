@@ -14,9 +14,9 @@ import pytest
 from fastapi.testclient import TestClient
 from service_helpers import ROOT, created, service_settings, wait_ready
 
-from index.bop import BopDataset
-from index.pose_error import ADD_FRACTION, add, adi
-from service.detection import iou
+from index.data.bop import BopDataset
+from index.geometry.pose_error import ADD_FRACTION, add, adi
+from service.detection.merge import iou
 from service.main import create_app
 
 # registers the real LM-O objects and searches real frames whole: `make test`, not `make check`

@@ -20,7 +20,7 @@ import pytest
 from fastapi.testclient import TestClient
 from service_helpers import patch_files, register, service_settings, wait_ready
 
-import index.snapshot_files
+import index.store.snapshot_files
 from service.main import create_app
 
 QUERY = {"files": patch_files()["rgb"], "data": {"k": "100"}}
@@ -36,7 +36,7 @@ def full_disk(client: TestClient, monkeypatch: pytest.MonkeyPatch) -> Iterator[N
     with store._write:
         (pages,) = store._db.execute("PRAGMA page_count").fetchone()
         store._db.execute(f"PRAGMA max_page_count = {pages}")
-    monkeypatch.setattr(index.snapshot_files.os, "fsync", no_space)
+    monkeypatch.setattr(index.store.snapshot_files.os, "fsync", no_space)
     try:
         yield
     finally:
@@ -113,7 +113,7 @@ def test_a_full_disk_at_start_up_still_serves(tmp_path, posedesc_models, l_shape
     def no_space(fd: int) -> None:
         raise OSError(errno.ENOSPC, "No space left on device")
 
-    monkeypatch.setattr(index.snapshot_files.os, "fsync", no_space)
+    monkeypatch.setattr(index.store.snapshot_files.os, "fsync", no_space)
     with caplog.at_level("WARNING"), TestClient(create_app(settings)) as c:
         assert wait_ready(c)["objects"] == 1
         assert found(c) == {l_id}

@@ -11,7 +11,7 @@ from fastapi.routing import APIRoute
 from fastapi.testclient import TestClient
 from service_helpers import ROOT, service_settings, wait_ready
 
-from index.mesh import FORMATS_TEXT
+from index.templates.mesh import FORMATS_TEXT
 from service.main import create_app
 from service.routes import health, jobs, objects, recognize
 

@@ -10,8 +10,8 @@ from fastapi.testclient import TestClient
 from service_helpers import ROOT, K, frame, frame_fields, png, register, service_settings, wait_ready
 
 from index.draw import PATCH_DRAW_PX, DrawMesh, silhouette
-from index.patches import PatchSpec, crops
-from index.pose import View, view_to_pose
+from index.features.patches import PatchSpec, crops
+from index.geometry.pose import View, view_to_pose
 from service.main import create_app
 
 VIEW, UV = View(40.0, 30.0, 0.0, 600.0), (380.0, 250.0)

@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 from service_helpers import ROOT, Server, expected_templates, free_port, patch_files, serve_command
 
-from index.register import TemplateConfig, template_views
+from index.templates.register import TemplateConfig, template_views
 
 ENV = {"POSEDESC_LEVEL": "1", "POSEDESC_SYNC_SECONDS": "0"}  # short registrations, all answered 202
 VIEWS = len(template_views("none", TemplateConfig(level=1)))  # 16 templates per object and model

@@ -20,8 +20,8 @@ from service_helpers import (
     wait_ready,
 )
 
-from index.pose import View, view_to_pose
-from index.pose_error import rotation_error
+from index.geometry.pose import View, view_to_pose
+from index.geometry.pose_error import rotation_error
 from service.main import create_app
 
 #: between level 1's viewpoints and off the in-plane grid

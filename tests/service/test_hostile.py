@@ -1,6 +1,6 @@
 """Hostile uploads against `posedesc serve` on a loopback port: images that claim or decompress to huge
 sizes, meshes that expand to millions of faces or thousands of parts, NaN and infinite vertices, broken
-GLB (`benchmarks.hostile.UPLOADS`). Each is refused with a 4xx and a one-line JSON message, and the
+GLB (`benchmarks.serving.hostile.UPLOADS`). Each is refused with a 4xx and a one-line JSON message, and the
 server's memory stays bounded: its peak resident memory (VmHWM, reset before each upload) grows by far
 less than the unguarded code took (2-4.6 GB for the large meshes). How long a refusal takes is a figure of
 `posedesc bench --only guards`, not a test."""
@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 from service_helpers import Server, depth_png, png
 
-from benchmarks.hostile import UPLOADS, ply_polygons
+from benchmarks.serving.hostile import UPLOADS, ply_polygons
 
 # uploads of tens of MB, parses of 12 M triangles: `make test`, not `make check`
 pytestmark = pytest.mark.slow

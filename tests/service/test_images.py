@@ -11,7 +11,7 @@ import pytest
 from PIL import Image
 
 from service.errors import ApiError
-from service.images import read_depth, read_rgb
+from service.inputs.images import read_depth, read_rgb
 
 MAX = 4096 * 4096
 

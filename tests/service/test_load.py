@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 from service_helpers import Server, patch_files
 
-from index.shapes import random_shape
+from index.templates.shapes import random_shape
 
 pytestmark = pytest.mark.slow  # a long service load test: `make test`, not `make check`
 

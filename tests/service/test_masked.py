@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 from service_helpers import depth_png, png
 
-from index.pose import View
-from index.register import register
+from index.geometry.pose import View
+from index.templates.register import register
 from service.pipeline.query import Query
 from service.recognition import recognise
 from service.settings import Settings

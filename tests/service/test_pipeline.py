@@ -6,8 +6,8 @@ from __future__ import annotations
 import pytest
 from service_helpers import ROOT
 
-from index.embed import Embedder
-from index.register import TemplateConfig
+from index.features.embed import Embedder
+from index.templates.register import TemplateConfig
 from service.pipeline import Pipeline, timings
 from service.settings import Settings
 from service.state import close_state, load_state

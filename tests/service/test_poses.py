@@ -6,9 +6,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from index.bop import BopDataset
-from index.pose import pose_to_view
-from index.pose_error import rotation_error
+from index.data.bop import BopDataset
+from index.geometry.pose import pose_to_view
+from index.geometry.pose_error import rotation_error
 from index.store import Match
 from service.poses import match_pose
 

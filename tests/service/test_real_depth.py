@@ -16,7 +16,7 @@ import pytest
 from fastapi.testclient import TestClient
 from service_helpers import ROOT, created, service_settings, wait_ready
 
-from index.bop import BopDataset, instance_patch
+from index.data.bop import BopDataset, instance_patch
 from service.main import create_app
 
 # registers the real LM-O objects and reads real Kinect frames: `make test`, not `make check`

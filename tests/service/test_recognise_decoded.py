@@ -5,8 +5,8 @@ from __future__ import annotations
 
 from service_helpers import depth_png, png
 
-from index.pose import View
-from index.register import register
+from index.geometry.pose import View
+from index.templates.register import register
 from service.pipeline.query import Query, decode
 from service.recognition import recognise, recognise_decoded
 from service.settings import Settings

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from index.pose import camera_centre
+from index.geometry.pose import camera_centre
 from index.store import local_key
-from index.viewpoints import hemisphere
+from index.templates.viewpoints import hemisphere
 from service.pipeline.refine import Viewpoints, ViewpointTable
 
 

@@ -10,8 +10,8 @@ import shutil
 import httpx
 from service_helpers import ROOT, Server, png, register
 
-from index.embed import Embedder
-from index.pose import View
+from index.features.embed import Embedder
+from index.geometry.pose import View
 from service.rejection import Calibration, settings_of, stale
 from service.settings import Settings
 

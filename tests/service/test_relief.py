@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 from service_helpers import ROOT, depth_png, png
 
-from index.local import StoredLocal
-from index.pose import View
-from index.register import register
+from index.features.local import StoredLocal
+from index.geometry.pose import View
+from index.templates.register import register
 from service.pipeline.query import Query, decode
 from service.pipeline.score import LocalScore, QueryCuts, ScoreConfig
 from service.settings import Settings
@@ -84,10 +84,10 @@ def test_the_querys_relief_matches_its_own_viewpoints_template(rgbd_state, l_sha
 
 def test_the_scorer_gives_the_reference_formula_once_per_pose(rgbd_state, l_shape):
     """`LocalScore` (templates prepared once, cosines as dot products, every pose scored once) gives what
-    `index.local`'s reference formula gives the same stored rows and cuts: `masked_distance` over the
+    `index.features.local`'s reference formula gives the same stored rows and cuts: `masked_distance` over the
     template's silhouette and the query's mask plus the coverage term, plus the relief's distance; by
     pairs, by table, and when a pose asked for again is looked up instead of computed."""
-    from index.local import cell_cosines, cell_weights, masked_distance, relief_distance
+    from index.features.local import cell_cosines, cell_weights, masked_distance, relief_distance
 
     state = rgbd_state
     local = state.store.snapshot.models["rgbd"].local

@@ -12,8 +12,8 @@ import pytest
 from fastapi.testclient import TestClient
 from service_helpers import ROOT, frame, frame_fields, png, register, service_settings, wait_ready
 
-from index.pose import View, wrap_degrees
-from index.viewpoints import hemisphere
+from index.geometry.pose import View, wrap_degrees
+from index.templates.viewpoints import hemisphere
 from service.main import create_app
 
 UV = (360.0, 260.0)
@@ -206,7 +206,7 @@ def test_the_sweep_finds_the_roll_the_descriptor_missed(
     compared at every template roll of its viewpoint) the right pose wins."""
     from dataclasses import replace
 
-    from index.search import Snapshot
+    from index.store.search import Snapshot
 
     answers = Snapshot.answers
 
@@ -256,7 +256,7 @@ def test_upright_answers_say_inplane_zero(tmp_path_factory, shipped_rgb, rendere
 
 @pytest.fixture(scope="module")
 def trunk_model(tmp_path_factory):
-    """A model with local features (a pretrained trunk: `index.embed.LOCAL_NAME`) and templates every
+    """A model with local features (a pretrained trunk: `index.features.embed.LOCAL_NAME`) and templates every
     30° over the whole turn in its metadata; its head untrained (re-ranking does not use it)."""
     torch = pytest.importorskip("torch")
     from training.export import export_onnx

@@ -9,8 +9,8 @@ import httpx
 import pytest
 from service_helpers import Server, expected_templates, frame, frame_fields, png, register
 
-from index.pose import View
-from index.pose_error import view_error
+from index.geometry.pose import View
+from index.geometry.pose_error import view_error
 
 TRUE_VIEW = View(azimuth=250.0, elevation=55.0, inplane=0.0, distance=700.0)
 UV = (260.0, 300.0)

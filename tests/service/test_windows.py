@@ -10,9 +10,9 @@ import pytest
 from fastapi.testclient import TestClient
 from service_helpers import ROOT, frame, frame_fields, png, register, service_settings, wait_ready
 
-from index.mesh import diameter
-from index.pose import View
-from index.windows import window_class
+from index.geometry.pose import View
+from index.templates.mesh import diameter
+from index.templates.windows import window_class
 from service.main import create_app
 
 UV = (330.0, 250.0)

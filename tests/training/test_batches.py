@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from index.viewpoints import sphere_views
+from index.templates.viewpoints import sphere_views
 from training.batches import BatchBuilder, bootstrap_triplets
 from training.similarity import pose_distances, rotations
 

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from index.render import Renderer
+from index.templates.render import Renderer
 from training.data import DataConfig, TrainingData
 from training.render_cache import build, paint_out
 from training.splits import SplitConfig, frames_of, split_frames
@@ -37,7 +37,7 @@ def test_templates_turn_like_the_services(rolled):
     mesh = None
     r = Renderer(window_mm=data.cfg.window_mm)
     try:
-        from index.shapes import random_shape
+        from index.templates.shapes import random_shape
 
         mesh = random_shape(np.random.default_rng(1))  # the first shape `build` made with seed 1
         for t in (0, 5, 4 * 150 + 2, 4 * 300 + 3):

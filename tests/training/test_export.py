@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import torch
 
-from index.embed import Embedder
+from index.features.embed import Embedder
 from training.export import export_onnx, torch_descriptors
 from training.model import DescriptorNet, NetConfig
 
@@ -53,7 +53,7 @@ def test_trunk_is_imagenet_mobilenet_and_frozen():
 def test_mask_head_exports_as_a_third_output(tmp_path):
     """A model with a mask head answers its logits as a third output, as torch computes them; the
     embedder reads them as where the centred object is."""
-    from training.mask import MaskNet
+    from training.heads.mask import MaskNet
 
     torch.manual_seed(0)
     net = DescriptorNet(NetConfig("rgb", 32, arch="trunk"))
@@ -79,7 +79,7 @@ def test_mask_head_exports_as_a_third_output(tmp_path):
 def test_a_fine_tuned_mask_runs_its_own_trunk(tmp_path):
     """A mask head fine-tuned with its own copy of the trunk (`--mask-finetune`) exports that copy: the
     mask follows the copy's weights, the descriptor and local features the frozen trunk's."""
-    from training.mask import MaskNet
+    from training.heads.mask import MaskNet
 
     torch.manual_seed(0)
     net = DescriptorNet(NetConfig("rgb", 32, arch="trunk"))
@@ -120,7 +120,7 @@ def test_a_colour_model_exports_as_rgbd_with_its_mask_cut_from_depth(tmp_path):
     np.testing.assert_allclose(
         rgbd.embed_patches(colour, depth, 400.0), rgb.embed_patches(colour, None, 400.0), atol=1e-5
     )
-    from index.patches import batch_inputs
+    from index.features.patches import batch_inputs
 
     keep = rgbd.mask(batch_inputs("rgbd", colour, depth, 400.0, 200.0))
     want = (depth > 400.0 - 50.0) & (depth < 400.0 + 90.0)

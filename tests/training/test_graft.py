@@ -7,12 +7,12 @@ import numpy as np
 import pytest
 import torch
 
-from index.embed import Embedder
+from index.features.embed import Embedder
 from posedesc.cli import main
 from training.export import export_onnx
-from training.graft import LocalMap, graft_local, graft_mask
-from training.local import LocalTrunk
-from training.mask import MaskNet
+from training.heads.graft import LocalMap, graft_local, graft_mask
+from training.heads.local import LocalTrunk
+from training.heads.mask import MaskNet
 from training.model import DescriptorNet, NetConfig
 
 pytestmark = pytest.mark.slow  # trains and grafts real heads: `make test`, not `make check`

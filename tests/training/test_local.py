@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 import torch
 
-from index.local import cell_cosines, masked_distance
-from training import local as local_module
+from index.features.local import cell_cosines, masked_distance
 from training.data import DataConfig, TrainingData
-from training.local import (
+from training.heads import local as local_module
+from training.heads.local import (
     Candidates,
     HardNegatives,
     LocalConfig,
@@ -35,7 +35,7 @@ def shapes() -> TrainingData:
 
 
 def test_the_training_distance_is_the_services():
-    """`distances` (torch, what the loss reads) equals `index.local.masked_distance` of the service on the
+    """`distances` (torch, what the loss reads) equals `index.features.local.masked_distance` of the service on the
     same maps and masks, an empty query mask included."""
     rng = np.random.default_rng(0)
     b, k, c, g = 3, 4, 24, 16
@@ -82,7 +82,7 @@ def test_hard_negatives_are_the_descriptors_nearest_templates_but_the_pose_itsel
     """`--hard-negatives`: a query's extra negatives are among the templates nearest it in the model's
     descriptor space, leaving out its own object's templates within `far` of its pose (the template it is
     equal to among them), as the service's first stage would put them before the re-ranking."""
-    from index.embed import Embedder
+    from index.features.embed import Embedder
 
     cfg = LocalConfig(far=25.0, hard=5, hard_pool=12, threads=1)
     hard = HardNegatives(shapes, cfg, posedesc_models / "posedesc-rgb.onnx")
@@ -178,7 +178,7 @@ def test_an_exported_model_s_mask_blacks_the_queries_and_the_jitter_moves_it(sha
         [shapes.sample_with_mask(shapes.draw(o, rng, "rgb", 0.0)[0], "rgb", rng)[0] for o in range(3)]
     )
     logits = head(torch.from_numpy(x.astype(np.float32)))
-    from index.embed import Embedder
+    from index.features.embed import Embedder
 
     assert np.array_equal(logits.numpy()[:, 0] > 0, Embedder(SHIPPED_RGB, 1).mask(x.astype(np.float32)))
     scorer = Scorer(shapes, LocalTrunk(), head)

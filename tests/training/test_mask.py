@@ -7,10 +7,19 @@ import pytest
 import torch
 
 from training import augment
-from training import mask as mask_module
 from training.augment import soft_edges
 from training.data import DataConfig, TrainingData
-from training.mask import MaskConfig, MaskNet, iou, load_mask, mask_loss, outline_band, predict, train_mask
+from training.heads import mask as mask_module
+from training.heads.mask import (
+    MaskConfig,
+    MaskNet,
+    iou,
+    load_mask,
+    mask_loss,
+    outline_band,
+    predict,
+    train_mask,
+)
 from training.render_cache import build
 
 

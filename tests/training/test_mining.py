@@ -3,7 +3,7 @@
 import numpy as np
 import torch
 
-from index.viewpoints import sphere_views
+from index.templates.viewpoints import sphere_views
 from training.batches import BatchBuilder, bootstrap_triplets, with_templates
 from training.mining import TemplateBank, mine
 from training.similarity import rotations

@@ -10,16 +10,11 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
-from index.objectness import ObjectnessNet as OnnxNet  # noqa: E402
-from training.objectness import (  # noqa: E402
-    STRIDE,
-    ObjectnessConfig,
-    ObjectnessNet,
-    Scored,
-    _targets,
-    centre_loss,
-    export,
-)
+from index.features.objectness import ObjectnessNet as OnnxNet  # noqa: E402
+from training.objectness.config import STRIDE, ObjectnessConfig  # noqa: E402
+from training.objectness.model import ObjectnessNet, Scored, centre_loss  # noqa: E402
+from training.objectness.samples import _targets  # noqa: E402
+from training.objectness.train import export  # noqa: E402
 
 
 def test_a_target_peaks_at_its_cell_with_its_offset_and_sizes() -> None:

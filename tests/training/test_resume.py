@@ -28,7 +28,7 @@ def test_a_checkpoint_from_before_a_setting_existed_counts_as_its_old_behaviour(
     """A local run saved before `--hard-negatives` existed resumes without it, and only without it."""
     from dataclasses import asdict
 
-    from training.local import LocalConfig
+    from training.heads.local import LocalConfig
 
     before = {
         k: v for k, v in asdict(LocalConfig()).items() if not k.startswith("hard") and k != "mask_jitter"

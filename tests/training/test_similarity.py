@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from index.pose import View, view_to_pose
-from index.pose_error import rotation_error
+from index.geometry.pose import View, view_to_pose
+from index.geometry.pose_error import rotation_error
 from training.similarity import closer, pose_distances, rotations
 
 

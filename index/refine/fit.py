@@ -1,0 +1,39 @@
+"""What a pose refinement returns (`Fit`) and the small rigid-motion algebra the refinements share: a pose
+moved by a twist (`apply_twist`: 3 rotation then 3 translation parameters, applied on the camera's side,
+so the translation part moves the object in the camera's axes, mm).
+
+Two refinements start from an answer's pose (a template's viewpoint and roll at the distance the query was
+cut at) and move it over all six degrees of freedom: with colour, the mesh's outline against the frame
+(`index.refine.colour`); with depth, the mesh's points against the measured surface (`index.refine.depth`)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from index.geometry.pose import rotation_of
+
+
+@dataclass(frozen=True)
+class Fit:
+    """A refined pose: `R` (3, 3) model to camera and `t` (3,) mm (BOP's cam_R_m2c, cam_t_m2c; OpenCV
+    camera axes). `score`: how well the pose fits what was measured, in [0, 1] (the refinement's own
+    measure, higher is better; comparable between poses of one object in one frame, not across methods);
+    `start_score` the same at the starting pose; `iterations` run; `moved`: the refinement kept its result
+    (False: it found nothing better than the start, and `R`, `t` are the start's)."""
+
+    R: np.ndarray
+    t: np.ndarray
+    score: float
+    start_score: float
+    iterations: int
+    moved: bool
+
+
+def apply_twist(R: np.ndarray, t: np.ndarray, twist: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(R, t) moved by `twist` (6,): rotation (axis-angle, radians, about the object's origin as the camera
+    sees it) then translation (mm, camera axes). Rotating about the object's origin, not the camera's,
+    keeps a rotation step from also sliding the object across the image."""
+    dR = rotation_of(np.asarray(twist[:3], float))
+    return dR @ np.asarray(R, float), np.asarray(t, float) + np.asarray(twist[3:], float)

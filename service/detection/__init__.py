@@ -1,0 +1,93 @@
+"""Every registered object in a whole frame: what `POST /recognize` answers for a frame sent with its
+intrinsics and no centre, and what `posedesc evaluate --protocol detect` and `posedesc bench --only detect`
+measure (they call `detect` as the route does).
+
+The stages, in order (`stages`), each a module of this package with one call on the frame's frozen
+`found.Frame` and one frozen config built from the settings:
+
+- `propose` (`proposals.Propose`): where an object may be: from the colour, the objectness network; from
+  depth, the segments standing on the support (`depth_segments`);
+- `verify` (`verify.Verify`): each place screened around its centre and then recognised by the model's
+  whole pipeline, which names the object, gives its pose, its box and the open-set verdict;
+- `merge` (`merge.Merge`): one instance found twice (boxes overlapping) reported once, the more confident;
+- `report` (`report.Report`): the confidence a detection needs (`report.confidence`, `report.reported`) and
+  at most `max_detections`.
+
+`timings_ms`: `decode`, then each stage by its name, and `total`. Adding a stage is a new module and one
+line in `stages`."""
+
+from __future__ import annotations
+
+import time
+from typing import Protocol
+
+from service.detection.found import Detection, Found, Frame, Proposal
+from service.detection.merge import Merge
+from service.detection.proposals import Propose
+from service.detection.report import Report, reported
+from service.detection.verify import Verify
+from service.errors import ApiError
+from service.pipeline.query import Decoded, Query, decode
+from service.state import AppState
+
+__all__ = ["Detection", "Found", "Proposal", "check", "detect", "detect_decoded", "reported", "stages"]
+
+
+class Stage(Protocol):
+    """One step of the detection: a frame in, the frame with the step's work done out."""
+
+    @property
+    def name(self) -> str: ...
+
+    def __call__(self, frame: Frame) -> Frame: ...
+
+
+def stages(state: AppState) -> tuple[Stage, ...]:
+    """The detection's stages at the state's settings, in order."""
+    s = state.settings
+    return (Propose.build(s, state.colour_proposals), Verify.build(state), Merge.build(s), Report.build(s))
+
+
+def detect(state: AppState, q: Query) -> Found:
+    """The registered objects in the frame of `q` (a frame with fx, fy, cx, cy and no u, v): at most
+    `q.max_detections`, each with a confidence of at least `q.min_confidence` (None: `report.reported`)."""
+    t0 = time.perf_counter()
+    check(q)
+    d = decode(state, q)
+    return detect_decoded(state, q, d, time.perf_counter() - t0)
+
+
+def check(q: Query) -> None:
+    """Refuses, with what is missing, a frame query that cannot be searched whole."""
+    missing = [f for f in ("fx", "fy", "cx", "cy") if getattr(q, f) is None]
+    if missing:
+        raise ApiError(
+            422, f"a frame needs fx, fy, cx and cy to find objects in it; missing: {', '.join(missing)}"
+        )
+    if q.distance_mm is not None:
+        raise ApiError(422, "distance_mm is the distance of the object at (u, v): send u and v with it")
+
+
+def detect_decoded(state: AppState, q: Query, d: Decoded, decode_s: float = 0.0) -> Found:
+    """`detect` after decoding (`service.pipeline.query.decode`): the stages in order on one store snapshot
+    (every proposal verified against the same objects). `decode_s`: the seconds decoding took, reported and
+    counted in total."""
+    t0 = time.perf_counter()
+    K = q.camera
+    assert K is not None  # `check` refused a frame without its camera
+    floor = state.settings.detect_floor if q.min_confidence is None else q.min_confidence
+    frame = Frame(q, d, K, state.store.snapshot, floor)
+    ms: dict[str, float] = {"decode": decode_s}
+    proposals = 0
+    for stage in stages(state):
+        t = time.perf_counter()
+        frame = stage(frame)
+        ms[stage.name] = time.perf_counter() - t
+        proposals = proposals or len(frame.proposals)
+    ms["total"] = time.perf_counter() - t0 + decode_s
+    return Found(
+        frame.detections,
+        {k: round(v * 1000, 2) for k, v in ms.items()},
+        proposals,
+        d.embedder.path.stem,
+    )

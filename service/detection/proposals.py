@@ -1,0 +1,92 @@
+"""Where in a whole frame an object may be, before anything names it: the detection's first stage
+(`Propose`; `service.detection.verify` checks each place).
+
+- colour: the objectness network (`index.features.objectness`, `models/posedesc-objectness.onnx`): object centres
+  and how large each object looks, over an image pyramid. How large it looks is the side of its window
+  in px, so each window class among the registered objects puts it at its own distance (fx * window mm /
+  window px);
+- depth: what stands on the support, segmented (`service.detection.depth_segments`), at the distance it is measured.
+
+With both (RGB-D), both kinds are verified, the depth's first: where depth saw something, its distance
+is measured rather than inferred from a size."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from index.features.objectness import Colour
+from index.templates.windows import window_classes
+from service.detection.depth_segments import depth_proposals
+from service.detection.found import Frame, Proposal
+from service.errors import ApiError
+from service.pipeline.query import Decoded
+from service.settings import Settings
+
+
+def propose(
+    d: Decoded,
+    K: np.ndarray,
+    colour: Colour | None,
+    windows: Mapping[float, frozenset[int]],
+    limit: int,
+    depth_limit: int,
+) -> list[Proposal]:
+    """At most `limit` colour proposals and `depth_limit` depth ones for the decoded frame, best first.
+    `windows`: the window classes (mm) among the registered objects, and their objects
+    (`index.templates.windows.window_classes`); `colour` None when the service has no objectness model."""
+    out: list[Proposal] = []
+    if d.depth is not None:
+        out += [
+            Proposal(p.u, p.v, None, p.box, p.score, "depth")
+            for p in depth_proposals(d.depth, K, limit=depth_limit)
+        ]
+    if d.rgb is not None:
+        if colour is None:
+            if d.depth is None:
+                raise ApiError(
+                    422,
+                    "this service has no objectness model (posedesc-objectness.onnx in its models dir) to find "
+                    "objects in a colour frame: send u and v (and distance_mm), or depth",
+                )
+        else:
+            focal = (K[0, 0] + K[1, 1]) / 2
+            for p in colour(d.rgb, limit):
+                half = p.window_px / 2
+                box = (p.u - half, p.v - half, p.u + half, p.v + half)
+                if d.depth is not None:  # the pipeline measures the distance at the centre: no size assumed
+                    out.append(Proposal(p.u, p.v, None, box, p.score, "colour"))
+                    continue
+                # the network's window is of an object filling it as the model's objects fill theirs: an
+                # object of another class looking that large is as much nearer or farther as its window
+                one = len(windows) <= 1
+                out += [
+                    Proposal(p.u, p.v, focal * w / p.window_px, box, p.score, "colour", None if one else ids)
+                    for w, ids in windows.items()
+                ]
+    return out
+
+
+@dataclass(frozen=True)
+class Propose:
+    """The frame's proposals: at most `limit` colour places (`Settings.detect_proposals`) and `depth_limit`
+    depth segments (`Settings.detect_depth_proposals`), best first. A colour detection's confidence is at
+    most its proposal's score (`service.detection.report.confidence`): one under the frame's floor is
+    dropped here, as it could not be reported. `colour`: the objectness network (None: the service has none)."""
+
+    colour: Colour | None
+    limit: int
+    depth_limit: int
+    name: str = "propose"
+
+    @classmethod
+    def build(cls, settings: Settings, colour: Colour | None) -> Propose:
+        return cls(colour, settings.detect_proposals, settings.detect_depth_proposals)
+
+    def __call__(self, frame: Frame) -> Frame:
+        windows = window_classes(frame.snapshot.objects, frame.d.embedder.info.window_mm)
+        found = propose(frame.d, frame.K, self.colour, windows, self.limit, self.depth_limit)
+        kept = tuple(p for p in found if p.source != "colour" or p.score >= frame.floor)
+        return replace(frame, proposals=kept)

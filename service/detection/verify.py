@@ -1,0 +1,138 @@
+"""The detection's verification: each proposal checked by the recognition itself.
+
+A proposal's centre and distance are a few px and per cent off, and the re-ranking's cells are 4 px of a
+64 px patch, so each proposal is first screened around its centre (`AppState.screens`: the pipeline with a
+light re-ranking, no sweep, no fit) on a grid of centres and, in colour, nearer and farther; the model's
+whole pipeline (`AppState.pipelines`) then names the object where the screening was most confident, gives
+its pose and the open-set verdict. A verified answer's box is its mesh projected at its pose."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from index.draw import project
+from index.store import Snapshot
+from service.detection.found import Detection, Frame, Proposal
+from service.detection.report import confidence
+from service.errors import ApiError
+from service.pipeline.query import Query
+from service.state import AppState
+
+
+@dataclass(frozen=True)
+class Verify:
+    """Every proposal of the frame verified (`Settings.detect_shift`, `detect_grids`, `detect_scale`,
+    `detect_screens`: the screening's grid step as a share of the proposal's side, its grids, its scale
+    factor and how many screenings one proposal may take)."""
+
+    state: AppState
+    shift: float
+    grids: int
+    scale: float
+    screens: int
+    name: str = "verify"
+
+    @classmethod
+    def build(cls, state: AppState) -> Verify:
+        s = state.settings
+        return cls(state, s.detect_shift, s.detect_grids, s.detect_scale, s.detect_screens)
+
+    def __call__(self, frame: Frame) -> Frame:
+        found = (self.verify(frame, p) for p in frame.proposals)
+        return replace(frame, detections=tuple(x for x in found if x is not None))
+
+    def verify(self, frame: Frame, p: Proposal) -> Detection | None:
+        """The verifier's answer at a proposal: screened at its shifts (`centred`), then the whole pipeline
+        cut at the best of them; None when nothing there can be answered."""
+        d, K = frame.d, frame.K
+        seen = frame.snapshot if p.objects is None else frame.snapshot.within(p.objects)
+        at = self.centred(frame.q, frame, seen, p)
+        if at is None:
+            return None
+        try:
+            result = self.state.pipelines[d.modality](at, d, seen)
+        except ApiError:  # nothing measurable there (an empty depth patch): not an object
+            return None
+        if not result.matches:
+            return None
+        best = result.matches[0]
+        mesh = self.state.draw_meshes.get(best.object_id)
+        R, t = result.pose(0)
+        box = _box(mesh.vertices if mesh is not None else None, R, t, K, d.size, p)
+        assert at.u is not None and at.v is not None  # `centred` gives a centre
+        u, v = (at.u, at.v) if result.fitted(0) is None else tuple(float(x) for x in (K @ t)[:2] / t[2])
+        return Detection(u, v, box, confidence(result, p), result, p)
+
+    def centred(self, q: Query, frame: Frame, snapshot: Snapshot, p: Proposal) -> Query | None:
+        """Where around the proposal the screening pipeline is most confident: a 3 x 3 grid of centres
+        `shift` of its window's side apart around the proposal's (and, for `grids` > 1, grids of half the
+        step around the best), then (a colour proposal) its distance nearer and farther by `scale`; at most
+        `screens` screenings. None when nothing there can be answered (outside the frame, no depth there)."""
+        d = frame.d
+        w, h = d.size
+        side = p.box[2] - p.box[0]  # the proposal's window (colour) or the segment's extent (depth), px
+        screen = self.state.screens[d.modality]
+        seen: dict[tuple[float, float, float], tuple[float, float]] = {}
+
+        def score(u: float, v: float, log_d: float | None) -> tuple[float, float] | None:
+            key = (round(u, 1), round(v, 1), round(log_d, 4) if log_d is not None else 0.0)
+            if key not in seen:
+                if not (0 <= u < w and 0 <= v < h) or len(seen) >= self.screens:
+                    return None
+                distance = None if log_d is None else float(np.exp(log_d))
+                try:
+                    r = screen(replace(q, u=u, v=v, distance_mm=distance, k=1), d, snapshot)
+                except ApiError:  # no depth there
+                    seen[key] = (-1.0, 0.0)
+                else:
+                    seen[key] = (
+                        (float(r.confidences[0] or 0.0), -r.matches[0].distance) if r.matches else (-1.0, 0.0)
+                    )
+            return seen[key]
+
+        u, v = p.u, p.v
+        log_d = None if p.distance_mm is None else float(np.log(p.distance_mm))
+        best = score(u, v, log_d)
+        if best is None:
+            return None
+        step = self.shift * side
+        for _ in range(self.grids if step > 0 else 0):  # 3 x 3 around the best so far, each step halved
+            grid = [(u + i * step, v + j * step) for i in (-1, 0, 1) for j in (-1, 0, 1) if i or j]
+            for gu, gv in grid:
+                s = score(gu, gv, log_d)
+                if s is not None and s > best:
+                    best, cu, cv = s, gu, gv
+                    u, v = cu, cv
+            step /= 2
+        if log_d is not None and self.scale > 1:  # then nearer and farther, at the centre found
+            centre_log = log_d
+            for dl in (np.log(self.scale), -np.log(self.scale)):
+                s = score(u, v, centre_log + dl)
+                if s is not None and s > best:
+                    best, log_d = s, centre_log + dl
+        if best[0] < 0:
+            return None
+        distance = None if log_d is None else float(np.exp(log_d))
+        return replace(q, u=u, v=v, distance_mm=distance, estimated=True)
+
+
+def _box(
+    vertices: np.ndarray | None,
+    R: np.ndarray,
+    t: np.ndarray,
+    K: np.ndarray,
+    size: tuple[int, int],
+    p: Proposal,
+) -> tuple[float, float, float, float]:
+    """The mesh's extent at the pose in the frame (clipped to it); without a mesh, the proposal's."""
+    w, h = size
+    if vertices is not None:
+        px, z = project(vertices, R, t, K)
+        px = px[z > 0]
+        if len(px):
+            x0, y0 = px.min(axis=0)
+            x1, y1 = px.max(axis=0)
+            return (float(max(x0, 0)), float(max(y0, 0)), float(min(x1, w)), float(min(y1, h)))
+    return p.box

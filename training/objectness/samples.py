@@ -1,0 +1,245 @@
+"""The objectness network's training samples: crops of real frames of the train split with procedural shapes pasted in, and the targets each crop's objects make."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+from tqdm import tqdm
+
+from index.data.bop import BopDataset
+from index.geometry.pose import View
+from index.templates.mesh import diameter
+from index.templates.render import Renderer
+from index.templates.shapes import random_shape
+from training.augment import colour_jitter, soft_edges
+from training.objectness.config import (
+    RENDER_DISTANCE,
+    RENDER_SIZE,
+    RENDER_WINDOW,
+    RENDER_WINDOW_MM,
+    STRIDE,
+    ObjectnessConfig,
+)
+from training.objectness.recall import Truth, truth_of
+from training.render_cache import _random_lighting
+from training.splits import split_frames
+
+
+@dataclass
+class Frame:
+    """A real frame and its annotated objects: rows of u, v, window_px, extent_px, visible fraction."""
+
+    frame_id: int
+    rgb: np.ndarray
+    objects: np.ndarray
+    diameters: np.ndarray  # mm, one per object row
+
+    def truths(self, min_visib: float = 0.5) -> list[Truth]:
+        return [
+            Truth(float(o[0]), float(o[1]), float(o[2]), float(o[3]), float(d))
+            for o, d in zip(self.objects, self.diameters, strict=True)
+            if o[4] >= min_visib
+        ]
+
+
+def load_frames(root: Path, split: str, scene: int = 2) -> list[Frame]:
+    """The frames of one split (`training/splits.py`) of a BOP test scene, with their objects."""
+    ds = BopDataset(root)
+    insts = list(ds.instances(scene))
+    which = split_frames(sorted({i.frame_id for i in insts}))
+    frames: dict[int, list] = {}
+    for inst in insts:
+        if which[inst.frame_id] == split:
+            frames.setdefault(inst.frame_id, []).append(inst)
+    out = []
+    for fid, group in sorted(frames.items()):
+        rows, diams = [], []
+        for inst in group:
+            t = truth_of(inst, float(ds.models_info[inst.obj_id]["diameter"]))
+            rows.append([t.u, t.v, t.window_px, t.extent_px, inst.visib_fract])
+            diams.append(t.diameter_mm)
+        rgb = group[0].load_rgb()
+        assert rgb is not None
+        out.append(Frame(fid, rgb, np.array(rows, np.float64), np.array(diams)))
+    return out
+
+
+def shape_renders(cfg: ObjectnessConfig, cache_dir: Path) -> dict[str, np.ndarray]:
+    """Procedural shapes rendered at random poses and lights, cached: rgb (N, S, S, 3) uint8, mask
+    (N, S, S) bool, extent (N,) px of the diameter at the render's scale (the window is RENDER_WINDOW)."""
+    path = cache_dir / f"shapes-{cfg.shapes}x{cfg.shape_views}-{cfg.seed}-{RENDER_SIZE}.npz"
+    if path.is_file():
+        with np.load(path) as z:
+            return {k: z[k] for k in z.files}
+    rng = np.random.default_rng(cfg.seed + 1)
+    renderer = Renderer(size=RENDER_SIZE, window_mm=RENDER_WINDOW_MM, max_faces=20000)
+    rgb, mask, extent = [], [], []
+    for _ in tqdm(range(cfg.shapes), desc="render shapes", unit="shape"):
+        mesh = random_shape(rng)
+        diam = diameter(mesh)
+        views = [
+            View(
+                float(rng.uniform(0, 360)),
+                float(rng.uniform(-30, 85)),
+                float(rng.uniform(-180, 180)),
+                RENDER_DISTANCE,
+            )
+            for _ in range(cfg.shape_views)
+        ]
+        for v in views:  # one light each: render() lights a whole call alike
+            t = renderer.render(mesh, [v], lighting=_random_lighting(rng))
+            rgb.append(t.rgb[0])
+            mask.append(t.depth[0] > 0)
+            extent.append(RENDER_SIZE * diam / RENDER_WINDOW_MM)
+    renderer.close()
+    arrays = {"rgb": np.stack(rgb), "mask": np.stack(mask), "extent": np.array(extent, np.float32)}
+    cache_dir.mkdir(parents=True, exist_ok=True)
+    np.savez(path, **arrays)  # type: ignore[arg-type]  # numpy's stub: a key could be allow_pickle
+    return arrays
+
+
+@dataclass
+class Sample:
+    """A training crop and its targets on the stride-8 grid (G = crop / 8). heat (G, G): Gaussians, 1 at
+    each target's cell; weight (G, G): 0 where the heatmap is not scored; reg (4, G, G): dx, dy (cells),
+    log window / reference, log extent / reference; reg_w (G, G): the cells the regression is scored at."""
+
+    img: np.ndarray
+    heat: np.ndarray
+    weight: np.ndarray
+    reg: np.ndarray
+    reg_w: np.ndarray
+
+
+def _paste(
+    img: np.ndarray,
+    shapes: dict[str, np.ndarray],
+    window: float,
+    cu: float,
+    cv: float,
+    rng: np.random.Generator,
+) -> tuple[np.ndarray, float]:
+    """Pastes a random shape render with its origin at (cu, cv) and its window `window` px; returns the
+    pasted-on image and the mask of the shape in it. Shape: img (C, C, 3) uint8."""
+    k = int(rng.integers(len(shapes["rgb"])))
+    f = window / RENDER_WINDOW
+    side = max(3, int(round(RENDER_SIZE * f)))
+    f = side / RENDER_SIZE
+    rgb = cv2.resize(colour_jitter(shapes["rgb"][k], rng, 1.0), (side, side), interpolation=cv2.INTER_AREA)
+    m = cv2.resize(shapes["mask"][k].astype(np.uint8), (side, side), interpolation=cv2.INTER_NEAREST) > 0
+    # the render's origin is its centre pixel ((S - 1) / 2); place it at (cu, cv)
+    x0 = int(round(cu - (side - 1) / 2))
+    y0 = int(round(cv - (side - 1) / 2))
+    c = img.shape[0]
+    ax0, ay0, ax1, ay1 = max(0, x0), max(0, y0), min(c, x0 + side), min(c, y0 + side)
+    full = np.zeros(img.shape[:2], bool)
+    if ax1 <= ax0 or ay1 <= ay0:
+        return full, float(shapes["extent"][k]) * f
+    sub_m = m[ay0 - y0 : ay1 - y0, ax0 - x0 : ax1 - x0]
+    sub_rgb = rgb[ay0 - y0 : ay1 - y0, ax0 - x0 : ax1 - x0]
+    region = img[ay0:ay1, ax0:ax1]
+    img[ay0:ay1, ax0:ax1] = np.clip(soft_edges(sub_rgb, region, sub_m, rng), 0, 255).astype(np.uint8)
+    full[ay0:ay1, ax0:ax1] = sub_m
+    return full, float(shapes["extent"][k]) * f
+
+
+def make_sample(
+    frames: list[Frame], shapes: dict[str, np.ndarray], cfg: ObjectnessConfig, rng: np.random.Generator
+) -> Sample:
+    """One random training crop: a real train frame scaled and cropped, shapes pasted, colours jittered."""
+    fr = frames[int(rng.integers(len(frames)))]
+    objs = fr.objects
+    seen = np.nonzero(objs[:, 4] >= cfg.min_visib)[0]
+    c = cfg.crop
+    h, w = fr.rgb.shape[:2]
+    if len(seen) and rng.random() < 0.85:
+        focus = objs[int(rng.choice(seen))]
+        s = math.exp(rng.uniform(*np.log(cfg.sample_px))) / focus[2]
+        cu, cv = focus[0] + rng.uniform(-0.4, 0.4) * c / s, focus[1] + rng.uniform(-0.4, 0.4) * c / s
+    else:
+        s = math.exp(rng.uniform(math.log(0.2), math.log(1.2)))
+        cu, cv = rng.uniform(0, w), rng.uniform(0, h)
+    lw, lh = max(1, round(w * s)), max(1, round(h * s))
+    level = cv2.resize(fr.rgb, (lw, lh), interpolation=cv2.INTER_AREA)
+    sx, sy = lw / w, lh / h
+    # the crop's top-left in level pixels; outside the level is black, as the pyramid's padding
+    x0 = int(round((cu + 0.5) * sx - 0.5 - c / 2))
+    y0 = int(round((cv + 0.5) * sy - 0.5 - c / 2))
+    # kept inside the level where it is larger than the crop: black is for levels smaller than a crop
+    x0, y0 = (
+        int(np.clip(x0, min(0, lw - c), max(0, lw - c))),
+        int(np.clip(y0, min(0, lh - c), max(0, lh - c))),
+    )
+    img = np.zeros((c, c, 3), np.uint8)
+    ax0, ay0, ax1, ay1 = max(0, x0), max(0, y0), min(lw, x0 + c), min(lh, y0 + c)
+    if ax1 > ax0 and ay1 > ay0:
+        img[ay0 - y0 : ay1 - y0, ax0 - x0 : ax1 - x0] = level[ay0:ay1, ax0:ax1]
+    # rows: u, v, window, extent, visible fraction, in crop pixels
+    rows = [
+        [
+            (o[0] + 0.5) * sx - 0.5 - x0,
+            (o[1] + 0.5) * sy - 0.5 - y0,
+            o[2] * (sx + sy) / 2,
+            o[3] * (sx + sy) / 2,
+            o[4],
+        ]
+        for o in objs
+    ]
+    for _ in range(int(rng.integers(cfg.paste[0], cfg.paste[1] + 1))):
+        win = math.exp(rng.uniform(*np.log(cfg.paste_px)))
+        pu, pv = rng.uniform(-0.1, 1.1) * c, rng.uniform(-0.1, 1.1) * c
+        m, ext = _paste(img, shapes, win, pu, pv, rng)
+        for r in rows:  # an object whose origin the shape now covers counts as hidden
+            iu, iv = int(round(r[0])), int(round(r[1]))
+            if 0 <= iu < c and 0 <= iv < c and m[iv, iu]:
+                r[4] = 0.0
+        rows.append([pu, pv, win, ext, 1.0])
+    if rng.random() < 0.5:  # a mirrored object is still an object
+        img = img[:, ::-1]
+        for r in rows:
+            r[0] = c - 1 - r[0]
+    img = colour_jitter(np.ascontiguousarray(img), rng, 1.0)
+    if rng.random() < 0.3:  # a camera's focus and motion
+        img = np.asarray(cv2.GaussianBlur(img, (0, 0), rng.uniform(0.3, 1.2)), np.uint8)
+    return Sample(img, *_targets(np.array(rows, np.float64).reshape(-1, 5), cfg))
+
+
+def _targets(rows: np.ndarray, cfg: ObjectnessConfig) -> tuple[np.ndarray, ...]:
+    g = cfg.crop // STRIDE
+    centres = STRIDE * np.arange(g) + (STRIDE - 1) / 2
+    heat = np.zeros((g, g), np.float32)
+    weight = np.ones((g, g), np.float32)
+    reg = np.zeros((4, g, g), np.float32)
+    reg_w = np.zeros((g, g), np.float32)
+    best = np.zeros((g, g), np.float32)  # the Gaussian a cell's regression target belongs to
+    lo, hi = cfg.positive_px
+    for u, v, win, ext, vis in rows:
+        if vis < 0.1:
+            continue  # hidden: background
+        positive = lo <= win <= hi and vis >= cfg.min_visib
+        near = cfg.ignore_px[0] <= win <= cfg.ignore_px[1]
+        if not positive and not near:
+            continue  # far out of the head's range: background
+        dist2 = (centres[None, :] - u) ** 2 + (centres[:, None] - v) ** 2
+        if not positive:  # the band around the range, or too hidden: not scored near its centre
+            weight[dist2 <= (0.25 * win) ** 2] = 0.0
+            continue
+        sig = cfg.sigma * STRIDE * win / cfg.reference_px
+        gauss = np.exp(-dist2 / (2 * sig * sig)).astype(np.float32)
+        j, i = int(round((u - (STRIDE - 1) / 2) / STRIDE)), int(round((v - (STRIDE - 1) / 2) / STRIDE))
+        if 0 <= i < g and 0 <= j < g:
+            gauss[i, j] = 1.0
+        np.maximum(heat, gauss, out=heat)
+        cells = (gauss > 0.5) & (gauss > best)
+        best[cells] = gauss[cells]
+        ii, jj = np.nonzero(cells)
+        reg[0, ii, jj] = (u - centres[jj]) / STRIDE
+        reg[1, ii, jj] = (v - centres[ii]) / STRIDE
+        reg[2, ii, jj] = math.log(win / cfg.reference_px)
+        reg[3, ii, jj] = math.log(ext / cfg.reference_px)
+        reg_w[ii, jj] = gauss[ii, jj]
+    return heat, weight, reg, reg_w
