@@ -5,7 +5,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 # podman & co. build and run deploy/Dockerfile in tests/deploy (no Docker engine on these machines).
 SERVE_APT_PACKAGES := libegl1 libegl-mesa0 libgl1-mesa-dri libgl1 libopengl0 python3-venv
-# curl: the README's examples, run as written by tests/service/test_readme.py
+# curl: the README's examples, run as written by tests/promises/test_readme_examples_run.py
 APT_PACKAGES := $(SERVE_APT_PACKAGES) curl podman buildah uidmap runc debootstrap iptables podman-compose chromium chromium-driver
 STAMP := $(VENV)/.setup-stamp
 SERVE_STAMP := $(VENV)/.serve-stamp
@@ -18,6 +18,10 @@ HOST ?= 127.0.0.1
 PORT ?= 8000
 # `make lock UPGRADE=--upgrade` re-resolves every pin
 UPGRADE ?=
+# The tests on two processes (pytest-xdist), one a core of these 2-core machines; the tests that share the
+# Milvus server or the container image are one group on one worker (tests/conftest.py), so each is made
+# once. `make test PARALLEL=` runs them in one process.
+PARALLEL ?= -n 2 --dist loadgroup
 
 .PHONY: setup setup-serve test check lint serve bench clean models lock
 
@@ -69,10 +73,10 @@ lint: setup
 # first. A test that takes more than a few seconds is marked `slow` in its file (`@pytest.mark.slow`, or
 # `pytestmark = pytest.mark.slow` for the module); tests never assert how fast anything is (bench does).
 test: setup lint
-	$(BIN)/pytest -q
+	$(BIN)/pytest -q $(PARALLEL)
 
 check: setup
-	$(BIN)/pytest -q -m "not slow"
+	$(BIN)/pytest -q -m "not slow" $(PARALLEL)
 
 serve: setup-serve
 	$(BIN)/posedesc serve --host $(HOST) --port $(PORT) --data-dir data/default

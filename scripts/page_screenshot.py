@@ -18,12 +18,12 @@ from pathlib import Path
 from PIL import Image
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "tests" / "service"))
+sys.path.insert(0, str(ROOT / "tests" / "helpers"))
 
+from browser import HANG, OBJECT_UV, WIDTH, chromium, click_on_frame, drawn_width  # noqa: E402
 from selenium.webdriver.common.by import By  # noqa: E402
 from selenium.webdriver.support.ui import WebDriverWait  # noqa: E402
 from service_helpers import Server, W  # noqa: E402
-from test_page import HANG, OBJECT_UV, WIDTH, chromium, click_on_frame, drawn_width  # noqa: E402
 
 HEIGHT = 1600  # the window: the header and the recognition section (fields, images, answers) fit in it
 COLOURS = 128  # palette size: the page is flat colours and two small frames; ~150 kB instead of ~600

@@ -1,7 +1,9 @@
-"""Shared fixtures: small meshes the tests make themselves, one renderer, the real data when present."""
+"""Shared fixtures: small meshes the tests make themselves, one renderer, the real data when present. The
+helpers the tests share (a real server, a browser) are modules of tests/helpers/, put on the path here."""
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -9,6 +11,20 @@ import pytest
 import trimesh
 
 SHARED_LMO = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "lmo"
+sys.path.insert(0, str(Path(__file__).parent / "helpers"))
+#: tests on these fixtures or markers share one costly session resource (the Milvus server, the podman
+#: image): under pytest-xdist (`make test`) they are one group, run by one worker, so it is made once
+SHARED_RESOURCES = {"milvus", "container"}
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    for item in items:
+        uses = set(getattr(item, "fixturenames", ())) | {m.name for m in item.iter_markers()}
+        # a store test parametrized over the backends asks for the server by name (`getfixturevalue`)
+        params = getattr(getattr(item, "callspec", None), "params", {})
+        uses |= {v for v in params.values() if isinstance(v, str)}
+        if uses & SHARED_RESOURCES:
+            item.add_marker(pytest.mark.xdist_group("services"))
 
 
 def coloured(mesh: trimesh.Trimesh, rgb: tuple[int, int, int]) -> trimesh.Trimesh:
@@ -33,6 +49,13 @@ def make_l_shape() -> trimesh.Trimesh:
 @pytest.fixture(scope="session")
 def l_shape() -> trimesh.Trimesh:
     return make_l_shape()
+
+
+@pytest.fixture(scope="session")
+def t_shape() -> trimesh.Trimesh:
+    from service_helpers import make_t_shape
+
+    return make_t_shape()
 
 
 @pytest.fixture(scope="session")

@@ -1,6 +1,6 @@
 """`posedesc bench --only guards`: how long the service's guards take to refuse what they refuse. The tests
-check the answers (tests/service/test_hostile.py, tests/index/test_mesh_limits.py,
-tests/index/test_mesh_fuzz.py, tests/service/test_listen.py); the times live here, as figures, since a
+check the answers (tests/promises/test_hostile_uploads_refused.py, tests/index/templates/test_mesh_limits.py,
+tests/index/templates/test_mesh_fuzz.py, tests/promises/test_loopback_unless_a_key.py); the times live here, as figures, since a
 test must not fail on a slow machine.
 
 - uploads: each of `benchmarks.serving.hostile.UPLOADS` sent to the real service (`posedesc serve` on loopback,

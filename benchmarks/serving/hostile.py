@@ -1,5 +1,5 @@
-"""Hostile inputs, made here once for the tests that check how they are refused (tests/service/test_hostile.py,
-tests/index/test_mesh_limits.py, tests/index/test_mesh_fuzz.py) and for the bench's "guards" section, which
+"""Hostile inputs, made here once for the tests that check how they are refused (tests/promises/test_hostile_uploads_refused.py,
+tests/index/templates/test_mesh_limits.py, tests/index/templates/test_mesh_fuzz.py) and for the bench's "guards" section, which
 times the refusals (`benchmarks/serving/guards.py`): what a test asserts is the answer, what the bench prints is how
 long it took.
 

@@ -255,7 +255,7 @@ def _spread(contours: Sequence[np.ndarray], counts: np.ndarray, n: int) -> tuple
 
 # -- the fit -------------------------------------------------------------------------------------------
 
-# Every constant below was chosen on the validation frames' 103 right answers (scripts/fit_colour_eval.py,
+# Every constant below was chosen on the validation frames' 103 right answers (scripts/fit_colour_eval.py at 36ee81d,
 # the figures quoted are their shares under 5 / 20 deg after the fit); most moved those shares by no more
 # than two or three answers, so they stay at plain values.
 

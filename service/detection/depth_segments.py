@@ -7,7 +7,8 @@ small step only). Each segment of a plausible size becomes a proposal; the few l
 support are also cut into object-sized parts by k-means. Everything is in mm, OpenCV camera axes (x
 right, y down, z forward); `depth` holds z, 0 where the sensor measured nothing.
 
-Measured by scripts/depth_proposals_eval.py (docs/results/depth_proposals.json): on the real Kinect frame
+Measured by scripts/depth_proposals_eval.py (docs/results/depth_proposals.json; the script is in the history
+at 36ee81d): on the real Kinect frame
 of LM-O 5 of its 6 instances with visib_fract >= 0.5 in the first 30 proposals, all 6 in the first 50.
 """
 
@@ -271,7 +272,7 @@ def _describe(frame: _Frame, labels: np.ndarray, sizes: tuple[float, float], wei
     # The object's origin (its bounding-box centre) lies behind the visible surface: along the ray through
     # the middle of the surface's extent, half the largest extent across the ray (the likely depth) behind
     # the surface's nearest point, but no lower than half its height above the support (measured against
-    # other estimates: scripts/depth_proposals_eval.py's docstring).
+    # other estimates: scripts/depth_proposals_eval.py's docstring, at 36ee81d).
     mid = (lo + hi) / 2
     ray = mid / np.linalg.norm(mid, axis=1, keepdims=True)
     seg = np.repeat(np.arange(len(starts)), counts)

@@ -133,7 +133,7 @@ class LocalScore:
     (`index.features.local.cell_shares`); each cut of the query with its cells made unit vectors
     (`index.features.local.unit_cells`) and its mask's weights as shares. The cells' cosines are then dot products
     times those lengths, and `masked_distance` weighted sums of them: the same formula (tested against
-    it: `tests/index/test_local.py`). Templates stored without silhouettes (older stores) are compared as
+    it: `tests/index/features/test_local.py`). Templates stored without silhouettes (older stores) are compared as
     whole maps (`l2`)."""
 
     def __init__(

@@ -1,6 +1,6 @@
 """The milvus section of `posedesc bench` at tiny sizes against the session's real Milvus: both stores hold
 the same templates, so Milvus's answers are found by exact search too (recall), and the figures are there,
-with the replicas' propagation delay (what tests/service/test_replicas.py waits for without timing)."""
+with the replicas' propagation delay (what tests/promises/test_replicas_share_one_store.py waits for without timing)."""
 
 from __future__ import annotations
 

@@ -42,13 +42,17 @@ def test_setup_installs_from_the_locks() -> None:
 def test_check_runs_the_tests_not_marked_slow_and_test_runs_them_all() -> None:
     def recipe(target: str) -> list[str]:
         run = subprocess.run(
-            ["make", "-n", "-B", "--no-print-directory", target], cwd=ROOT, capture_output=True, text=True
+            ["make", "-n", "-B", "--no-print-directory", *target.split()],
+            cwd=ROOT,
+            capture_output=True,
+            text=True,
         )
         assert run.returncode == 0, run.stderr
-        return [line for line in run.stdout.splitlines() if "pytest" in line]
+        return [line.strip() for line in run.stdout.splitlines() if "pytest" in line]
 
-    assert recipe("check") == ['.venv/bin/pytest -q -m "not slow"']
-    assert recipe("test") == [".venv/bin/pytest -q"]  # every tier: nothing deselected
+    assert recipe("check") == ['.venv/bin/pytest -q -m "not slow" -n 2 --dist loadgroup']
+    assert recipe("test") == [".venv/bin/pytest -q -n 2 --dist loadgroup"]  # every tier: nothing deselected
+    assert recipe("test PARALLEL=") == [".venv/bin/pytest -q"]  # one process, on request
     phony = next(line for line in (ROOT / "Makefile").read_text().splitlines() if line.startswith(".PHONY:"))
     assert "check" in phony.split()
 

@@ -1,5 +1,5 @@
 """posedesc serve refuses to start, in one line, without models or with a bad setting (running it is
-tests/service/test_uvicorn.py)."""
+tests/promises/test_serve_register_recognise_restart.py)."""
 
 from __future__ import annotations
 

@@ -10,7 +10,7 @@ import pytest
 
 from index.data.bop import BopDataset, instance_patch
 
-LMO_DEPTH = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "lmo-depth"
+LMO_DEPTH = Path(__file__).resolve().parents[3].parent / "shared" / "data" / "lmo-depth"
 
 
 @pytest.fixture(scope="module")

@@ -1,3 +1,6 @@
+"""`index.templates.mesh`, a user's mesh loaded: every format read in mm, units applied and implausible ones
+refused with the units that would fit, bad meshes refused, heavy ones simplified with their colours."""
+
 import numpy as np
 import pytest
 import trimesh

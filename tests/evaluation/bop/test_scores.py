@@ -27,7 +27,7 @@ from index.geometry.pose import View, view_to_pose
 from posedesc.cli import main
 
 K = np.array([[572.4, 0.0, 325.3], [0.0, 573.6, 242.0], [0.0, 0.0, 1.0]])
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = Path(__file__).resolve().parents[3]
 RGB_MODEL = ROOT / "models" / "posedesc-rgb.onnx"
 
 

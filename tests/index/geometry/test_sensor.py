@@ -1,3 +1,6 @@
+"""`index.geometry.sensor`, the model that makes renders look like a real Kinect's frames: noise growing with
+distance, quantisation and edge holes, backgrounds, and the support plane of real frames."""
+
 import numpy as np
 import pytest
 

@@ -13,7 +13,7 @@ from evaluation.bop.csv import read_bop_csv
 from index.features.objectness import OBJECTNESS_FILE
 from posedesc.cli import main
 
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = Path(__file__).resolve().parents[3]
 MODEL = ROOT / "models" / "posedesc-rgb.onnx"
 FIGURES = {"recall", "precision", "ap50", "rotation_within_20", "median_relative_distance_error"}
 

@@ -18,7 +18,7 @@ from index.geometry.pose import rotation_of
 from index.geometry.pose_error import ADD_FRACTION, add, adi
 from index.refine.depth import DepthModel, fit_depth
 
-LMO_DEPTH = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "lmo-depth"
+LMO_DEPTH = Path(__file__).resolve().parents[3].parent / "shared" / "data" / "lmo-depth"
 TURN_DEG, SLIDE_MM = 10.0, 20.0  # a start as far off as the service's answers usually are
 
 

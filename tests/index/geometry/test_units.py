@@ -37,7 +37,7 @@ def test_a_centimetre_mesh_is_not_told_to_use_metres():
     problem = size_problem(8.9, "mm")
     assert problem is not None
     assert "read in cm it is 89 mm" in problem and " m it is" not in problem
-    readme = " ".join((Path(__file__).resolve().parents[2] / "README.md").read_text().split())
+    readme = " ".join((Path(__file__).resolve().parents[3] / "README.md").read_text().split())
     assert problem in readme  # the README quotes it
 
 

@@ -8,7 +8,7 @@ import pytest
 
 from index.features.embed import LOCAL_NAME, MASK_NAME, OUTPUT_NAME, Embedder
 
-SHIPPED_RGB = Path(__file__).resolve().parents[2] / "models" / "posedesc-rgb.onnx"
+SHIPPED_RGB = Path(__file__).resolve().parents[3] / "models" / "posedesc-rgb.onnx"
 
 
 def test_each_output_is_the_whole_graphs_and_runs_only_its_nodes():

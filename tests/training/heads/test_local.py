@@ -150,7 +150,7 @@ def test_a_local_run_interrupted_and_resumed_ends_as_an_uninterrupted_one(shapes
         train_local(cfg, shapes, stopped, resume=True)
 
 
-SHIPPED_RGB = Path(__file__).resolve().parents[2] / "models" / "posedesc-rgb.onnx"
+SHIPPED_RGB = Path(__file__).resolve().parents[3] / "models" / "posedesc-rgb.onnx"
 
 
 def test_jitter_moves_the_outline_in_and_out_and_nothing_away_from_it():

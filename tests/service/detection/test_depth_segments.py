@@ -14,7 +14,7 @@ from index.data.bop import BopDataset
 from index.geometry.sensor import SensorModel, plane_depth, support_plane
 from service.detection.depth_segments import Proposal, depth_proposals
 
-LMO_DEPTH = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "lmo-depth"
+LMO_DEPTH = Path(__file__).resolve().parents[3].parent / "shared" / "data" / "lmo-depth"
 K = np.array([[572.4, 0.0, 325.3], [0.0, 573.6, 242.0], [0.0, 0.0, 1.0]])
 W, H = 640, 480
 

@@ -1,3 +1,6 @@
+"""`index.templates.viewpoints`, the paper's viewpoint sets on the half-sphere: template and training sets,
+and the in-plane steps."""
+
 import numpy as np
 
 from index.templates.viewpoints import hemisphere, icosphere, inplane_steps, sphere_views

@@ -32,7 +32,7 @@ def shipped_rgb(tmp_path_factory):
 
 
 def serve(tmp_path_factory, models, l_shape, t_shape, **settings):
-    """A service with L and T registered. The pose fit is off (`pose_fit`: tests/service/test_fit.py):
+    """A service with L and T registered. The pose fit is off (`pose_fit`: tests/service/pipeline/test_fit.py):
     these tests read the templates' roll, which the fit would move off the grid."""
     data = tmp_path_factory.mktemp("data")
     settings = {"pose_fit": 0, **settings}

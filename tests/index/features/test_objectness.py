@@ -13,7 +13,7 @@ from index.data.bop import BopDataset
 from index.features.objectness import ObjectnessNet, Proposal, decode, level_input, propose, suppress
 from training.objectness.recall import Truth, hit_rank, recall, truth_of
 
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = Path(__file__).resolve().parents[3]
 MODEL = ROOT / "models" / "posedesc-objectness.onnx"
 VAL_FRAME = 254  # a validation frame of lmo/000002 (training/splits.py): never trained on
 

@@ -17,7 +17,7 @@ import pytest
 from index.store import Store, StoreError, TemplateSet
 
 MODELS = {"rgb": (4, "fp-rgb"), "depth": (4, "fp-depth")}
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = Path(__file__).resolve().parents[3]
 
 
 def templates(centre: float, n: int = 5, dim: int = 4) -> TemplateSet:

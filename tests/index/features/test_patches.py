@@ -1,3 +1,6 @@
+"""`index.features.patches`, what the network sees: depth normalised to known values and its holes filled,
+colour standardised, the batch path equal to the per-patch reference, and patches cut at any roll."""
+
 import cv2
 import numpy as np
 import pytest
