@@ -9,13 +9,23 @@ from __future__ import annotations
 
 import time
 
+from service.errors import ApiError
 from service.pipeline.answer import Result
 from service.pipeline.query import Decoded, Query, decode
 from service.state import AppState
 
 
+def answerable(state: AppState) -> None:
+    """Refuses (503, with the store's reason) a query this replica cannot answer as every other replica
+    would: a shared store out of reach, or this replica without the files the store's objects need
+    (`index.store.milvus_trust`). Answering from part of an object would be a wrong answer with a 200."""
+    if (problem := state.store.problem()) is not None:
+        raise ApiError(503, problem)
+
+
 def recognise(state: AppState, q: Query) -> Result:
     """What `POST /recognize` answers: the k best distinct (object, viewpoint) answers, nearest first."""
+    answerable(state)
     t0 = time.perf_counter()
     d = decode(state, q)
     return recognise_decoded(state, q, d, decode_s=time.perf_counter() - t0)

@@ -17,6 +17,7 @@ sys.path.insert(0, str(Path(__file__).parent / "helpers"))
 SHARED_RESOURCES = {"milvus", "container"}
 
 
+@pytest.hookimpl(tryfirst=True)  # before pytest-xdist's own, which reads the groups into the node ids
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     for item in items:
         uses = set(getattr(item, "fixturenames", ())) | {m.name for m in item.iter_markers()}

@@ -58,6 +58,7 @@ from index.store.milvus_snapshot import (
     collection_name,
     short,
 )
+from index.store.milvus_trust import FILES_KEY, MilvusTrust, counts_with_files, files_written
 from index.store.records import (
     Match,
     NameTaken,
@@ -77,7 +78,7 @@ INSERT_BATCH = 20_000
 T = TypeVar("T")
 
 
-class MilvusStore(MilvusCollections, MilvusPoll):
+class MilvusStore(MilvusCollections, MilvusPoll, MilvusTrust):
     """Templates of all objects for a fixed set of models in the Milvus at `uri`; meshes, local features
     and meta flags in `data_dir`, which every replica shares. The same interface as the embedded store
     (`index.store.TemplateStore`)."""
@@ -123,6 +124,11 @@ class MilvusStore(MilvusCollections, MilvusPoll):
                 f"the template store (Milvus at {uri}) does not answer: {short(e)}"
             ) from None
         self._call(self._create_collections)
+        self.store_id: str | None = None
+        self._missing: dict[int, list[str]] = {}  # live objects whose files this replica lacks
+        self._damaged: set[str] = set()  # local feature files that would not read
+        self._trust: str | None = None  # why this replica cannot answer as the others do (milvus_trust)
+        self.store_id = self._call(self._establish_store_id)
         self._snap = self._empty()
         self._call(self._refresh)
         self._call(self._sweep)
@@ -177,7 +183,9 @@ class MilvusStore(MilvusCollections, MilvusPoll):
         return len(rows) > 0
 
     def problem(self) -> str | None:
-        return self._problem
+        """Why this replica cannot answer now: Milvus unreachable or loading, or it could not answer as the
+        other replicas do (`index.store.milvus_trust`: not the store's directory, live objects' files missing)."""
+        return self._problem or self._trust
 
     # -- writing -----------------------------------------------------------------------------------
 
@@ -200,6 +208,9 @@ class MilvusStore(MilvusCollections, MilvusPoll):
         if len(extra_text) > 60_000:
             raise ValueError("an object's extra data must stay under 60,000 characters of JSON")
         counts = {self._key(m): len(ts.poses) for m, ts in templates.items()}
+        local = [
+            self._key(m) for m, ts in templates.items() if ts.local is not None and ts.local_rows is not None
+        ]
         with self._write:
             token, created = uuid.uuid4().hex, time.time()
             record = {
@@ -210,7 +221,7 @@ class MilvusStore(MilvusCollections, MilvusPoll):
                 "faces": int(faces),
                 "created": created,
                 "updated": created,
-                "templates": json.dumps(counts),
+                "templates": counts_with_files(counts, files_written(mesh is not None, local)),
                 "extra": extra_text,
                 "v": [0.0, 0.0],
             }
@@ -247,6 +258,9 @@ class MilvusStore(MilvusCollections, MilvusPoll):
             self._call(self._wait_visible, object_id, {model: len(ts.poses)})
             counts = json.loads(record["templates"])
             counts[self._key(model)] = counts.get(self._key(model), 0) + len(ts.poses)
+            if FILES_KEY in counts and ts.local is not None and ts.local_rows is not None:
+                written = counts[FILES_KEY]
+                written["local"] = sorted({*written.get("local", []), self._key(model)})
             record.update(templates=json.dumps(counts), updated=time.time())
             self._call(self.client.upsert, self.objects_collection, [record], timeout=self.timeout)
             self._put(record)

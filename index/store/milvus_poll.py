@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import logging
 import time
+import zipfile
 from collections.abc import Mapping
 from typing import Any
 
@@ -19,6 +20,7 @@ from index.store.milvus_snapshot import (
     MilvusSnapshot,
     short,
 )
+from index.store.milvus_trust import missing_files
 from index.store.records import (
     ObjectRecord,
     StoreUnavailable,
@@ -27,6 +29,9 @@ from index.store.records import (
 
 log = logging.getLogger("index.store")
 
+#: every this many polls (~0.25 s each) every live object's files are checked, not only the missing ones
+FULL_CHECK_POLLS = 20
+
 
 class MilvusPoll:
     """The polling, snapshot and sweep part of `MilvusStore` (its attributes declared here, set there)."""
@@ -34,6 +39,11 @@ class MilvusPoll:
     _generation: Any
     _local: dict[str, dict[int, dict[tuple[int, float, float], np.ndarray]]]
     _problem: str | None
+    _trust: str | None
+    _missing: dict[int, list[str]]
+    _damaged: set[str]
+    _directory_problem: Any  # MilvusTrust's
+    _files_problem: Any  # MilvusTrust's
     _query: Any
     _records: dict[str, dict[str, Any]]
     _refreshing: Any
@@ -62,11 +72,17 @@ class MilvusPoll:
             log.warning("object %d (%s): a registration left unfinished, swept", r["object_id"], r["name"])
             r.update(state=DELETED, updated=now)
             self.client.upsert(self.objects_collection, [r], timeout=self.timeout)
-        dead = self._query(f"state == {DELETED}", ["object_id"])
+        dead = self._query(f"state == {DELETED} and object_id >= 0", ["object_id"])  # not the marker
         self._remove_remains(sorted({int(r["object_id"]) for r in dead}))
 
     def _load_local(self, oid: int, model: str) -> dict[tuple[int, float, float], np.ndarray]:
-        arrays = self.files.read_arrays(f"local/{self.collections[model]}/{oid}.npz")
+        name = f"local/{self.collections[model]}/{oid}.npz"
+        try:
+            arrays = self.files.read_arrays(name)
+        except (OSError, ValueError, KeyError, zipfile.BadZipFile) as e:  # damaged: as good as missing
+            log.warning("object %d: %s is damaged (%s)", oid, name, short(e))
+            self._damaged.add(name)
+            return {}
         if arrays is None:
             return {}
         return {
@@ -134,6 +150,8 @@ class MilvusPoll:
     def _rebuild(self) -> None:
         """The next snapshot from the records as known now (the caller holds `_refreshing`)."""
         live = {int(r["object_id"]): self._to_record(r) for r in self._records.values()}
+        self._check_files(only_missing=False)
+        damaged = len(self._damaged)
         for m, cache in self._local.items():
             for oid in [o for o in cache if o not in live]:
                 del cache[oid]
@@ -147,6 +165,8 @@ class MilvusPoll:
                 flat.update(feats)
             size = sum(rec.templates.get(m, 0) for rec in live.values())
             models[m] = MilvusModel(size, flat)
+        if len(self._damaged) != damaged:  # found damaged while reading: not answered from
+            self._check_files(only_missing=False)
         hidden = sorted({o for st, _, o in self._rows.values() if st != LIVE} - set(live))
         if not hidden:
             expr = ""
@@ -166,6 +186,43 @@ class MilvusPoll:
                 return False
         return True
 
+    def _check_files(self, only_missing: bool) -> set[int]:
+        """`_missing` and `_trust` again: the live objects' files (those known missing only, or all), then
+        the directory. Returns the objects whose files came back, their local features dropped from the cache
+        to be read again (the caller holds `_refreshing` and rebuilds when any came back)."""
+        was = self._missing
+        records = {int(r["object_id"]): r for r in self._records.values()}
+        for name in list(self._damaged):  # mended since?
+            try:
+                if self.files.read_arrays(name) is not None:
+                    self._damaged.discard(name)
+            except (OSError, ValueError, KeyError, zipfile.BadZipFile):
+                pass
+        missing = {o: n for o, n in was.items() if o in records} if only_missing else {}
+        for oid in was if only_missing else records:
+            if oid not in records:
+                continue
+            counts = json.loads(records[oid]["templates"])
+            names = missing_files(self.files, oid, counts, self.collections)
+            names += [
+                n for n in sorted(self._damaged) if n.endswith(f"/{oid}.npz") and self.files.path(n).is_file()
+            ]
+            if names:
+                missing[oid] = names
+            else:
+                missing.pop(oid, None)
+        back = {o for o in was if o in records and o not in missing}
+        for oid in back:
+            log.info("object %d: its files are there again", oid)
+            for cache in self._local.values():
+                cache.pop(oid, None)
+            self._damaged = {n for n in self._damaged if not n.endswith(f"/{oid}.npz")}
+        for oid in set(missing) - set(was):
+            log.warning("object %d: missing from %s: %s", oid, self.files.root, ", ".join(missing[oid]))
+        self._missing = missing
+        self._trust = self._directory_problem() or self._files_problem(missing, self.files.root)
+        return back
+
     def _sweeps(self) -> None:
         while not self._stop.wait(self.sweep_seconds / 2):
             try:
@@ -176,9 +233,14 @@ class MilvusPoll:
                 log.exception("sweeping the template store")
 
     def _poll(self) -> None:
+        polls = 0
         while not self._stop.wait(self.poll_seconds):
             try:
                 self._call(self._refresh)
+                polls += 1
+                with self._refreshing:  # what is missing, every poll; every object, every ~5 s
+                    if self._check_files(only_missing=polls % FULL_CHECK_POLLS != 0):
+                        self._rebuild()
                 if self._problem is not None:
                     # back after a restart: ready once every collection is loaded again (Milvus reloads
                     # them itself, ~20 s here), so that searches work, not only the record reads

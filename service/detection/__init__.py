@@ -28,6 +28,7 @@ from service.detection.report import Report, reported
 from service.detection.verify import Verify
 from service.errors import ApiError
 from service.pipeline.query import Decoded, Query, decode
+from service.recognition import answerable
 from service.state import AppState
 
 __all__ = ["Detection", "Found", "Proposal", "check", "detect", "detect_decoded", "reported", "stages"]
@@ -51,6 +52,7 @@ def stages(state: AppState) -> tuple[Stage, ...]:
 def detect(state: AppState, q: Query) -> Found:
     """The registered objects in the frame of `q` (a frame with fx, fy, cx, cy and no u, v): at most
     `q.max_detections`, each with a confidence of at least `q.min_confidence` (None: `report.reported`)."""
+    answerable(state)
     t0 = time.perf_counter()
     check(q)
     d = decode(state, q)

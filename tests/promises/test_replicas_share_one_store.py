@@ -1,6 +1,10 @@
 """Two real `posedesc serve` replicas (uvicorn on loopback, subprocesses) sharing one real Milvus (the
 session's server) and one data directory: what one does, the other sees (how soon: `posedesc bench --only
-milvus`, its propagation figures); concurrent recognitions while objects come and go; a replica SIGKILLed mid-registration; Milvus restarted under them.
+milvus`, its propagation figures); both give the same answers, compared answer by answer (object,
+template, pose, confidence) for patches and frames, colour, depth and RGB-D, after registrations racing on
+both, a deletion, a restart; a replica started on a directory of its own is never ready and never answers;
+an object whose files go missing is answered by no replica until they are back; concurrent recognitions
+while objects come and go; a replica SIGKILLed mid-registration; Milvus restarted under them.
 Answers are k = 100 on plain patches: more than all the templates of these small stores, so each answer
 shows exactly which objects the replica searched."""
 
@@ -11,8 +15,11 @@ import time
 import uuid
 
 import httpx
+import numpy as np
 import pytest
-from service_helpers import Server, patch_files, ply_bytes
+from service_helpers import Server, depth_png, frame, frame_fields, patch_files, ply_bytes, png
+
+from index.geometry.pose import View
 
 pytestmark = pytest.mark.slow
 
@@ -192,6 +199,150 @@ def test_a_replica_killed_mid_registration_leaves_no_half_object(replicas, posed
     again.wait_ready()
     replicas[0][0] = again
     assert set(listed(again.url)) == set(listed(b.url)) >= before
+
+
+def queries(renderer, l_shape) -> list[tuple[dict, dict]]:
+    """(files, form) of what the replicas are asked: the plain patches of each model, and a frame of the L
+    shape in colour, depth and RGB-D with its centre, and whole (depth: its segments; no objectness model)."""
+    uv = (330.0, 250.0)
+    rgb, depth = frame(renderer, l_shape, View(40.0, 35.0, 15.0, 600.0), uv)
+    c, d = ("f.png", png(rgb)), ("d.png", depth_png(depth))
+    centred, whole = (
+        frame_fields(uv, k="5"),
+        {k: v for k, v in frame_fields(uv).items() if k not in ("u", "v")},
+    )
+    out: list[tuple[dict, dict]] = [(files, {"k": "5"}) for files in PATCHES.values()]
+    out += [
+        ({"rgb": c}, {**centred, "distance_mm": "600"}),
+        ({"depth": d}, centred),
+        ({"rgb": c, "depth": d}, centred),
+    ]
+    out += [({"depth": d}, whole), ({"rgb": c, "depth": d}, {**whole, "min_confidence": "0"})]
+    return out
+
+
+def answer_of(url: str, files: dict, form: dict) -> list[dict]:
+    """A recognition's answers, each reduced to what must agree between replicas; a whole frame's per
+    detection."""
+    r = httpx.post(f"{url}/recognize", files=files, data=form, timeout=HANG)
+    assert r.status_code == 200, r.text
+    body = r.json()
+    runs = (
+        [d["matches"] for d in body["detections"]]
+        if body.get("detections") is not None
+        else [body["matches"]]
+    )
+    return [
+        [
+            {k: m[k] for k in ("object_id", "azimuth", "elevation", "inplane", "R", "t", "confidence")}
+            for m in ms
+        ]
+        for ms in runs
+    ]
+
+
+def assert_same_answers(a: str, b: str, asked: list[tuple[dict, dict]]) -> None:
+    for files, form in asked:
+        x, y = answer_of(a, files, form), answer_of(b, files, form)
+        assert len(x) == len(y), (form, x, y)
+        for mx, my in zip(x, y, strict=True):
+            assert [m["object_id"] for m in mx] == [m["object_id"] for m in my], (form, mx, my)
+            for p, q in zip(mx, my, strict=True):
+                for key in ("azimuth", "elevation", "inplane", "confidence"):
+                    assert p[key] == pytest.approx(q[key], abs=1e-4), (form, key, p, q)
+                assert np.allclose(p["R"], q["R"], atol=1e-5) and np.allclose(p["t"], q["t"], atol=1e-3), (
+                    p,
+                    q,
+                )
+
+
+def test_both_replicas_answer_alike_through_races_a_deletion_and_a_restart(
+    replicas, renderer, l_shape, t_shape
+):
+    (a, b), shared, settings = replicas
+    asked = queries(renderer, l_shape)
+    # registrations racing on both replicas at once
+    jobs = {}
+    threads = [
+        threading.Thread(target=lambda u=u, m=m, n=n: jobs.update({n: post(u, m, n).json()["job_id"]}))
+        for u, m, n in ((a.url, l_shape, "same-L"), (b.url, t_shape, "same-T"))
+    ]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    done = {n: finish(a.url, j) for n, j in jobs.items()}
+    assert all(j["status"] == "done" for j in done.values()), done
+    for url in (a.url, b.url):
+        until(lambda url=url: {j["object_id"] for j in done.values()} <= set(listed(url)))
+    assert_same_answers(a.url, b.url, asked)
+    # one deleted on A, another registered in its place on B: both again alike
+    assert httpx.delete(f"{a.url}/objects/{done['same-T']['object_id']}", timeout=30).status_code == 204
+    job = finish(b.url, post(b.url, t_shape, "same-T2").json()["job_id"])
+    assert job["status"] == "done", job
+    for url in (a.url, b.url):
+        until(
+            lambda url=url: done["same-T"]["object_id"] not in listed(url) and job["object_id"] in listed(url)
+        )
+    assert_same_answers(a.url, b.url, asked)
+    # B restarted: ready, and alike at once
+    b.stop()
+    again = Server(shared, b.models, settings)
+    again.wait_ready()
+    replicas[0][1] = again
+    assert_same_answers(a.url, again.url, asked)
+
+
+def test_a_replica_on_a_directory_of_its_own_is_never_ready_and_never_answers(
+    replicas, posedesc_models, tmp_path, l_shape
+):
+    (a, _), _, settings = replicas
+    job = finish(a.url, post(a.url, l_shape, "seen-by-a").json()["job_id"])
+    assert job["status"] == "done", job
+    wrong = Server(tmp_path / "data", posedesc_models, settings)
+    try:
+        until(lambda: _up(wrong.url), "the replica never started")
+        for _ in range(20):  # a few seconds of polls: never ready, never an answer
+            r = httpx.get(f"{wrong.url}/readyz", timeout=30)
+            assert r.status_code == 503 and "mount the directory" in r.json()["detail"], r.text
+            for files in PATCHES.values():
+                r = httpx.post(f"{wrong.url}/recognize", files=files, data={"k": "5"}, timeout=30)
+                assert (
+                    r.status_code == 503 and "is not the one the store's replicas share" in r.json()["detail"]
+                )
+            time.sleep(0.1)
+        assert httpx.get(f"{a.url}/readyz", timeout=30).status_code == 200  # the others serve on
+    finally:
+        wrong.stop()
+
+
+def test_an_object_whose_files_are_missing_is_answered_by_no_replica_until_they_are_back(replicas, l_shape):
+    (a, b), shared, _ = replicas
+    job = finish(b.url, post(b.url, l_shape, "files").json()["job_id"])
+    assert job["status"] == "done", job
+    oid = job["object_id"]
+    mesh = shared / "meshes" / f"{oid}.glb"
+    aside = shared.parent / f"{oid}.glb.aside"
+    mesh.rename(aside)
+    try:
+        for url in (a.url, b.url):
+            until(lambda url=url: httpx.get(f"{url}/readyz", timeout=30).status_code == 503, "still ready")
+            r = httpx.get(f"{url}/readyz", timeout=30)
+            assert f"object {oid}: meshes/{oid}.glb" in r.json()["detail"], r.text
+            r = httpx.post(f"{url}/recognize", files=PATCHES["rgb"], data={"k": "5"}, timeout=30)
+            assert r.status_code == 503 and f"object {oid}" in r.json()["detail"], r.text
+    finally:
+        aside.rename(mesh)
+    for url in (a.url, b.url):
+        until(lambda url=url: httpx.get(f"{url}/readyz", timeout=30).status_code == 200, "never ready again")
+        assert oid in seen(url)["rgb"]
+
+
+def _up(url: str) -> bool:
+    try:
+        return httpx.get(f"{url}/healthz", timeout=2).status_code == 200
+    except httpx.HTTPError:
+        return False
 
 
 def test_milvus_restarted_under_the_replicas(replicas, milvus, l_shape):

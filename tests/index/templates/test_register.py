@@ -204,7 +204,7 @@ def test_chunked_templates_are_those_of_one_render(l_shape, render_worker, posed
     """`make_templates` renders in chunks and turns and embeds each chunk on the pool while the next renders:
     with a pool or without, its templates are, bit for bit, those of every view rendered in one go and
     embedded whole by each model (the shipped models where they are: in-plane variants, local features)."""
-    shipped = Path(__file__).parents[2] / "models"
+    shipped = Path(__file__).parents[3] / "models"
     models = load_models(shipped if (shipped / "posedesc-rgb.onnx").is_file() else posedesc_models)
     cfg = TemplateConfig(level=1)
     views = model_views("none", cfg, models)
@@ -231,7 +231,7 @@ def test_a_store_made_before_the_relief_makes_local_templates_again(embedders):
     again (`Store.missing`, as for a changed model file); a model without local features keeps its key."""
     plain = embedders["rgb"]
     assert not plain.has_local and store_key(plain) == (plain.dim, fingerprint(plain.path))
-    shipped = Path(__file__).parents[2] / "models" / "posedesc-rgb.onnx"
+    shipped = Path(__file__).parents[3] / "models" / "posedesc-rgb.onnx"
     if not shipped.is_file():
         pytest.skip("no shipped rgb model")
     e = Embedder(shipped, 1)
