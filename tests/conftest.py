@@ -12,20 +12,6 @@ import trimesh
 
 SHARED_LMO = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "lmo"
 sys.path.insert(0, str(Path(__file__).parent / "helpers"))
-#: tests on these fixtures or markers share one costly session resource (the Milvus server, the podman
-#: image): under pytest-xdist (`make test`) they are one group, run by one worker, so it is made once
-SHARED_RESOURCES = {"milvus", "container"}
-
-
-@pytest.hookimpl(tryfirst=True)  # before pytest-xdist's own, which reads the groups into the node ids
-def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
-    for item in items:
-        uses = set(getattr(item, "fixturenames", ())) | {m.name for m in item.iter_markers()}
-        # a store test parametrized over the backends asks for the server by name (`getfixturevalue`)
-        params = getattr(getattr(item, "callspec", None), "params", {})
-        uses |= {v for v in params.values() if isinstance(v, str)}
-        if uses & SHARED_RESOURCES:
-            item.add_marker(pytest.mark.xdist_group("services"))
 
 
 def coloured(mesh: trimesh.Trimesh, rgb: tuple[int, int, int]) -> trimesh.Trimesh:

@@ -21,12 +21,14 @@ from __future__ import annotations
 import time
 from typing import Protocol
 
+from index.templates.windows import window_classes
 from service.detection.found import Detection, Found, Frame, Proposal
 from service.detection.merge import Merge
 from service.detection.proposals import Propose
 from service.detection.report import Report, reported
 from service.detection.verify import Verify
 from service.errors import ApiError
+from service.inputs.depth_units import check_scene_depth
 from service.pipeline.query import Decoded, Query, decode
 from service.recognition import answerable
 from service.state import AppState
@@ -56,6 +58,12 @@ def detect(state: AppState, q: Query) -> Found:
     t0 = time.perf_counter()
     check(q)
     d = decode(state, q)
+    if d.depth is not None:
+        model = d.embedder.info.window_mm
+        windows = sorted(window_classes(state.store.snapshot.objects, model), key=lambda w: w != model)
+        assert q.fx is not None and q.fy is not None  # `check`
+        focal = (q.fx + q.fy) / 2
+        check_scene_depth(d.depth, focal, windows or [model], d.embedder.info.spec.size, q.depth_scale)
     return detect_decoded(state, q, d, time.perf_counter() - t0)
 
 

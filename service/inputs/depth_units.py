@@ -21,7 +21,7 @@ shows the distance read."""
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
 import numpy as np
 
@@ -57,6 +57,33 @@ def check_frame_distance(
         return None
 
     _check(distance_mm, depth_scale, problem)
+
+
+def check_scene_depth(
+    depth_mm: np.ndarray, focal_px: float, windows_mm: Sequence[float], size_px: int, depth_scale: float
+) -> None:
+    """A whole frame's depth (mm), sent to find the objects in it: the near part of the scene (the tenth of
+    its measured pixels nearest the camera, where objects stand before a table or wall: a far wall filling
+    most of the frame moves it little) must lie at a distance at which some registered object's window
+    (`windows_mm`, the model's first) can be seen, as `check_frame_distance` asks of a frame's centre. Depth
+    in other units than `depth_scale` says would otherwise find nothing and answer 200 "nothing found"."""
+    valid = depth_mm[::4, ::4]
+    valid = valid[valid > 0]
+    if not valid.size:
+        raise ApiError(
+            422, "the depth image measures nothing (every value is 0): is it the depth of this frame?"
+        )
+    near = float(np.percentile(valid, 10))
+    refusals = []
+    for window in windows_mm:
+        try:
+            check_frame_distance(near, focal_px, window, size_px, depth_scale)
+            return
+        except ApiError as e:
+            refusals.append(e)
+    first = refusals[0]
+    said = first.detail.replace("the depth at the centre says", "the near tenth of the frame's depth says")
+    raise ApiError(422, said.replace("; if the object really is there, send distance_mm", ""))
 
 
 def check_patch_distance(distance_mm: float, window_mm: float, depth_scale: float) -> None:

@@ -103,6 +103,12 @@ def read_rgb(data: bytes, max_pixels: int) -> np.ndarray:
     im = _open(data, "rgb", max_pixels)
     if im.mode in ("I", "I;16", "I;16B", "I;16L", "F"):
         raise ApiError(422, "rgb: a 16-bit single-channel image; send depth as `depth`, colour as `rgb`")
+    if im.mode in ("L", "LA", "1"):
+        raise ApiError(
+            422,
+            f"rgb: a greyscale image ({im.mode}): the colour model reads colour, and grey taken for colour "
+            "would be answered as if it were; send the camera's colour image (or depth alone as `depth`)",
+        )
     if im.format == "PNG":
         return _decode_png(data, "rgb", cv2.IMREAD_COLOR_RGB)  # RGB as decoded: no BGR pass to turn
     im = _load(im, "rgb")  # JPEG: Pillow's libjpeg-turbo

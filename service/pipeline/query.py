@@ -29,6 +29,8 @@ UNITS_HINT = " (depth is read as a 16-bit PNG in mm, times depth_scale: whole me
 FRAME_FIELDS = ("fx", "fy", "cx", "cy", "u", "v")
 MAX_PX = 1e6  # focal lengths and image coordinates beyond this are no camera's
 MIN_DISTANCE_MM, MAX_DISTANCE_MM = 1.0, 100_000.0  # the object's distance, given or measured
+#: a distance sent below this is no object's in mm (the smallest registered, 20 mm, is seen from farther)
+PLAUSIBLE_DISTANCE_MM = 10.0
 
 
 class Loaded(Protocol):
@@ -64,7 +66,33 @@ def decode(state: Loaded, q: Query) -> Decoded:
             422,
             f"rgb is {rgb.shape[1]} x {rgb.shape[0]} px but depth is {depth.shape[1]} x {depth.shape[0]} px",
         )
+    h, w = (rgb if rgb is not None else depth).shape[:2]  # type: ignore[union-attr]
+    check_camera(q, w, h)
     return Decoded(modality, embedder, rgb, depth)
+
+
+def check_camera(q: Query, width: int, height: int) -> None:
+    """Refuses what no camera sends: a principal point far off the frame (it lies near the image's centre;
+    a crop may move it, by less than a frame), and a distance that reads as metres sent as millimetres."""
+    for name, c, side in (("cx", q.cx, width), ("cy", q.cy, height)):
+        if c is not None and not -side <= c <= 2 * side:
+            raise ApiError(
+                422,
+                f"{name} = {c:g} px lies far off the {width} x {height} px frame: the principal point is near "
+                f"the image's centre (about {side / 2:g} px here); check the camera's intrinsics "
+                "(fx, fy, cx, cy in px, as OpenCV's camera matrix K holds them)",
+            )
+    if q.distance_mm is not None and q.distance_mm < PLAUSIBLE_DISTANCE_MM:
+        hint = (
+            f"; {q.distance_mm:g} reads as metres: send distance_mm={q.distance_mm * 1000:g}"
+            if q.distance_mm * 1000 <= MAX_DISTANCE_MM
+            else ""
+        )
+        raise ApiError(
+            422,
+            f"distance_mm = {q.distance_mm:g}: the object's distance in millimetres, from the camera centre to "
+            f"its origin, is at least {PLAUSIBLE_DISTANCE_MM:g} mm{hint}",
+        )
 
 
 @dataclass(frozen=True)
@@ -197,7 +225,9 @@ def _from_patch(q: Query, rgb, depth, spec: PatchSpec, default_mm: float):
     h, w = (rgb if rgb is not None else depth).shape[:2]
     if abs(h - w) > 1:
         raise ApiError(
-            422, f"a patch must be square ({w} x {h} px); for a full frame send fx, fy, cx, cy, u and v"
+            422,
+            f"a patch must be square ({w} x {h} px); a full frame needs its camera, fx, fy, cx and cy (with u "
+            "and v for the object there; without them every registered object in it is found)",
         )
     rgb_p = None if rgb is None else cv2.resize(rgb, (size, size), interpolation=cv2.INTER_AREA)
     depth_p = None if depth is None else cv2.resize(depth, (size, size), interpolation=cv2.INTER_NEAREST)

@@ -16,7 +16,7 @@ from service.deps import KnownFieldsDep, StateDep
 from service.detection import Found, check, detect, detect_decoded
 from service.errors import ApiError, responses
 from service.pipeline.answer import Result
-from service.pipeline.query import MAX_DISTANCE_MM, MAX_PX, MIN_DISTANCE_MM, Query, decode
+from service.pipeline.query import MAX_DISTANCE_MM, MAX_PX, Query, decode
 from service.recognition import recognise, recognise_decoded
 from service.schemas import DetectionOut, MatchOut, RecognizeOut, TemplateOut
 from service.state import AppState
@@ -50,27 +50,50 @@ async def recognize_form(
     depth: Annotated[UploadFile | None, File(description="depth image, 16-bit PNG")] = None,
     depth_scale: Annotated[float, Form(gt=0, le=1000, allow_inf_nan=False, description="mm per unit")] = 1.0,
     # Bounds keep the camera matrices invertible: a focal length of 5e-324 px is no camera.
-    fx: Annotated[float | None, Form(ge=1, le=MAX_PX, description="focal x, px", examples=[572.4])] = None,
-    fy: Annotated[float | None, Form(ge=1, le=MAX_PX, description="focal y, px", examples=[573.6])] = None,
+    fx: Annotated[
+        float | None, Form(ge=1, le=MAX_PX, allow_inf_nan=False, description="focal x, px", examples=[572.4])
+    ] = None,
+    fy: Annotated[
+        float | None, Form(ge=1, le=MAX_PX, allow_inf_nan=False, description="focal y, px", examples=[573.6])
+    ] = None,
     cx: Annotated[
-        float | None, Form(ge=-MAX_PX, le=MAX_PX, description="principal point x, px", examples=[325.3])
+        float | None,
+        Form(
+            ge=-MAX_PX, le=MAX_PX, allow_inf_nan=False, description="principal point x, px", examples=[325.3]
+        ),
     ] = None,
     cy: Annotated[
-        float | None, Form(ge=-MAX_PX, le=MAX_PX, description="principal point y, px", examples=[242.0])
+        float | None,
+        Form(
+            ge=-MAX_PX, le=MAX_PX, allow_inf_nan=False, description="principal point y, px", examples=[242.0]
+        ),
     ] = None,
     u: Annotated[
         float | None,
-        Form(ge=-MAX_PX, le=MAX_PX, description="object centre x in the frame, px", examples=[380.0]),
+        Form(
+            ge=-MAX_PX,
+            le=MAX_PX,
+            allow_inf_nan=False,
+            description="object centre x in the frame, px",
+            examples=[380.0],
+        ),
     ] = None,
     v: Annotated[
         float | None,
-        Form(ge=-MAX_PX, le=MAX_PX, description="object centre y in the frame, px", examples=[250.0]),
+        Form(
+            ge=-MAX_PX,
+            le=MAX_PX,
+            allow_inf_nan=False,
+            description="object centre y in the frame, px",
+            examples=[250.0],
+        ),
     ] = None,
     distance_mm: Annotated[
         float | None,
         Form(
-            ge=MIN_DISTANCE_MM,
+            gt=0,  # below `PLAUSIBLE_DISTANCE_MM` refused with a hint (metres?) by `check_camera`
             le=MAX_DISTANCE_MM,
+            allow_inf_nan=False,
             description="from the camera centre to the object's origin along the ray through (u, v), mm "
             "(optional with depth: then the surface at (u, v) is measured and each answer adds how far its "
             "template's origin lies behind the surface)",
@@ -88,6 +111,7 @@ async def recognize_form(
         Form(
             ge=0,
             le=1,
+            allow_inf_nan=False,
             description="a frame without u and v: report the objects found with at least this confidence "
             "(default: those the model's open-set calibration accepts as registered objects)",
         ),

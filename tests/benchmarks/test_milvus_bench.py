@@ -9,7 +9,7 @@ import pytest
 from benchmarks.stores.milvus import MilvusConfig, run
 from benchmarks.table import render
 
-pytestmark = pytest.mark.slow
+pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("services")]  # the session's Milvus: its worker
 
 
 def test_milvus_section(milvus):

@@ -20,7 +20,8 @@ from PIL import Image
 
 from index.geometry.pose import View
 
-pytestmark = [pytest.mark.container, pytest.mark.slow]
+# the image and the session's Milvus: one worker under pytest-xdist (`make test`) makes them
+pytestmark = [pytest.mark.container, pytest.mark.slow, pytest.mark.xdist_group("services")]
 COMPOSE_FILE = Path(__file__).resolve().parents[2] / "deploy" / "docker-compose.yml"
 CONTAINER_UID = 10001  # the Dockerfile's USER
 HANG = 300.0  # seconds: only stops a wait that would never end, not a measure of speed

@@ -21,7 +21,8 @@ from service_helpers import Server, depth_png, frame, frame_fields, patch_files,
 
 from index.geometry.pose import View
 
-pytestmark = pytest.mark.slow
+# the session's Milvus: one worker under pytest-xdist (`make test`) has it
+pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("services")]
 
 PATCHES = patch_files()
 HANG = 300.0  # seconds: only stops a wait that would never end, not a measure of speed

@@ -17,7 +17,9 @@ MODELS = {"rgb": (4, "fp-rgb"), "depth": (4, "fp-depth")}
 Opener = Callable[[Mapping[str, tuple[int, str]]], TemplateStore]
 
 
-@pytest.fixture(params=["embedded", pytest.param("milvus", marks=pytest.mark.slow)])  # starts a Milvus
+@pytest.fixture(
+    params=["embedded", pytest.param("milvus", marks=[pytest.mark.slow, pytest.mark.xdist_group("services")])]
+)  # starts a Milvus
 def open_store(request, tmp_path) -> Opener:
     """Opens the backend's store on the same data (again after a close: a restart)."""
     opened: list[TemplateStore] = []

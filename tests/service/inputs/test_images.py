@@ -26,13 +26,21 @@ def _colour(seed: int = 0) -> np.ndarray:
     return np.random.default_rng(seed).integers(0, 256, (24, 32, 3), dtype=np.uint8)
 
 
-@pytest.mark.parametrize("mode", ["RGB", "RGBA", "L", "LA", "P"])
+@pytest.mark.parametrize("mode", ["RGB", "RGBA", "P"])
 def test_a_png_of_any_colour_mode_reads_as_pillow_converts_it(mode):
     im = Image.fromarray(_colour()).convert(mode)
     expected = np.asarray(im.convert("RGB"))
     got = read_rgb(_encoded(im), MAX)
     assert got.shape == (24, 32, 3) and got.dtype == np.uint8
     np.testing.assert_array_equal(got, expected)
+
+
+@pytest.mark.parametrize(("mode", "fmt"), [("L", "PNG"), ("LA", "PNG"), ("1", "PNG"), ("L", "JPEG")])
+def test_a_greyscale_image_is_refused_as_colour(mode, fmt):
+    """Grey read as colour would be answered as if it were colour: refused, saying what to send."""
+    with pytest.raises(ApiError) as e:
+        read_rgb(_encoded(Image.fromarray(_colour()).convert(mode), fmt), MAX)
+    assert e.value.status_code == 422 and "greyscale" in e.value.detail and "colour image" in e.value.detail
 
 
 def test_jpeg_reads_and_a_truncated_png_or_jpeg_is_one_clear_error():

@@ -1,0 +1,94 @@
+"""Bad input gets a 4xx with a message that says what to do, never a 200 with a silently wrong answer
+(README, "Errors"): the cases users met (issue 37) through the real app and its lifespan: depth in the
+wrong units for a whole frame, numbers that are no numbers, a principal point off the frame, a distance in
+metres, a patch that is not square, a greyscale image sent as colour, more answers drawn than asked for."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+from fastapi.testclient import TestClient
+from service_helpers import ROOT, service_settings, wait_ready
+
+from service.main import create_app
+
+EXAMPLES = ROOT / "service" / "examples"
+CAMERA = {"fx": "572.4", "fy": "573.6", "cx": "325.3", "cy": "242.0"}
+CENTRED = {**CAMERA, "u": "380", "v": "250", "distance_mm": "600"}
+
+
+def png(a: np.ndarray) -> bytes:
+    ok, data = cv2.imencode(".png", a)
+    assert ok
+    return data.tobytes()
+
+
+@pytest.fixture(scope="module")
+def client(posedesc_models, tmp_path_factory):
+    app = create_app(service_settings(tmp_path_factory.mktemp("bad") / "data", posedesc_models, level=0))
+    with TestClient(app) as c:
+        wait_ready(c)
+        yield c
+
+
+@pytest.fixture(scope="module")
+def images() -> dict[str, bytes]:
+    rgb = cv2.imread(str(EXAMPLES / "robot-rgb.png"))
+    depth = cv2.imread(str(EXAMPLES / "robot-depth.png"), cv2.IMREAD_UNCHANGED).astype(np.float64)
+    return {
+        "rgb": (EXAMPLES / "robot-rgb.png").read_bytes(),
+        "depth": (EXAMPLES / "robot-depth.png").read_bytes(),
+        "depth in 0.1 mm": png(np.clip(depth * 10, 0, 65535).astype(np.uint16)),
+        "depth in m": png(np.round(depth / 1000).astype(np.uint16)),
+        "grey": png(cv2.cvtColor(rgb, cv2.COLOR_BGR2GRAY)),
+        "narrow patch": png(cv2.imread(str(EXAMPLES / "robot-patch.png"))[:, :50]),
+    }
+
+
+CASES = {
+    # name: (files, form, the status, words the message must hold)
+    "a whole frame's depth in 0.1 mm": (["depth in 0.1 mm"], CAMERA, 422, ["depth_scale=0.1"]),
+    "a whole frame's RGB-D in 0.1 mm": (["rgb", "depth in 0.1 mm"], CAMERA, 422, ["depth_scale=0.1"]),
+    "a whole frame's depth in metres": (["depth in m"], CAMERA, 422, ["metres", "16-bit PNG"]),
+    "fx = nan": (["rgb"], {**CENTRED, "fx": "nan"}, 422, ["fx", "finite number"]),
+    "cy = inf": (["rgb"], {**CENTRED, "cy": "inf"}, 422, ["cy", "finite number"]),
+    "distance_mm = nan": (["rgb"], {**CENTRED, "distance_mm": "nan"}, 422, ["distance_mm", "finite number"]),
+    "cx = 99999": (["rgb"], {**CENTRED, "cx": "99999"}, 422, ["cx = 99999", "principal point", "intrinsics"]),
+    "cx = 99999, a whole frame": (["rgb"], {**CAMERA, "cx": "99999"}, 422, ["cx = 99999"]),
+    "distance_mm = 0.6 (metres)": (["rgb"], {**CENTRED, "distance_mm": "0.6"}, 422, ["distance_mm=600"]),
+    "a patch 50 x 64 px": (["narrow patch"], {}, 422, ["square", "fx, fy, cx and cy", "every registered"]),
+    "a greyscale image as rgb": (["grey"], CENTRED, 422, ["greyscale", "colour image"]),
+}
+
+
+@pytest.mark.parametrize("case", list(CASES))
+def test_each_bad_input_is_refused_with_what_to_do(client, images, case):
+    names, form, status, words = CASES[case]
+    files = {
+        ("rgb" if n in ("rgb", "grey", "narrow patch") else "depth"): (f"{i}.png", images[n])
+        for i, n in enumerate(names)
+    }
+    r = client.post("/recognize", files=files, data=form)
+    assert r.status_code == status, r.text
+    detail = r.json()["detail"]
+    assert "\n" not in detail and all(w in detail for w in words), detail
+
+
+def test_more_answers_drawn_than_asked_for_is_refused(client, images):
+    r = client.post(
+        "/recognize/draw", files={"rgb": ("f.png", images["rgb"])}, data={**CENTRED, "k": "2", "draw_k": "5"}
+    )
+    assert r.status_code == 422 and "draw_k: at most k (2)" in r.json()["detail"]
+
+
+def test_the_same_frames_in_the_right_units_are_answered(client, images):
+    """The checks refuse what is wrong, not what is right: the example frame as it is, and its depth in
+    0.1 mm with depth_scale 0.1."""
+    for files, form in (
+        ({"depth": ("d.png", images["depth"])}, CAMERA),
+        ({"depth": ("d.png", images["depth in 0.1 mm"])}, {**CAMERA, "depth_scale": "0.1"}),
+        ({"rgb": ("f.png", images["rgb"])}, CENTRED),
+    ):
+        r = client.post("/recognize", files=files, data=form)
+        assert r.status_code == 200, r.text
