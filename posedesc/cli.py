@@ -15,7 +15,7 @@ import logging
 import sys
 from pathlib import Path
 
-COMMANDS = ("render", "train", "export", "build-index", "serve", "show", "evaluate", "bench")
+COMMANDS = ("render", "train", "export", "build-index", "serve", "recognize", "show", "evaluate", "bench")
 
 
 class UserError(ValueError):

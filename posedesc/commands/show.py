@@ -99,19 +99,27 @@ def read_image(path: Path) -> np.ndarray:
 
 
 def read_answer(path: Path, draw_k: int) -> list[tuple[int, Drawn]]:
-    """The first `draw_k` matches of a saved /recognize answer: (object id, what to draw)."""
+    """The first `draw_k` matches of a saved /recognize answer, of each object found when it is a whole
+    frame's: (object id, what to draw)."""
     from index.draw import Drawn
 
     if not path.is_file():
         raise UserError(f"no such file: {path}")
     try:
         answer = json.loads(path.read_text(encoding="utf-8"))
-        rejected = answer["best"] is None
+        # a whole frame's answer: every object found, each with its own matches (the top ones are the first's)
+        found = answer.get("detections")
+        runs = (
+            [(d["matches"], False) for d in found]
+            if found is not None
+            else [(answer["matches"], answer["best"] is None)]
+        )
         out = []
-        for m in answer["matches"][:draw_k]:
-            R, t = np.array(m["R"], float).reshape(3, 3), np.array(m["t"], float).reshape(3)
-            conf = None if m.get("confidence") is None else float(m["confidence"])
-            out.append((int(m["object_id"]), Drawn(str(m["name"]), conf, R, t, rejected)))
+        for matches, rejected in runs:
+            for m in matches[:draw_k]:
+                R, t = np.array(m["R"], float).reshape(3, 3), np.array(m["t"], float).reshape(3)
+                conf = None if m.get("confidence") is None else float(m["confidence"])
+                out.append((int(m["object_id"]), Drawn(str(m["name"]), conf, R, t, rejected)))
     except (ValueError, KeyError, TypeError) as e:
         what = f"no {e}" if isinstance(e, KeyError) else str(e)
         raise UserError(f"{path} is not a /recognize answer as the API returns it ({what})") from None

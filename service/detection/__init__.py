@@ -58,12 +58,6 @@ def detect(state: AppState, q: Query) -> Found:
     t0 = time.perf_counter()
     check(q)
     d = decode(state, q)
-    if d.depth is not None:
-        model = d.embedder.info.window_mm
-        windows = sorted(window_classes(state.store.snapshot.objects, model), key=lambda w: w != model)
-        assert q.fx is not None and q.fy is not None  # `check`
-        focal = (q.fx + q.fy) / 2
-        check_scene_depth(d.depth, focal, windows or [model], d.embedder.info.spec.size, q.depth_scale)
     return detect_decoded(state, q, d, time.perf_counter() - t0)
 
 
@@ -85,6 +79,11 @@ def detect_decoded(state: AppState, q: Query, d: Decoded, decode_s: float = 0.0)
     t0 = time.perf_counter()
     K = q.camera
     assert K is not None  # `check` refused a frame without its camera
+    if d.depth is not None:  # in other units than it says, depth would find nothing: refused, saying so
+        model = d.embedder.info.window_mm
+        windows = sorted(window_classes(state.store.snapshot.objects, model), key=lambda w: w != model)
+        focal = (K[0, 0] + K[1, 1]) / 2
+        check_scene_depth(d.depth, focal, windows or [model], d.embedder.info.spec.size, q.depth_scale)
     floor = state.settings.detect_floor if q.min_confidence is None else q.min_confidence
     frame = Frame(q, d, K, state.store.snapshot, floor)
     ms: dict[str, float] = {"decode": decode_s}

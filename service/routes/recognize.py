@@ -17,7 +17,7 @@ from service.detection import Found, check, detect, detect_decoded
 from service.errors import ApiError, responses
 from service.pipeline.answer import Result
 from service.pipeline.query import MAX_DISTANCE_MM, MAX_PX, Query, decode
-from service.recognition import recognise, recognise_decoded
+from service.recognition import answerable, recognise, recognise_decoded
 from service.schemas import DetectionOut, MatchOut, RecognizeOut, TemplateOut
 from service.state import AppState
 
@@ -262,6 +262,7 @@ async def recognize_draw(
 def drawing(state: AppState, q: Query, draw_k: int) -> bytes:
     """The PNG `POST /recognize/draw` answers, made on a recognition thread (never the render thread): a
     frame without a centre with each object found drawn at its best answer."""
+    answerable(state)
     if q.finds:
         check(q)
     d = decode(state, q)

@@ -137,3 +137,22 @@ def test_show_refuses_bad_input_in_one_line(answered, tmp_path):
     )
     r = posedesc("show", str(frame), str(answers[0]), "--data-dir", str(data), "--fx", "500")
     one_line_error(r, "needs all of --fx, --fy, --cx and --cy")
+
+
+def test_a_whole_frames_answer_draws_every_object_found(tmp_path):
+    """`posedesc show` on a frame searched whole: each detection's best answers, not only the first's."""
+    from posedesc.commands.show import read_answer
+
+    def match(oid: int, name: str) -> dict:
+        return {"object_id": oid, "name": name, "confidence": 0.9, "R": np.eye(3).tolist(), "t": [0, 0, 600]}
+
+    found = [{"matches": [match(1, "a"), match(2, "b")]}, {"matches": [match(3, "c")]}]
+    path = tmp_path / "answer.json"
+    path.write_text(
+        json.dumps({"best": found[0]["matches"][0], "matches": found[0]["matches"], "detections": found})
+    )
+    assert [oid for oid, _ in read_answer(path, 1)] == [1, 3]
+    assert [oid for oid, _ in read_answer(path, 2)] == [1, 2, 3]
+    path.write_text(json.dumps({"best": None, "matches": [match(4, "d")], "reason": "unknown"}))
+    (only,) = read_answer(path, 1)
+    assert only[0] == 4 and only[1].rejected

@@ -82,6 +82,13 @@ def test_more_answers_drawn_than_asked_for_is_refused(client, images):
     assert r.status_code == 422 and "draw_k: at most k (2)" in r.json()["detail"]
 
 
+def test_a_drawing_refuses_what_an_answer_refuses(client, images):
+    r = client.post("/recognize/draw", files={"depth": ("d.png", images["depth in 0.1 mm"])}, data=CAMERA)
+    assert r.status_code == 422 and "depth_scale=0.1" in r.json()["detail"]
+    r = client.post("/recognize/draw", files={"rgb": ("g.png", images["grey"])}, data=CENTRED)
+    assert r.status_code == 422 and "greyscale" in r.json()["detail"]
+
+
 def test_the_same_frames_in_the_right_units_are_answered(client, images):
     """The checks refuse what is wrong, not what is right: the example frame as it is, and its depth in
     0.1 mm with depth_scale 0.1."""
