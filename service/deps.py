@@ -80,18 +80,27 @@ ApiKeyDep = Annotated[None, Depends(require_api_key)]
 
 async def known_fields(request: Request) -> None:
     """422 naming any form field the route does not take (`image` for `rgb`): FastAPI would ignore it,
-    and the answer would then be about what is missing, not about what was misnamed. The accepted names
-    are the route's own form parameters, so they cannot drift from the signature."""
+    and the answer would then be about what is missing, not about what was misnamed; and any field sent
+    more than once. The accepted names are the route's own form parameters, so they cannot drift from the
+    signature."""
     dependant = getattr(request.scope.get("route"), "dependant", None)
     accepted = [f.alias for f in _body_params(dependant)] if dependant is not None else []
     # FastAPI has parsed the form already (Starlette keeps it on the request): this reads no body again
-    unknown = sorted({k for k in await request.form() if k not in accepted})
+    form = await request.form()
+    unknown = sorted({k for k in form if k not in accepted})
     if unknown:
         names = ", ".join(f"`{k}`" for k in unknown)
         raise ApiError(
             422,
             f"unexpected form field{'s' if len(unknown) > 1 else ''} {names}; "
             f"this endpoint takes {', '.join(accepted)}",
+        )
+    # a field sent twice would be read as one of its values, silently: which one is the user's?
+    twice = sorted({k for k in form if len(form.getlist(k)) > 1})
+    if twice:
+        raise ApiError(
+            422,
+            f"form field{'s' if len(twice) > 1 else ''} {', '.join(twice)} sent more than once: send each once",
         )
 
 

@@ -174,7 +174,7 @@ UPLOADS: dict[str, Upload] = {
     "png bomb: 24 kB of 5000 x 5000": Upload("rgb", "a.png", lambda: png_of(5000, 5000), 413, "over the limit", 50),
     "jpeg claiming 65000 x 65000": Upload("rgb", "a.jpg", lambda: jpeg_claiming(65_000, 65_000), 413, "over the limit", 50),
     "png text chunk of 200 MB": Upload("rgb", "a.png", text_bomb, 422, "not an image", 50, small=False),
-    "png truncated 4000 x 4000": Upload("rgb", "a.png", lambda: png_of(4000, 4000)[:5000], 422, "truncated", 100),
+    "png truncated 4000 x 4000": Upload("rgb", "a.png", lambda: png_of(4000, 4000, "RGB")[:5000], 422, "truncated", 100),
     "16-bit 4096 x 4096 zeros": Upload("depth", "d.png", lambda: png_of(4096, 4096, "I;16"), 422, "all zero", 400, small=False),
     "image body of 26 MB": Upload("rgb", "a.png", lambda: b"\0" * 26_000_000, 413, "body over the limit", 150, small=False),
     "ply declaring 10 M faces": Upload("mesh", "m.ply", lambda: ply(10_000_000, b"\0" * 130), 413, "10,000,000 faces", 50),

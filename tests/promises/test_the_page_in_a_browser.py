@@ -132,7 +132,7 @@ def test_the_api_s_errors_are_shown_on_the_page(server, browser):
         b.find_element(By.ID, name).clear()
     b.find_element(By.ID, "find").click()
     wait.until(EC.text_to_be_present_in_element((By.ID, "rec-error"), "422: a patch must be square"))
-    assert "send fx, fy, cx, cy, u and v" in text(b, "rec-error")
+    assert "a full frame needs its camera" in text(b, "rec-error")
 
 
 def page_client() -> TestClient:

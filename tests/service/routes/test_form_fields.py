@@ -1,5 +1,6 @@
 """A misnamed form field (`image` for `rgb`) is named in a 422 with the fields the endpoint takes, rather
-than ignored and answered as if nothing was sent."""
+than ignored and answered as if nothing was sent; a field sent twice is refused rather than one of its
+values taken."""
 
 from __future__ import annotations
 
@@ -38,3 +39,12 @@ def test_a_misnamed_mesh_field_is_named(client, l_shape):
         r.json()["detail"] == "unexpected form field `file`; this endpoint takes mesh, name, units, symmetry"
     )
     assert client.get("/objects").json() == []  # nothing registered
+
+
+def test_a_field_sent_twice_is_refused_rather_than_one_of_its_values_taken(client):
+    patch = png(np.full((64, 64, 3), 120, np.uint8))
+    r = client.post("/recognize", files={"rgb": ("p.png", patch)}, data={"k": ["3", "5"]})
+    assert r.status_code == 422 and r.json()["detail"] == "form field k sent more than once: send each once"
+    two = [("rgb", ("p.png", patch)), ("rgb", ("q.png", patch))]
+    r = client.post("/recognize", files=two)
+    assert r.status_code == 422 and "rgb sent more than once" in r.json()["detail"]
