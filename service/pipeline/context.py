@@ -39,6 +39,9 @@ class Query:
     #: u, v and distance_mm are the detection's estimates (`service.detection`), not what a user sent: the
     #: colour pose fit then lets the translation move as far as such estimates are off
     estimated: bool = False
+    #: OpenCV's distortion coefficients of the frame (`service.inputs.camera`): its images are undistorted
+    #: first, and u, v are already the undistorted frame's
+    dist: tuple[float, ...] | None = None
 
     @property
     def camera(self) -> np.ndarray | None:

@@ -17,6 +17,7 @@ from index.features.embed import Embedder
 from index.features.patches import PatchSpec, crops, patch_camera
 from index.templates.register import TemplateConfig
 from service.errors import ApiError
+from service.inputs.camera import undistorted
 from service.inputs.depth_units import check_frame_distance, check_given_distance, check_patch_distance
 from service.inputs.images import read_depth, read_rgb
 from service.pipeline.context import Context, Decoded, Patches, Query
@@ -68,6 +69,13 @@ def decode(state: Loaded, q: Query) -> Decoded:
         )
     h, w = (rgb if rgb is not None else depth).shape[:2]  # type: ignore[union-attr]
     check_camera(q, w, h)
+    if q.dist is not None:
+        K = q.camera
+        if K is None:
+            raise ApiError(
+                422, "dist_coeffs: distortion is of a frame's camera: send its cam_K (or fx, fy, cx, cy)"
+            )
+        rgb, depth = undistorted(rgb, depth, K, q.dist)
     return Decoded(modality, embedder, rgb, depth)
 
 

@@ -15,6 +15,7 @@ from index.geometry.pose import pose_to_view
 from service.deps import KnownFieldsDep, StateDep
 from service.detection import Found, check, detect, detect_decoded
 from service.errors import ApiError, responses
+from service.inputs.camera import coefficients, intrinsics, undistorted_point
 from service.pipeline.answer import Result
 from service.pipeline.query import MAX_DISTANCE_MM, MAX_PX, Query, decode
 from service.recognition import answerable, recognise, recognise_decoded
@@ -116,12 +117,49 @@ async def recognize_form(
             "(default: those the model's open-set calibration accepts as registered objects)",
         ),
     ] = None,
+    cam_K: Annotated[
+        str | None,
+        Form(
+            description="instead of fx, fy, cx, cy: the camera matrix K as OpenCV and BOP write it, 9 numbers "
+            "row by row (fx 0 cx 0 fy cy 0 0 1)",
+            examples=["572.4 0 325.3 0 573.6 242.0 0 0 1"],
+        ),
+    ] = None,
+    dist_coeffs: Annotated[
+        str | None,
+        Form(
+            description="OpenCV's distortion coefficients of the frame (k1 k2 p1 p2 [k3 [k4 k5 k6 ...]]): the "
+            "frame is undistorted first (onto the same K), u and v with it; every pixel of the answer is of "
+            "the undistorted frame",
+        ),
+    ] = None,
 ) -> RecognizeForm:
     """The form of `/recognize`, a dependency of each route that takes it (`KnownFieldsDep` reads its
     fields through it). Async, though it awaits nothing: so FastAPI calls it on the event loop, not on its
     thread pool (`service.deps.get_state`)."""
+    if cam_K is not None:
+        if any(x is not None for x in (fx, fy, cx, cy)):
+            raise ApiError(422, "send the camera once: cam_K, or fx, fy, cx and cy")
+        fx, fy, cx, cy = intrinsics(cam_K)
+    dist = None if dist_coeffs is None else coefficients(dist_coeffs)
+    if dist is not None and None not in (fx, fy, cx, cy) and u is not None and v is not None:
+        K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+        u, v = undistorted_point(u, v, K, dist)
     fields = Query(
-        None, None, depth_scale, fx, fy, cx, cy, u, v, distance_mm, k, max_detections, min_confidence
+        None,
+        None,
+        depth_scale,
+        fx,
+        fy,
+        cx,
+        cy,
+        u,
+        v,
+        distance_mm,
+        k,
+        max_detections,
+        min_confidence,
+        dist=dist,
     )
     return RecognizeForm(rgb, depth, fields)
 
