@@ -37,6 +37,17 @@ class HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
         return text + " (default: %(default)s)"
 
 
+def camera_arguments(p: argparse.ArgumentParser, note: str = "") -> None:
+    """`--fx --fy --cx --cy`: a frame's intrinsics in px, as the subcommands that take a frame name them."""
+    for name, what in (
+        ("fx", "focal x"),
+        ("fy", "focal y"),
+        ("cx", "principal point x"),
+        ("cy", "principal point y"),
+    ):
+        p.add_argument(f"--{name}", type=float, help=f"{what} of the frame, px{note}")
+
+
 def _module_name(name: str) -> str:
     return f"posedesc.commands.{name.replace('-', '_')}"
 

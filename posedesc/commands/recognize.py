@@ -21,7 +21,7 @@ import sys
 from dataclasses import dataclass, replace
 from pathlib import Path
 
-from posedesc.cli import UserError
+from posedesc.cli import UserError, camera_arguments
 
 IMAGES = (".png", ".jpg", ".jpeg")
 
@@ -33,7 +33,7 @@ class Frame:
     rgb: Path | None
     depth: Path | None
     camera: tuple[float, float, float, float] | None
-    depth_scale: float
+    depth_scale: float | None  # None: the depth file's own unit (mm for 16-bit, metres for float)
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -46,15 +46,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--data-dir", type=Path, required=True, help="the service's data dir (registered objects)")
     p.add_argument("--models", type=Path, default=Path("models"), help="models folder (default: models)")
     p.add_argument("--out", type=Path, default=Path("out/recognize"), help="folder for the answers")
-    p.add_argument("--depth", type=Path, help="the depth image of the one frame given (16-bit PNG)")
-    p.add_argument("--depth-scale", type=float, default=None, help="mm per depth unit (default 1)")
-    for name, what in (
-        ("fx", "focal x"),
-        ("fy", "focal y"),
-        ("cx", "principal point x"),
-        ("cy", "principal point y"),
-    ):
-        p.add_argument(f"--{name}", type=float, help=f"{what}, px")
+    p.add_argument(
+        "--depth", type=Path, help="the depth of the one frame given (16-bit PNG, or float .npy/TIFF)"
+    )
+    p.add_argument(
+        "--depth-scale", type=float, help="mm per depth unit (default: the file's: mm, or metres if float)"
+    )
+    camera_arguments(p)
     p.add_argument("--camera", type=Path, help="BOP scene_camera.json: each frame's cam_K and depth_scale")
     p.add_argument("--u", type=float, help="the object's centre x, px (with --v: that object only)")
     p.add_argument("--v", type=float, help="the object's centre y, px")
@@ -137,7 +135,7 @@ def list_frames(args: argparse.Namespace) -> list[Frame]:
     for rgb, depth in pairs:
         rgb, depth = _depth_alone(rgb, depth)
         camera = (args.fx, args.fy, args.cx, args.cy) if args.fx is not None else None
-        scale = 1.0
+        scale: float | None = None
         if cameras is not None:
             key = _frame_number((rgb or depth).stem)  # type: ignore[union-attr]
             if key not in cameras:

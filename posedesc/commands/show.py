@@ -23,7 +23,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from posedesc.cli import UserError
+from posedesc.cli import UserError, camera_arguments
 
 if TYPE_CHECKING:
     from index.draw import DrawMesh, Drawn
@@ -36,13 +36,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("answers", type=Path, nargs="+", help="/recognize answers as JSON files, one per query")
     p.add_argument("--data-dir", type=Path, required=True, help="the service's data dir (its meshes)")
     p.add_argument("--out", type=Path, help="the PNG to write (default: FRAME's name + -answers.png)")
-    for name, what in (
-        ("fx", "focal x"),
-        ("fy", "focal y"),
-        ("cx", "principal point x"),
-        ("cy", "principal point y"),
-    ):
-        p.add_argument(f"--{name}", type=float, help=f"{what} of the frame, px (a patch: none)")
+    camera_arguments(p, " (a patch: none)")
     p.add_argument("--draw-k", type=int, default=1, help="answers of each JSON to draw, best first")
     p.add_argument("--window-mm", type=float, default=200.0, help="a patch's window (the shipped models')")
 

@@ -83,7 +83,7 @@ def detect_decoded(state: AppState, q: Query, d: Decoded, decode_s: float = 0.0)
         model = d.embedder.info.window_mm
         windows = sorted(window_classes(state.store.snapshot.objects, model), key=lambda w: w != model)
         focal = (K[0, 0] + K[1, 1]) / 2
-        check_scene_depth(d.depth, focal, windows or [model], d.embedder.info.spec.size, q.depth_scale)
+        check_scene_depth(d.depth, focal, windows or [model], d.embedder.info.spec.size, d.depth_scale)
     floor = state.settings.detect_floor if q.min_confidence is None else q.min_confidence
     frame = Frame(q, d, K, state.store.snapshot, floor)
     ms: dict[str, float] = {"decode": decode_s}

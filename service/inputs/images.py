@@ -115,8 +115,15 @@ def read_rgb(data: bytes, max_pixels: int) -> np.ndarray:
     return np.asarray(im if im.mode == "RGB" else im.convert("RGB"))  # an RGB one as is: no copy to convert
 
 
-def read_depth(data: bytes, scale: float, max_pixels: int) -> np.ndarray:
-    """A 16-bit PNG depth image, times `scale`, in mm (0 = no measurement). Shape: (H, W) float32."""
+def read_depth(data: bytes, scale: float | None, max_pixels: int) -> tuple[np.ndarray, float]:
+    """A depth image in mm (0 = no measurement) and the scale it was read with (mm per unit). A 16-bit PNG
+    holds integers of `scale` mm (None: mm); a float32 or float64 array, `.npy` or a 32-bit float TIFF as
+    depth SDKs and ROS write them, holds metres unless `scale` says otherwise (NaN, inf and negative values
+    are no measurement). Shape: (H, W) float32."""
+    if data[:6] == NUMPY_MAGIC:
+        return _float_depth(_read_npy(data, max_pixels), scale)
+    if data[:4] in TIFF_MAGIC:
+        return _float_depth(_read_tiff(data, max_pixels), scale)
     im = _open(data, "depth", max_pixels)
     if im.format != "PNG":
         raise ApiError(422, f"depth: {im.format} holds 8-bit values; depth must be a 16-bit PNG in mm")
@@ -128,6 +135,55 @@ def read_depth(data: bytes, scale: float, max_pixels: int) -> np.ndarray:
     d = _decode_png(data, "depth", cv2.IMREAD_UNCHANGED)
     if d.ndim != 2 or d.dtype != np.uint16:  # Pillow's "I" mode: a 16-bit PNG is all the header allows
         raise ApiError(422, "depth: not a single-channel 16-bit PNG in mm")
+    scale = 1.0 if scale is None else scale
     out = d.astype(np.float32)  # unsigned: never negative
     out *= np.float32(scale)  # in place: no second frame-sized array
-    return out
+    return out, scale
+
+
+NUMPY_MAGIC = b"\x93NUMPY"
+TIFF_MAGIC = (b"II*\x00", b"MM\x00*")
+FLOAT_DEPTH = "depth: a float depth is one channel of float32 or float64 values (metres, as SDKs write them)"
+
+
+def _read_npy(data: bytes, max_pixels: int) -> np.ndarray:
+    """A `.npy` array, its header checked before its data is read (no pickles)."""
+    buf = io.BytesIO(data)
+    try:
+        major, _ = np.lib.format.read_magic(buf)
+        header = np.lib.format.read_array_header_1_0 if major == 1 else np.lib.format.read_array_header_2_0
+        shape, _, dtype = header(buf)  # shape and dtype, no data read yet
+    except (ValueError, SyntaxError, TypeError):
+        raise ApiError(422, "depth: a .npy file whose header does not read") from None
+    if len(shape) != 2 or dtype not in (np.float32, np.float64):
+        raise ApiError(422, f"{FLOAT_DEPTH}; this .npy holds {dtype} of shape {shape}")
+    if shape[0] * shape[1] > max_pixels:
+        raise ApiError(413, f"depth: {shape[1]} x {shape[0]} px is over the limit of {max_pixels} pixels")
+    buf.seek(0)
+    try:
+        return np.load(buf, allow_pickle=False)
+    except (ValueError, EOFError, OSError):
+        raise ApiError(422, "depth: the .npy data is truncated or corrupt") from None
+
+
+def _read_tiff(data: bytes, max_pixels: int) -> np.ndarray:
+    """A 32-bit float TIFF (Pillow's mode F), its size checked from the header first."""
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            im = Image.open(io.BytesIO(data), formats=("TIFF",))
+    except (UnidentifiedImageError, OSError, ValueError, SyntaxError):
+        raise ApiError(422, "depth: a TIFF that does not read") from None
+    w, h = im.size
+    if w * h > max_pixels:
+        raise ApiError(413, f"depth: {w} x {h} px is over the limit of {max_pixels} pixels")
+    if im.mode != "F":
+        raise ApiError(422, f"{FLOAT_DEPTH}; this TIFF is {im.mode} (a 16-bit depth goes as PNG)")
+    return np.asarray(_load(im, "depth"), np.float32)
+
+
+def _float_depth(values: np.ndarray, scale: float | None) -> tuple[np.ndarray, float]:
+    scale = 1000.0 if scale is None else scale  # metres, unless told
+    out = np.asarray(values, np.float32) * np.float32(scale)
+    out[~np.isfinite(out) | (out < 0)] = 0.0  # NaN (ROS's "no reading"), inf, below zero: no measurement
+    return out, scale

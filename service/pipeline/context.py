@@ -23,7 +23,8 @@ class Query:
 
     rgb: bytes | None
     depth: bytes | None
-    depth_scale: float = 1.0
+    #: mm per depth unit; None: the file's own (mm for a 16-bit PNG, metres for float depth)
+    depth_scale: float | None = None
     fx: float | None = None
     fy: float | None = None
     cx: float | None = None
@@ -66,6 +67,8 @@ class Decoded:
     embedder: Embedder
     rgb: np.ndarray | None
     depth: np.ndarray | None
+    #: the mm per unit the depth was read with (the query's, or its file's own: `service.inputs.images`)
+    depth_scale: float = 1.0
 
     @property
     def size(self) -> tuple[int, int]:

@@ -25,7 +25,7 @@ from service.settings import Settings
 
 #: depth stored in whole metres rounds to 0 for anything nearer than half a metre: the empty-depth errors
 #: say what the service reads, the commonest cause of an empty depth where an object is
-UNITS_HINT = " (depth is read as a 16-bit PNG in mm, times depth_scale: whole metres round to 0)"
+UNITS_HINT = " (a 16-bit PNG is read in mm times depth_scale: whole metres round to 0)"
 
 FRAME_FIELDS = ("fx", "fy", "cx", "cy", "u", "v")
 MAX_PX = 1e6  # focal lengths and image coordinates beyond this are no camera's
@@ -61,7 +61,7 @@ def decode(state: Loaded, q: Query) -> Decoded:
         raise ApiError(422, f"no {modality} model is loaded (loaded: {loaded}); send what one of them takes")
     px = settings.max_image_pixels
     rgb = None if q.rgb is None else read_rgb(q.rgb, px)
-    depth = None if q.depth is None else read_depth(q.depth, q.depth_scale, px)
+    depth, scale = (None, 1.0) if q.depth is None else read_depth(q.depth, q.depth_scale, px)
     if rgb is not None and depth is not None and rgb.shape[:2] != depth.shape:
         raise ApiError(
             422,
@@ -76,7 +76,7 @@ def decode(state: Loaded, q: Query) -> Decoded:
                 422, "dist_coeffs: distortion is of a frame's camera: send its cam_K (or fx, fy, cx, cy)"
             )
         rgb, depth = undistorted(rgb, depth, K, q.dist)
-    return Decoded(modality, embedder, rgb, depth)
+    return Decoded(modality, embedder, rgb, depth, scale)
 
 
 def check_camera(q: Query, width: int, height: int) -> None:
@@ -134,7 +134,8 @@ class Cut:
     def __call__(self, ctx: Context) -> Context:
         c, d = self.config, ctx.decoded
         spec = c.spec if ctx.window_mm is None else replace(c.spec, window_mm=ctx.window_mm)
-        p = cut(ctx.query, d.rgb, d.depth, spec, c.offsets, patch_distance_mm=c.patch_distance_mm)
+        q = replace(ctx.query, depth_scale=d.depth_scale)  # the unit checks name the scale read with
+        p = cut(q, d.rgb, d.depth, spec, c.offsets, patch_distance_mm=c.patch_distance_mm)
         return replace(ctx, patches=p, described=p)
 
 
@@ -183,7 +184,7 @@ def cut(
     if depths is not None and q.distance_mm is not None:  # a measured distance agrees by construction
         s = spec.size
         centre_quarter = depths[0][3 * s // 8 : 5 * s // 8, 3 * s // 8 : 5 * s // 8]
-        check_given_distance(centre_quarter[centre_quarter > 0], distance, spec.window_mm, q.depth_scale)
+        check_given_distance(centre_quarter[centre_quarter > 0], distance, spec.window_mm, _scale(q))
     return Patches(
         rgbs,
         depths,
@@ -212,7 +213,7 @@ def _from_frame(q: Query, rgb, depth, spec: PatchSpec) -> tuple[np.ndarray, tupl
                 422, "a colour-only frame needs distance_mm (from the camera to the object's origin, mm)"
             )
         distance = _measured(_depth_at(depth, K, u, v))
-        check_frame_distance(distance, (K[0, 0] + K[1, 1]) / 2, spec.window_mm, spec.size, q.depth_scale)
+        check_frame_distance(distance, (K[0, 0] + K[1, 1]) / 2, spec.window_mm, spec.size, _scale(q))
     return K, (u, v), distance
 
 
@@ -244,8 +245,13 @@ def _from_patch(q: Query, rgb, depth, spec: PatchSpec, default_mm: float):
         c = depth_p[size * 3 // 8 : size * 5 // 8, size * 3 // 8 : size * 5 // 8]
         distance = _measured(float(np.median(c[c > 0]))) if (c > 0).any() else None
         if distance is not None:
-            check_patch_distance(distance, spec.window_mm, q.depth_scale)
+            check_patch_distance(distance, spec.window_mm, _scale(q))
     return rgb_p, depth_p, distance or default_mm
+
+
+def _scale(q: Query) -> float:
+    """The mm per depth unit the query's depth was read with (the pipeline's cut sets it from `Decoded`)."""
+    return 1.0 if q.depth_scale is None else q.depth_scale
 
 
 def _measured(distance: float) -> float:

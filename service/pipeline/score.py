@@ -101,6 +101,7 @@ class QueryCuts:
         q, d, mask, window = self._q, self._d, self._mask, self._window
         spec = replace(d.embedder.info.spec, window_mm=window)
         # undoes each roll: the object upright
+        q = replace(q, depth_scale=d.depth_scale)
         p = cut(q, d.rgb, d.depth, spec, rolls, patch_distance_mm=self._patch_mm)
         keep = None
         if mask is not None:

@@ -48,8 +48,18 @@ class RecognizeForm:
 
 async def recognize_form(
     rgb: Annotated[UploadFile | None, File(description="colour image, PNG or JPEG")] = None,
-    depth: Annotated[UploadFile | None, File(description="depth image, 16-bit PNG")] = None,
-    depth_scale: Annotated[float, Form(gt=0, le=1000, allow_inf_nan=False, description="mm per unit")] = 1.0,
+    depth: Annotated[
+        UploadFile | None, File(description="depth: a 16-bit PNG (mm), or float32 metres as .npy or TIFF")
+    ] = None,
+    depth_scale: Annotated[
+        float | None,
+        Form(
+            gt=0,
+            le=1000,
+            allow_inf_nan=False,
+            description="mm per depth unit (default: the file's own: mm for a 16-bit PNG, metres for float depth)",
+        ),
+    ] = None,
     # Bounds keep the camera matrices invertible: a focal length of 5e-324 px is no camera.
     fx: Annotated[
         float | None, Form(ge=1, le=MAX_PX, allow_inf_nan=False, description="focal x, px", examples=[572.4])

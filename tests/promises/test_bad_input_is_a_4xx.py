@@ -5,6 +5,8 @@ metres, a patch that is not square, a greyscale image sent as colour, more answe
 
 from __future__ import annotations
 
+import io
+
 import cv2
 import numpy as np
 import pytest
@@ -16,6 +18,12 @@ from service.main import create_app
 EXAMPLES = ROOT / "service" / "examples"
 CAMERA = {"fx": "572.4", "fy": "573.6", "cx": "325.3", "cy": "242.0"}
 CENTRED = {**CAMERA, "u": "380", "v": "250", "distance_mm": "600"}
+
+
+def npy(a: np.ndarray) -> bytes:
+    buf = io.BytesIO()
+    np.save(buf, a)
+    return buf.getvalue()
 
 
 def png(a: np.ndarray) -> bytes:
@@ -43,6 +51,8 @@ def images() -> dict[str, bytes]:
         "depth in m": png(np.round(depth / 1000).astype(np.uint16)),
         "grey": png(cv2.cvtColor(rgb, cv2.COLOR_BGR2GRAY)),
         "narrow patch": png(cv2.imread(str(EXAMPLES / "robot-patch.png"))[:, :50]),
+        "float depth in m": npy((depth / 1000).astype(np.float32)),
+        "float depth in mm": npy(depth.astype(np.float32)),  # sent without saying so: read as metres
     }
 
 
@@ -51,6 +61,7 @@ CASES = {
     "a whole frame's depth in 0.1 mm": (["depth in 0.1 mm"], CAMERA, 422, ["depth_scale=0.1"]),
     "a whole frame's RGB-D in 0.1 mm": (["rgb", "depth in 0.1 mm"], CAMERA, 422, ["depth_scale=0.1"]),
     "a whole frame's depth in metres": (["depth in m"], CAMERA, 422, ["metres", "16-bit PNG"]),
+    "float depth in mm, unsaid": (["float depth in mm"], CAMERA, 422, ["depth_scale=1"]),
     "fx = nan": (["rgb"], {**CENTRED, "fx": "nan"}, 422, ["fx", "finite number"]),
     "cy = inf": (["rgb"], {**CENTRED, "cy": "inf"}, 422, ["cy", "finite number"]),
     "distance_mm = nan": (["rgb"], {**CENTRED, "distance_mm": "nan"}, 422, ["distance_mm", "finite number"]),
@@ -90,12 +101,14 @@ def test_a_drawing_refuses_what_an_answer_refuses(client, images):
 
 
 def test_the_same_frames_in_the_right_units_are_answered(client, images):
-    """The checks refuse what is wrong, not what is right: the example frame as it is, and its depth in
-    0.1 mm with depth_scale 0.1."""
+    """The checks refuse what is wrong, not what is right: the example frame as it is, its depth in 0.1 mm
+    with depth_scale 0.1, as float32 metres (.npy, as SDKs write it), and as float mm with depth_scale 1."""
     for files, form in (
         ({"depth": ("d.png", images["depth"])}, CAMERA),
         ({"depth": ("d.png", images["depth in 0.1 mm"])}, {**CAMERA, "depth_scale": "0.1"}),
         ({"rgb": ("f.png", images["rgb"])}, CENTRED),
+        ({"depth": ("d.npy", images["float depth in m"])}, CAMERA),
+        ({"depth": ("d.npy", images["float depth in mm"])}, {**CAMERA, "depth_scale": "1"}),
     ):
         r = client.post("/recognize", files=files, data=form)
         assert r.status_code == 200, r.text
