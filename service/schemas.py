@@ -87,6 +87,14 @@ class MatchOut(BaseModel):
     v: float | None = None
 
 
+class RleMask(BaseModel):
+    """A mask as COCO writes a segmentation: compressed run-length encoding over the pixels in column-major
+    order (pycocotools' `mask.decode` reads it)."""
+
+    size: list[int] = Field(description="height, width of the frame, px")
+    counts: str = Field(description="the runs, first of background, in COCO's compressed string")
+
+
 class DetectionOut(BaseModel):
     """One object found in a whole frame."""
 
@@ -97,6 +105,9 @@ class DetectionOut(BaseModel):
     )
     best: MatchOut = Field(description="the answer at (u, v): the object and its pose")
     matches: list[MatchOut] = Field(description="the k nearest distinct answers at (u, v), `best` first")
+    mask: RleMask | None = Field(
+        None, description="the object's mesh at its pose in the frame, as COCO's compressed RLE (pycocotools)"
+    )
 
 
 class RecognizeOut(BaseModel):

@@ -11,7 +11,8 @@ The stages, in order (`stages`), each a module of this package with one call on 
   whole pipeline, which names the object, gives its pose, its box and the open-set verdict;
 - `merge` (`merge.Merge`): one instance found twice (boxes overlapping) reported once, the more confident;
 - `report` (`report.Report`): the confidence a detection needs (`report.confidence`, `report.reported`) and
-  at most `max_detections`.
+  at most `max_detections`;
+- `mask` (`mask.Mask`): each reported object's silhouette at its pose, as COCO's RLE.
 
 `timings_ms`: `decode`, then each stage by its name, and `total`. Adding a stage is a new module and one
 line in `stages`."""
@@ -23,6 +24,7 @@ from typing import Protocol
 
 from index.templates.windows import window_classes
 from service.detection.found import Detection, Found, Frame, Proposal
+from service.detection.mask import Mask
 from service.detection.merge import Merge
 from service.detection.proposals import Propose
 from service.detection.report import Report, reported
@@ -48,7 +50,13 @@ class Stage(Protocol):
 def stages(state: AppState) -> tuple[Stage, ...]:
     """The detection's stages at the state's settings, in order."""
     s = state.settings
-    return (Propose.build(s, state.colour_proposals), Verify.build(state), Merge.build(s), Report.build(s))
+    return (
+        Propose.build(s, state.colour_proposals),
+        Verify.build(state),
+        Merge.build(s),
+        Report.build(s),
+        Mask.build(state),
+    )
 
 
 def detect(state: AppState, q: Query) -> Found:

@@ -40,6 +40,8 @@ class Detection:
     confidence: float
     result: Result
     proposal: Proposal
+    #: its silhouette at the answered pose as COCO's compressed RLE (`service.detection.mask`), once reported
+    mask: dict[str, object] | None = None
 
 
 @dataclass(frozen=True)

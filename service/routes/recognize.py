@@ -19,7 +19,7 @@ from service.inputs.camera import coefficients, intrinsics, undistorted_point
 from service.pipeline.answer import Result
 from service.pipeline.query import MAX_DISTANCE_MM, MAX_PX, Query, decode
 from service.recognition import answerable, recognise, recognise_decoded
-from service.schemas import DetectionOut, MatchOut, RecognizeOut, TemplateOut
+from service.schemas import DetectionOut, MatchOut, RecognizeOut, RleMask, TemplateOut
 from service.state import AppState
 
 router = APIRouter(tags=["recognition"])
@@ -261,7 +261,10 @@ def found_out(found: Found, K: np.ndarray | None) -> RecognizeOut:
     detections = []
     for x in found.detections:
         matches = matches_out(x.result, K)
-        detections.append(DetectionOut(u=x.u, v=x.v, box=list(x.box), best=matches[0], matches=matches))
+        mask = RleMask.model_validate(x.mask) if x.mask is not None else None
+        detections.append(
+            DetectionOut(u=x.u, v=x.v, box=list(x.box), best=matches[0], matches=matches, mask=mask)
+        )
     first = detections[0] if detections else None
     return RecognizeOut(
         matches=first.matches if first else [],

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from coco_rle import decode
 from fastapi.testclient import TestClient
 from service_helpers import K, depth_png, frame, png, register, service_settings, wait_ready
 
@@ -78,7 +79,12 @@ def test_a_depth_frame_is_searched_whole(client, l_frame):
     x0, y0, x1, y1 = x["box"]
     assert x0 < UV[0] < x1 and y0 < UV[1] < y1
     assert body["best"] == dets[0]["best"] and body["matches"] == dets[0]["matches"]
-    assert {"decode", "propose", "verify", "total"} <= set(body["timings_ms"])
+    assert {"decode", "propose", "verify", "merge", "report", "mask", "total"} <= set(body["timings_ms"])
+    # its mask: the mesh at the answered pose, as COCO's RLE, inside its box and over its centre
+    mask = decode(x["mask"])
+    assert x["mask"]["size"] == [480, 640] and mask.sum() > 100
+    rows, cols = np.nonzero(mask)
+    assert x0 - 1 <= cols.min() and cols.max() <= x1 + 1 and y0 - 1 <= rows.min() and rows.max() <= y1 + 1
 
 
 def test_a_frame_with_a_centre_has_no_detections(client, l_frame):
