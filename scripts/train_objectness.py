@@ -1,4 +1,4 @@
-"""Train, export and measure the whole-frame objectness network (training/objectness.py).
+"""Train, export and measure the whole-frame objectness network (training/objectness/).
 
     scripts/train_objectness.py train --data /work/shared/data/lmo --out /work/runs/objectness --minutes 35
     scripts/train_objectness.py export --run /work/runs/objectness --out models/posedesc-objectness.onnx

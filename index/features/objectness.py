@@ -1,6 +1,6 @@
 """Whole-frame object proposals: where an object's origin projects and how large its window is there.
 
-A small class-agnostic network (trained by `training/objectness.py`, shipped as
+A small class-agnostic network (trained by `training/objectness/`, shipped as
 `models/posedesc-objectness.onnx`) maps a frame to a grid of cells, one every `stride` px, each with a
 centre score, the centre's offset from the cell and the log sizes of two things around the centre: the
 object's 200 mm window (`window_px = fx * 200 / distance`, what the verifier crops) and its projected

@@ -11,7 +11,7 @@ ROOT = Path(__file__).resolve().parents[2]
 
 
 def test_measure_reproduces_the_committed_validation_recall(tmp_path, lmo, script) -> None:
-    pytest.importorskip("torch")  # the frames are read by training/objectness.py
+    pytest.importorskip("torch")  # the frames are read by training/objectness/
     out = tmp_path / "val.json"
     assert (
         script("train_objectness").main(["measure", "--split", "val", "--repeats", "1", "--json", str(out)])

@@ -1,4 +1,4 @@
-"""training/objectness.py: the targets a crop's objects make, the network's shapes, the loss's sign, the export."""
+"""training/objectness/: the targets a crop's objects make, the network's shapes, the loss's sign, the export."""
 
 from __future__ import annotations
 
