@@ -18,7 +18,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 
 from posedesc.cli import UserError, camera_arguments
@@ -70,7 +70,7 @@ def run(args: argparse.Namespace) -> int:
 
     from service.errors import ApiError
     from service.pipeline.query import Query
-    from service.routes.recognize import answer, drawing
+    from service.routes.recognize import answer, answer_and_drawing
     from service.state import close_state
 
     args.out.mkdir(parents=True, exist_ok=True)
@@ -95,11 +95,12 @@ def run(args: argparse.Namespace) -> int:
                 args.min_confidence,
             )
             try:
-                body = answer(state, q)
+                if args.no_draw:
+                    body = answer(state, q)
+                else:  # decoded and run once for both
+                    body, png = answer_and_drawing(state, q, 1 if q.finds else min(args.k, 3))
+                    (args.out / f"{name}-answers.png").write_bytes(png)
                 (args.out / f"{name}.json").write_text(json.dumps(body.model_dump(), indent=1) + "\n")
-                if not args.no_draw:
-                    draw_k = 1 if q.finds else min(args.k, 3)
-                    (args.out / f"{name}-answers.png").write_bytes(drawing(state, replace(q), draw_k))
             except ApiError as e:
                 failed += 1
                 if len(frames) == 1:

@@ -48,7 +48,7 @@ class Verify:
         cut at the best of them; None when nothing there can be answered."""
         d, K = frame.d, frame.K
         seen = frame.snapshot if p.objects is None else frame.snapshot.within(p.objects)
-        at = self.centred(frame.q, frame, seen, p)
+        at = self.centred(frame, seen, p)
         if at is None:
             return None
         try:
@@ -65,12 +65,12 @@ class Verify:
         u, v = (at.u, at.v) if result.fitted(0) is None else tuple(float(x) for x in (K @ t)[:2] / t[2])
         return Detection(u, v, box, confidence(result, p), result, p)
 
-    def centred(self, q: Query, frame: Frame, snapshot: Snapshot, p: Proposal) -> Query | None:
+    def centred(self, frame: Frame, snapshot: Snapshot, p: Proposal) -> Query | None:
         """Where around the proposal the screening pipeline is most confident: a 3 x 3 grid of centres
         `shift` of its window's side apart around the proposal's (and, for `grids` > 1, grids of half the
         step around the best), then (a colour proposal) its distance nearer and farther by `scale`; at most
         `screens` screenings. None when nothing there can be answered (outside the frame, no depth there)."""
-        d = frame.d
+        q, d = frame.q, frame.d
         w, h = d.size
         side = p.box[2] - p.box[0]  # the proposal's window (colour) or the segment's extent (depth), px
         screen = self.state.screens[d.modality]

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import time
 from dataclasses import dataclass, replace
 from typing import Annotated
 
@@ -17,7 +18,7 @@ from service.detection import Found, check, detect, detect_decoded
 from service.errors import ApiError, responses
 from service.inputs.camera import coefficients, intrinsics, undistorted_point
 from service.pipeline.answer import Result
-from service.pipeline.query import MAX_DISTANCE_MM, MAX_PX, Query, decode
+from service.pipeline.query import MAX_DISTANCE_MM, MAX_PX, Decoded, Query, decode
 from service.recognition import answerable, recognise, recognise_decoded
 from service.schemas import DetectionOut, MatchOut, RecognizeOut, RleMask, TemplateOut
 from service.state import AppState
@@ -213,8 +214,12 @@ def answer(state: AppState, q: Query) -> RecognizeOut:
     (~1 ms for k = 5), so the event loop goes on reading and sending other requests meanwhile."""
     if q.finds:
         return found_out(detect(state, q), q.camera)
-    result = recognise(state, q)
-    matches = matches_out(result, q.camera)
+    return result_out(recognise(state, q), q.camera)
+
+
+def result_out(result: Result, K: np.ndarray | None) -> RecognizeOut:
+    """The answer to a query with a centre, or to a patch."""
+    matches = matches_out(result, K)
     return RecognizeOut(
         matches=matches,
         best=None if result.reason else matches[0],
@@ -313,14 +318,27 @@ async def recognize_draw(
 def drawing(state: AppState, q: Query, draw_k: int) -> bytes:
     """The PNG `POST /recognize/draw` answers, made on a recognition thread (never the render thread): a
     frame without a centre with each object found drawn at its best answer."""
+    return answer_and_drawing(state, q, draw_k)[1]
+
+
+def answer_and_drawing(state: AppState, q: Query, draw_k: int) -> tuple[RecognizeOut, bytes]:
+    """What `/recognize` and `/recognize/draw` answer to `q`, the query decoded and run once (`posedesc
+    recognize` writes both)."""
     answerable(state)
     if q.finds:
         check(q)
+    t0 = time.perf_counter()
     d = decode(state, q)
+    decode_s = time.perf_counter() - t0
     if q.finds:
-        answers = [(x.result, 1) for x in detect_decoded(state, q, d).detections]
-    else:
-        answers = [(recognise_decoded(state, q, d), draw_k)]
+        found = detect_decoded(state, q, d, decode_s)
+        return found_out(found, q.camera), picture(state, q, d, [(x.result, 1) for x in found.detections])
+    result = recognise_decoded(state, q, d, decode_s)
+    return result_out(result, q.camera), picture(state, q, d, [(result, draw_k)])
+
+
+def picture(state: AppState, q: Query, d: Decoded, answers: list[tuple[Result, int]]) -> bytes:
+    """The frame (or the patch, enlarged) as a PNG with the first n matches of each (result, n) drawn."""
     if d.rgb is not None:
         image = d.rgb
     else:
