@@ -98,6 +98,9 @@ class Embedder:
         try:
             model = onnx.load(str(self.path))
             meta = {p.key: p.value for p in model.metadata_props}
+            #: what the model computes, whatever its metadata says (a calibration names the graph it was
+            #: measured on: `service.rejection`)
+            self.graph_digest = hashlib.sha256(model.graph.SerializeToString()).hexdigest()[:16]
             outputs = [o.name for o in model.graph.output]
             parts = {outputs[0]: model} if len(outputs) == 1 else _per_output(model, outputs)
             #: nodes of each output's graph
@@ -303,11 +306,13 @@ def fingerprint(path: str | Path) -> str:
 
 
 def store_key(e: Embedder) -> tuple[int, str]:
-    """What a store files a model's templates under: its descriptor size and its file's fingerprint, with
-    the layout of what a template stores where that changed: a model with local features stores each
-    template's relief too (`index.features.local.with_relief`), so a store's templates made before it are made
-    again, as for a new model file, rather than scored without it."""
-    tag = fingerprint(e.path)
+    """What a store files a model's templates under: its descriptor size and its graph's digest (what it
+    computes: a new calibration rewrites the file's metadata and keeps the templates; stores made before
+    were keyed by the whole file's `fingerprint` and make them once again), with the layout of what a
+    template stores where that changed: a model with local features stores each template's relief too
+    (`index.features.local.with_relief`), so a store's templates made before it are made again, as for a
+    new model, rather than scored without it."""
+    tag = e.graph_digest
     if e.has_local:
         tag = hashlib.sha256(f"{tag}:relief".encode()).hexdigest()[:16]
     return e.dim, tag

@@ -226,18 +226,32 @@ def test_chunked_templates_are_those_of_one_render(l_shape, render_worker, posed
 
 
 def test_a_store_made_before_the_relief_makes_local_templates_again(embedders):
-    """`store_key`: a model with local features files its templates under its fingerprint tagged with the
-    relief's layout, so a store made before that layout (keyed by the file's fingerprint alone) makes them
-    again (`Store.missing`, as for a changed model file); a model without local features keeps its key."""
+    """`store_key`: a model with local features files its templates under its graph's digest tagged with
+    the relief's layout, so a store made before that layout makes them again (`Store.missing`, as for a
+    changed model); a model without local features is keyed by its graph's digest alone."""
     plain = embedders["rgb"]
-    assert not plain.has_local and store_key(plain) == (plain.dim, fingerprint(plain.path))
+    assert not plain.has_local and store_key(plain) == (plain.dim, plain.graph_digest)
     shipped = Path(__file__).parents[3] / "models" / "posedesc-rgb.onnx"
     if not shipped.is_file():
         pytest.skip("no shipped rgb model")
     e = Embedder(shipped, 1)
     assert e.has_local
     dim, tag = store_key(e)
-    assert dim == e.dim and tag != fingerprint(shipped) and len(tag) == 16
+    assert dim == e.dim and tag != e.graph_digest and len(tag) == 16
+
+
+def test_a_new_calibration_keeps_the_templates(tmp_path, embedders):
+    """Rewriting a model's metadata (a calibration, `scripts/calibrate_reject.py`) changes the file, not
+    what it computes: its templates stay filed under the same key; another network gets another."""
+    import onnx
+
+    e = embedders["rgb"]
+    proto = onnx.load(str(e.path))
+    proto.metadata_props.add(key="reject_above", value="{}")
+    onnx.save(proto, str(tmp_path / "recalibrated.onnx"))
+    again = Embedder(tmp_path / "recalibrated.onnx", 1)
+    assert fingerprint(again.path) != fingerprint(e.path) and store_key(again) == store_key(e)
+    assert store_key(embedders["depth"]) != store_key(e)
 
 
 def test_registration_reports_its_progress(tmp_path, l_shape, render_worker, embedders):
