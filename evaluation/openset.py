@@ -24,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
+from evaluation.calibration import fit_logistic, keep_threshold, rejection_curve
 from evaluation.paper.samples import RENDERED, select_instances, served_data
 from evaluation.progress import bar
 from evaluation.queries import frame_files, query
@@ -47,7 +48,7 @@ LISTED = 40
 @dataclass
 class Answers:
     """One row per (registered set, instance): obj (its object), registered (its object was), run (index of
-    the registered set), frame; per score kind ("local", "descriptor") the answers' dataset object ids
+    the registered set), frame and scene; per score kind ("local", "descriptor") the answers' dataset object ids
     (n, LISTED), -1 past the last (a refused query has none) and their distances (n, LISTED), nan past the
     last. `settings`: what the answers were made with (`service.rejection.settings_of`); `data`: what
     the frames were (`evaluation.paper.samples.served_data`)."""
@@ -56,6 +57,7 @@ class Answers:
     registered: list[bool] = field(default_factory=list)
     run: list[int] = field(default_factory=list)
     frame: list[int] = field(default_factory=list)
+    scene: list[int] = field(default_factory=list)  # empty in answers collected before scenes were kept
     objects: dict[str, list[list[int]]] = field(default_factory=dict)
     distances: dict[str, list[list[float]]] = field(default_factory=dict)
     settings: dict[str, dict[str, object]] = field(default_factory=dict)
@@ -116,20 +118,23 @@ def score_kinds(embedder: Embedder) -> list[str]:
 def collect(
     model: Path,
     dataset_dir: Path,
-    frames: Sequence[int],
+    frames: Sequence[int] | None,
     registered_sets: Sequence[Sequence[int]],
-    scene: int = 2,
+    scene: int | Sequence[int] = 2,
     min_visib: float = 0.5,
     settings: Settings | None = None,
     seed: int = 0,
 ) -> Answers:
-    """Every instance of `frames` through `recognise`, once per registered set (dataset object ids), with
-    `settings` (default: the service's, `POSEDESC_*`) but rejection off."""
+    """Every instance of `frames` (None: all) of `scene` (or of each of several scenes: videos) through
+    `recognise`, once per registered set (dataset object ids), with `settings` (default: the service's,
+    `POSEDESC_*`) but rejection off."""
     dataset = BopDataset(dataset_dir)
     obj_ids = dataset.obj_ids
-    instances = select_instances(dataset, scene, min_visib, frames, obj_ids)
+    scenes = [scene] if isinstance(scene, int) else list(scene)
+    by_scene = [select_instances(dataset, s, min_visib, frames, obj_ids) for s in scenes]
+    instances = [i for group in by_scene for i in group]
     if not instances:
-        raise ValueError(f"{dataset_dir}: no instance of scene {scene} in the frames asked for")
+        raise ValueError(f"{dataset_dir}: no instance of scene {scenes} in the frames asked for")
     with tempfile.TemporaryDirectory(prefix="posedesc-openset-") as tmp:
         base = Path(tmp) / "all"
         given = settings or Settings()
@@ -146,9 +151,11 @@ def collect(
         kind = served_data(embedder.modality, instances, None)
         renderer = Renderer() if kind in RENDERED else None  # this thread's (EGL: a context a thread)
         with closing(renderer) if renderer else nullcontext():
-            sent = list(
-                frame_files(dataset, instances, embedder.modality, kind, seed, renderer, dict(meshes))
-            )
+            sent = [  # a scene at a time: frame ids repeat across scenes
+                f
+                for group in by_scene
+                for f in frame_files(dataset, group, embedder.modality, kind, seed, renderer, dict(meshes))
+            ]
         out = Answers(
             objects={k: [] for k in kinds}, distances={k: [] for k in kinds}, settings=made, data=kind
         )
@@ -180,6 +187,7 @@ def _ask(state: AppState, sent, dataset_ids, kinds, subset: set[int], run: int, 
             out.registered.append(inst.obj_id in subset)
             out.run.append(run)
             out.frame.append(inst.frame_id)
+            out.scene.append(inst.scene_id)
             q = replace(query(inst, rgb, depth, scale), k=LISTED)
             for kind in kinds:
                 state.settings = with_local if kind == "local" else without
@@ -195,3 +203,198 @@ def _ask(state: AppState, sent, dataset_ids, kinds, subset: set[int], run: int, 
                 out.distances[kind].append(dist)
             state.settings = with_local
             tick()
+
+
+def kinds_of(a: Answers, kind: str, stat: Calibration | None = None) -> tuple[np.ndarray, ...]:
+    """Scores of (right, wrong, unknown) best answers (`stat`'s statistic, else the distance)."""
+    s, right, reg, _ = a.arrays(kind, stat)
+    return s[reg & right], s[reg & ~right], s[~reg]
+
+
+def calibrate(
+    a: Answers, stat: Calibration, rule: tuple[str, float], frames: str
+) -> tuple[Calibration, dict]:
+    """`stat`'s threshold by `rule` ("registered": reject at most that share of the registered objects'
+    patches, right or wrong; "right": keep that share of the right answers) and its confidence curve."""
+    right, wrong, unknown = kinds_of(a, stat.score, stat)
+    name, share = rule
+    registered = np.concatenate([right, wrong])
+    threshold = keep_threshold(registered if name == "registered" else right, 1 - share if name ==
+                               "registered" else share)  # fmt: skip
+    s = np.concatenate([right, wrong, unknown])
+    label = np.concatenate([np.ones(len(right)), np.zeros(len(wrong) + len(unknown))])
+    n_reg, n_unk = len(right) + len(wrong), len(unknown)
+    # registered and unregistered patches weigh half each: the confidence assumes a 1 in 2 chance of an
+    # object that is not registered, whatever the numbers of each the calibration happened to have
+    w = np.concatenate([np.full(n_reg, 0.5 / n_reg), np.full(n_unk, 0.5 / n_unk)]) * len(s)
+    slope, midpoint = fit_logistic(s, label, w)
+    cal = replace(stat, threshold=round(threshold, 5), slope=round(slope, 5), midpoint=round(midpoint, 5),
+                  frames=frames, settings=a.settings[stat.score])  # fmt: skip
+    grid = np.quantile(s, np.linspace(0, 1, 101))
+    report = {
+        "n": {"right": len(right), "wrong": len(wrong), "unknown": n_unk},
+        "median": {"right": _med(right), "wrong": _med(wrong), "unknown": _med(unknown)},
+        "at_threshold": _at(right, wrong, unknown, cal.threshold),
+        "curve": rejection_curve(right, wrong, unknown, grid),
+    }
+    return cal, report
+
+
+#: the statistics compared on validation frames (`explore`): the distance, and the lead at these weights
+LEAD_WEIGHTS = (0.25, 0.5, 1.0, 2.0, 4.0)
+#: the exploration's figure: the unknowns rejected where at most this share of registered patches is
+EXPLORE_AT = 0.1
+
+
+def explore(a: Answers, kind: str) -> list[dict]:
+    """Candidate statistics on the validation answers, best first: the share of unregistered objects'
+    patches rejected (pooled, and the worst object) at the threshold that rejects at most `EXPLORE_AT` of
+    the registered objects' patches, the right answers rejected there, and the area under the ROC curve
+    (unknown against registered). Shippable ones are computed by the service's code (`Calibration`);
+    the others from the answer lists here, to see whether they would be worth shipping."""
+    ids, dist = a.lists(kind)
+    answered = ids[:, 0] >= 0
+    ids, dist = ids[answered], dist[answered]
+    _, right, reg, obj = a.arrays(kind)
+    stats: dict[str, np.ndarray] = {"distance": dist[:, 0]}
+    for w in LEAD_WEIGHTS:
+        stats[f"lead, weight {w:g}"] = a.arrays(kind, Calibration(kind, 0, 0, 0, statistic="lead", weight=w))[
+            0
+        ]
+    other = _nearest_other(ids, dist)
+    stats["ratio: distance / nearest other object's"] = dist[:, 0] / other
+    stats["minus the lead alone"] = dist[:, 0] - other
+    for n in (5, 10):
+        stats[f"share of the top {n} not the best's object"] = 1 - (ids[:, :n] == ids[:, :1]).mean(1)
+    if kind == "local" and "descriptor" in a.kinds:  # not shippable: the re-ranking drops the descriptor's
+        d = a.lists("descriptor")[1][answered, 0]
+        for w in (5.0, 10.0):
+            stats[f"distance + {w:g} x the descriptor run's best distance (offline)"] = dist[:, 0] + w * d
+    rows = []
+    for name, s in stats.items():
+        t = keep_threshold(s[reg], 1 - EXPLORE_AT)
+        per = [float(np.mean(s[~reg & (obj == o)] > t)) for o in np.unique(obj[~reg])]
+        rows.append({
+            "statistic": name,
+            "unknown_rejected": round(float(np.mean(s[~reg] > t)), 4),
+            "worst_object": round(min(per), 4),
+            "registered_rejected": round(float(np.mean(s[reg] > t)), 4),
+            "right_rejected": round(float(np.mean(s[reg & right] > t)), 4),
+            "auc": round(_auc(s[~reg], s[reg]), 4),
+        })  # fmt: skip
+    return sorted(rows, key=lambda r: -r["unknown_rejected"])
+
+
+def _nearest_other(ids: np.ndarray, dist: np.ndarray) -> np.ndarray:
+    """Each row's nearest answer of another object than the best's (the last listed when none)."""
+    differ = (ids != ids[:, :1]) & (ids >= 0)
+    first = dist[np.arange(len(ids)), np.argmax(differ, 1)]
+    return np.where(differ.any(1), first, np.nanmax(dist, 1))
+
+
+def _auc(high: np.ndarray, low: np.ndarray) -> float:
+    """P(a `high` score above a `low` one), ties half."""
+    low = np.sort(low)
+    below = np.searchsorted(low, high, "left")
+    ties = np.searchsorted(low, high, "right") - below
+    return float((below + ties / 2).sum() / (len(high) * len(low)))
+
+
+def compare_filtered(a: Answers, kind: str, stat: Calibration) -> dict:
+    """How well one collection with every object registered stands in for the left-out runs: each object's
+    left-out answer taken as the best listed answer of another object in the all-registered run (run 0),
+    against the exact run without it (the same patch): the same object answered, and the statistic."""
+    ids, dist = a.lists(kind)
+    run, obj = np.array(a.run), np.array(a.obj)
+    frame = list(zip(a.scene or [0] * len(a.run), a.frame, strict=True))  # frame ids repeat across scenes
+    full = {(f, o): i for i, (r, f, o) in enumerate(zip(run, frame, obj, strict=True)) if r == 0}
+    same, diffs = [], []
+    for r in range(1, max(run) + 1):
+        gone = set(obj) - {o for o, reg_, rr in zip(obj, a.registered, run, strict=True) if reg_ and rr == r}
+        for i in np.flatnonzero(run == r):
+            j = full.get((frame[i], obj[i]))
+            if j is None or ids[i, 0] < 0 or ids[j, 0] < 0:
+                continue
+            keep = ~np.isin(ids[j], list(gone)) & (ids[j] >= 0)
+            if not keep.any():
+                continue
+            fi, fd = ids[j][keep][None], dist[j][keep][None]
+            same.append(fi[0, 0] == ids[i, 0])
+            approx = best_values(fi, fd, stat)[0]
+            exact = best_values(ids[i : i + 1], dist[i : i + 1], stat)[0]
+            diffs.append(approx - exact)
+    d = np.array(diffs)
+    return {
+        "n": len(same),
+        "same_object": round(float(np.mean(same)), 4),
+        "statistic_difference": {"median": round(float(np.median(d)), 5),
+                                 "median_abs": round(float(np.median(np.abs(d))), 5),
+                                 "p90_abs": round(float(np.quantile(np.abs(d), 0.9)), 5)},
+    }  # fmt: skip
+
+
+def _med(x: np.ndarray) -> float | None:
+    return round(float(np.median(x)), 4) if len(x) else None
+
+
+def _at(right, wrong, unknown, t: float) -> dict:
+    def share(x):
+        return round(float(np.mean(x > t)), 4) if len(x) else None
+
+    reg = np.concatenate([right, wrong])
+    return {
+        "rejected_unknown": share(unknown),
+        "rejected_registered": share(reg),
+        "rejected_right": share(right),
+        "rejected_wrong": share(wrong),
+    }
+
+
+def measure(a: Answers, cal: Calibration, sets: list[list[int]], fold: int = 1) -> dict:
+    """The calibration on held-out answers: per left-out object (in the runs without it and `fold` - 1
+    others, `registered_sets`), and by how many objects were registered."""
+    s, right, reg, obj = a.arrays(cal.score, cal)
+    t = cal.threshold
+    run = a.run_of(cal.score)
+    out: dict = {"per_unregistered_object": {}, "by_registered": {}}
+    left_out = [r for r, subset in enumerate(sets) if len(subset) == len(sets[0]) - fold]
+    for gone in sorted(set(a.obj)):
+        m = np.isin(run, [r for r in left_out if gone not in sets[r]]) & ((obj == gone) | reg)
+        out["per_unregistered_object"][str(gone)] = {
+            "n": int((m & ~reg).sum()),
+            "n_registered": int((m & reg).sum()),
+            **_at(s[m & reg & right], s[m & reg & ~right], s[m & ~reg], t),
+        }
+    for n in sorted({len(x) for x in sets}):
+        m = np.isin(run, [r for r, x in enumerate(sets) if len(x) == n])
+        out["by_registered"][str(n)] = {
+            "runs": sum(len(x) == n for x in sets),
+            "n_registered": int((m & reg).sum()),
+            "n_unknown": int((m & ~reg).sum()),
+            "recognised": round(float(right[m & reg].mean()), 4) if (m & reg).any() else None,
+            "median": {
+                "right": _med(s[m & reg & right]),
+                "wrong": _med(s[m & reg & ~right]),
+                "unknown": _med(s[m & ~reg]),
+            },
+            **_at(s[m & reg & right], s[m & reg & ~right], s[m & ~reg], t),
+            "curve": rejection_curve(
+                s[m & reg & right], s[m & reg & ~right], s[m & ~reg], np.quantile(s, np.linspace(0, 1, 101))
+            ),
+        }
+    return out
+
+
+def registered_sets(
+    obj_ids: list[int], sizes: list[int], per_size: int, seed: int, fold: int = 1
+) -> list[list[int]]:
+    """Every object registered, each left out in turn (with `fold` - 1 others: every `fold`-th object of
+    the list out at once, so that a dataset of many objects needs fewer runs), and `per_size` random sets of
+    each size below that."""
+    rng = np.random.default_rng(seed)
+    groups = max(1, -(-len(obj_ids) // fold))
+    sets = [list(obj_ids)] + [[o for o in obj_ids if o not in obj_ids[g::groups]] for g in range(groups)]
+    for n in sizes:
+        if n < len(obj_ids) - fold:
+            sets += [sorted(rng.choice(obj_ids, n, replace=False).tolist()) for _ in range(per_size)]
+    return sets

@@ -37,208 +37,22 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from evaluation.calibration import (  # noqa: E402
-    fit_logistic,
-    keep_threshold,
-    rejection_curve,
+from evaluation.openset import (  # noqa: E402
+    Answers,
+    calibrate,
+    collect,
+    compare_filtered,
+    explore,
+    kinds_of,
+    measure,
+    registered_sets,
 )
-from evaluation.openset import Answers, best_values, collect  # noqa: E402
 from evaluation.splits import split_frames  # noqa: E402
 from index.data.bop import BopDataset  # noqa: E402
 from index.features.embed import Embedder  # noqa: E402
 from posedesc.commands.evaluate import parse_ids  # noqa: E402
-from service.rejection import REJECT_KEY, SCORE_KINDS, STATISTICS, Calibration  # noqa: E402
+from service.rejection import REJECT_KEY, SCORE_KINDS, STATISTICS, Calibration, read_calibrations  # noqa: E402
 from service.settings import Settings  # noqa: E402
-
-
-def kinds_of(a: Answers, kind: str, stat: Calibration | None = None) -> tuple[np.ndarray, ...]:
-    """Scores of (right, wrong, unknown) best answers (`stat`'s statistic, else the distance)."""
-    s, right, reg, _ = a.arrays(kind, stat)
-    return s[reg & right], s[reg & ~right], s[~reg]
-
-
-def calibrate(
-    a: Answers, stat: Calibration, rule: tuple[str, float], frames: str
-) -> tuple[Calibration, dict]:
-    """`stat`'s threshold by `rule` ("registered": reject at most that share of the registered objects'
-    patches, right or wrong; "right": keep that share of the right answers) and its confidence curve."""
-    right, wrong, unknown = kinds_of(a, stat.score, stat)
-    name, share = rule
-    registered = np.concatenate([right, wrong])
-    threshold = keep_threshold(registered if name == "registered" else right, 1 - share if name ==
-                               "registered" else share)  # fmt: skip
-    s = np.concatenate([right, wrong, unknown])
-    label = np.concatenate([np.ones(len(right)), np.zeros(len(wrong) + len(unknown))])
-    n_reg, n_unk = len(right) + len(wrong), len(unknown)
-    # registered and unregistered patches weigh half each: the confidence assumes a 1 in 2 chance of an
-    # object that is not registered, whatever the numbers of each the calibration happened to have
-    w = np.concatenate([np.full(n_reg, 0.5 / n_reg), np.full(n_unk, 0.5 / n_unk)]) * len(s)
-    slope, midpoint = fit_logistic(s, label, w)
-    cal = replace(stat, threshold=round(threshold, 5), slope=round(slope, 5), midpoint=round(midpoint, 5),
-                  frames=frames, settings=a.settings[stat.score])  # fmt: skip
-    grid = np.quantile(s, np.linspace(0, 1, 101))
-    report = {
-        "n": {"right": len(right), "wrong": len(wrong), "unknown": n_unk},
-        "median": {"right": _med(right), "wrong": _med(wrong), "unknown": _med(unknown)},
-        "at_threshold": _at(right, wrong, unknown, cal.threshold),
-        "curve": rejection_curve(right, wrong, unknown, grid),
-    }
-    return cal, report
-
-
-#: the statistics compared on validation frames (`explore`): the distance, and the lead at these weights
-LEAD_WEIGHTS = (0.25, 0.5, 1.0, 2.0, 4.0)
-#: the exploration's figure: the unknowns rejected where at most this share of registered patches is
-EXPLORE_AT = 0.1
-
-
-def explore(a: Answers, kind: str) -> list[dict]:
-    """Candidate statistics on the validation answers, best first: the share of unregistered objects'
-    patches rejected (pooled, and the worst object) at the threshold that rejects at most `EXPLORE_AT` of
-    the registered objects' patches, the right answers rejected there, and the area under the ROC curve
-    (unknown against registered). Shippable ones are computed by the service's code (`Calibration`);
-    the others from the answer lists here, to see whether they would be worth shipping."""
-    ids, dist = a.lists(kind)
-    answered = ids[:, 0] >= 0
-    ids, dist = ids[answered], dist[answered]
-    _, right, reg, obj = a.arrays(kind)
-    stats: dict[str, np.ndarray] = {"distance": dist[:, 0]}
-    for w in LEAD_WEIGHTS:
-        stats[f"lead, weight {w:g}"] = a.arrays(kind, Calibration(kind, 0, 0, 0, statistic="lead", weight=w))[
-            0
-        ]
-    other = _nearest_other(ids, dist)
-    stats["ratio: distance / nearest other object's"] = dist[:, 0] / other
-    stats["minus the lead alone"] = dist[:, 0] - other
-    for n in (5, 10):
-        stats[f"share of the top {n} not the best's object"] = 1 - (ids[:, :n] == ids[:, :1]).mean(1)
-    if kind == "local" and "descriptor" in a.kinds:  # not shippable: the re-ranking drops the descriptor's
-        d = a.lists("descriptor")[1][answered, 0]
-        for w in (5.0, 10.0):
-            stats[f"distance + {w:g} x the descriptor run's best distance (offline)"] = dist[:, 0] + w * d
-    rows = []
-    for name, s in stats.items():
-        t = keep_threshold(s[reg], 1 - EXPLORE_AT)
-        per = [float(np.mean(s[~reg & (obj == o)] > t)) for o in np.unique(obj[~reg])]
-        rows.append({
-            "statistic": name,
-            "unknown_rejected": round(float(np.mean(s[~reg] > t)), 4),
-            "worst_object": round(min(per), 4),
-            "registered_rejected": round(float(np.mean(s[reg] > t)), 4),
-            "right_rejected": round(float(np.mean(s[reg & right] > t)), 4),
-            "auc": round(_auc(s[~reg], s[reg]), 4),
-        })  # fmt: skip
-    return sorted(rows, key=lambda r: -r["unknown_rejected"])
-
-
-def _nearest_other(ids: np.ndarray, dist: np.ndarray) -> np.ndarray:
-    """Each row's nearest answer of another object than the best's (the last listed when none)."""
-    differ = (ids != ids[:, :1]) & (ids >= 0)
-    first = dist[np.arange(len(ids)), np.argmax(differ, 1)]
-    return np.where(differ.any(1), first, np.nanmax(dist, 1))
-
-
-def _auc(high: np.ndarray, low: np.ndarray) -> float:
-    """P(a `high` score above a `low` one), ties half."""
-    low = np.sort(low)
-    below = np.searchsorted(low, high, "left")
-    ties = np.searchsorted(low, high, "right") - below
-    return float((below + ties / 2).sum() / (len(high) * len(low)))
-
-
-def compare_filtered(a: Answers, kind: str, stat: Calibration) -> dict:
-    """How well one collection with every object registered stands in for the left-out runs: each object's
-    left-out answer taken as the best listed answer of another object in the all-registered run (run 0),
-    against the exact run without it (the same patch): the same object answered, and the statistic."""
-    ids, dist = a.lists(kind)
-    run, frame, obj = np.array(a.run), np.array(a.frame), np.array(a.obj)
-    full = {(f, o): i for i, (r, f, o) in enumerate(zip(run, frame, obj, strict=True)) if r == 0}
-    same, diffs = [], []
-    for r in range(1, max(run) + 1):
-        gone = set(obj) - {o for o, reg_, rr in zip(obj, a.registered, run, strict=True) if reg_ and rr == r}
-        for i in np.flatnonzero(run == r):
-            j = full.get((frame[i], obj[i]))
-            if j is None or ids[i, 0] < 0 or ids[j, 0] < 0:
-                continue
-            keep = ~np.isin(ids[j], list(gone)) & (ids[j] >= 0)
-            if not keep.any():
-                continue
-            fi, fd = ids[j][keep][None], dist[j][keep][None]
-            same.append(fi[0, 0] == ids[i, 0])
-            approx = best_values(fi, fd, stat)[0]
-            exact = best_values(ids[i : i + 1], dist[i : i + 1], stat)[0]
-            diffs.append(approx - exact)
-    d = np.array(diffs)
-    return {
-        "n": len(same),
-        "same_object": round(float(np.mean(same)), 4),
-        "statistic_difference": {"median": round(float(np.median(d)), 5),
-                                 "median_abs": round(float(np.median(np.abs(d))), 5),
-                                 "p90_abs": round(float(np.quantile(np.abs(d), 0.9)), 5)},
-    }  # fmt: skip
-
-
-def _med(x: np.ndarray) -> float | None:
-    return round(float(np.median(x)), 4) if len(x) else None
-
-
-def _at(right, wrong, unknown, t: float) -> dict:
-    def share(x):
-        return round(float(np.mean(x > t)), 4) if len(x) else None
-
-    reg = np.concatenate([right, wrong])
-    return {
-        "rejected_unknown": share(unknown),
-        "rejected_registered": share(reg),
-        "rejected_right": share(right),
-        "rejected_wrong": share(wrong),
-    }
-
-
-def measure(a: Answers, cal: Calibration, sets: list[list[int]]) -> dict:
-    """The calibration on held-out answers: per left-out object, and by how many objects were registered."""
-    s, right, reg, obj = a.arrays(cal.score, cal)
-    t = cal.threshold
-    run = a.run_of(cal.score)
-    out: dict = {"per_unregistered_object": {}, "by_registered": {}}
-    for r, subset in enumerate(sets):
-        if len(subset) != len(set(a.obj)) - 1:
-            continue
-        gone = (set(a.obj) - set(subset)).pop()
-        m = run == r
-        out["per_unregistered_object"][str(gone)] = {
-            "n": int((m & ~reg).sum()),
-            "n_registered": int((m & reg).sum()),
-            **_at(s[m & reg & right], s[m & reg & ~right], s[m & ~reg], t),
-        }
-    for n in sorted({len(x) for x in sets}):
-        m = np.isin(run, [r for r, x in enumerate(sets) if len(x) == n])
-        out["by_registered"][str(n)] = {
-            "runs": sum(len(x) == n for x in sets),
-            "n_registered": int((m & reg).sum()),
-            "n_unknown": int((m & ~reg).sum()),
-            "recognised": round(float(right[m & reg].mean()), 4) if (m & reg).any() else None,
-            "median": {
-                "right": _med(s[m & reg & right]),
-                "wrong": _med(s[m & reg & ~right]),
-                "unknown": _med(s[m & ~reg]),
-            },
-            **_at(s[m & reg & right], s[m & reg & ~right], s[m & ~reg], t),
-            "curve": rejection_curve(
-                s[m & reg & right], s[m & reg & ~right], s[m & ~reg], np.quantile(s, np.linspace(0, 1, 101))
-            ),
-        }
-    return out
-
-
-def registered_sets(obj_ids: list[int], sizes: list[int], per_size: int, seed: int) -> list[list[int]]:
-    """Every object registered, each left out in turn, and `per_size` random sets of each size."""
-    rng = np.random.default_rng(seed)
-    sets = [list(obj_ids)] + [[o for o in obj_ids if o != x] for x in obj_ids]
-    for n in sizes:
-        if n < len(obj_ids) - 1:
-            sets += [sorted(rng.choice(obj_ids, n, replace=False).tolist()) for _ in range(per_size)]
-    return sets
 
 
 def write_metadata(model: Path, out: Path, calibrations: dict[str, dict]) -> None:
@@ -314,9 +128,12 @@ def statistics(given: list[str]) -> dict[str, tuple[str, float]]:
     return out
 
 
-def frames_of(args: argparse.Namespace, meta: dict[str, str]) -> tuple[list[int], list[int]]:
-    """(validation, test) frames: the model's `split_frames`, or those of `--splits-from` (a model trained
-    with the same data) kept within `--held-out` (the frames this model was not trained on)."""
+def frames_of(args: argparse.Namespace, meta: dict[str, str]) -> tuple[list[int] | None, list[int] | None]:
+    """(validation, test) frames: with `--video-split`, every frame (None) of the validation video and of
+    the others; else the model's `split_frames`, or those of `--splits-from` (a model trained with the same
+    data) kept within `--held-out` (the frames this model was not trained on)."""
+    if args.video_split is not None:
+        return None, None
     if args.splits_from is not None:
         meta = Embedder(args.splits_from).info.extra
     val = split_frames(meta, args.dataset, args.scene, "val") or []
@@ -327,16 +144,27 @@ def frames_of(args: argparse.Namespace, meta: dict[str, str]) -> tuple[list[int]
     return val, test
 
 
-def answers(args: argparse.Namespace, split: str, frames: list[int], sets: list[list[int]]) -> Answers:
+def scenes_of(args: argparse.Namespace, split: str) -> list[int]:
+    """The split's scenes: with `--video-split V`, V for validation and the dataset's other scenes for
+    test (consecutive frames of a video are near-duplicates: a video is in one split only); else `--scene`."""
+    if args.video_split is None:
+        return [args.scene]
+    scenes = [int(d.name) for d in BopDataset(args.dataset).scene_dirs() if d.name.isdigit()]
+    others = [s for s in scenes if s != args.video_split]
+    return [args.video_split] if split == "val" else others
+
+
+def answers(args: argparse.Namespace, split: str, frames: list[int] | None, sets: list[list[int]]) -> Answers:
     """The split's answers: read from `--cache` when they were collected with the same frames, sets and
     settings, else collected (`evaluation.openset.collect`) and written there."""
-    path = args.cache / f"{args.model.stem}-{split}.json"
-    key = {"frames": frames, "sets": sets, "settings": Settings().model_dump(mode="json")}
+    scenes = scenes_of(args, split)
+    path = args.cache / f"{args.model.stem}-{args.dataset.resolve().name}-{split}.json"
+    key = {"scenes": scenes, "frames": frames, "sets": sets, "settings": Settings().model_dump(mode="json")}
     if path.is_file():
         cached = json.loads(path.read_text())
         if cached.get("key") == key:
             return Answers(**cached["answers"])
-    a = collect(args.model, args.dataset, frames, sets, args.scene, seed=args.seed)
+    a = collect(args.model, args.dataset, frames, sets, scenes, seed=args.seed)
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps({"key": key, "answers": a.__dict__}))
     return a
@@ -368,6 +196,11 @@ def main() -> None:
     ap.add_argument("--per-size", type=int, default=3, help="test: random registered sets per size")
     ap.add_argument("--no-test", action="store_true", help="calibrate only")
     ap.add_argument("--collect-only", action="store_true", help="collect (or read) the answers, no more")
+    ap.add_argument("--video-split", type=int, default=None, metavar="SCENE",
+                    help="validate on this scene (a video), test on the dataset's others; not --scene")  # fmt: skip
+    ap.add_argument("--fold", type=int, default=1, help="objects left out at once (each object once)")
+    ap.add_argument("--shipped", action="store_true",
+                    help="fit nothing: measure the model's own calibration on both splits")  # fmt: skip
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args()
     if not args.model.is_file():
@@ -382,26 +215,36 @@ def main() -> None:
         sys.exit(f"--statistic: {e}")
     if not 0 <= args.reject_registered < 1:
         sys.exit("--reject-registered: a share in [0, 1)")
+    if args.shipped and args.out is not None:
+        sys.exit("--shipped measures the model's own calibration: it writes no model (--out)")
+    if not 1 <= args.fold < len(BopDataset(args.dataset).obj_ids):
+        sys.exit("--fold: at least 1, fewer than the dataset's objects")
     embedder = Embedder(args.model)
+    shipped = read_calibrations(embedder.info.extra, args.model.name)
+    if args.shipped and not shipped:
+        sys.exit(f"{args.model} has no calibration to measure")
     val, test = frames_of(args, embedder.info.extra)
-    if not val:
+    if val == []:
         sys.exit(f"{args.model} names no val frames of {args.dataset.name} scene {args.scene} (split_frames)")
     objects = BopDataset(args.dataset).obj_ids
     sizes = [int(x) for x in args.sizes.split(",") if x.strip()]
-    val_sets = registered_sets(objects, [], 0, args.seed)
-    test_sets = registered_sets(objects, sizes, args.per_size, args.seed)
+    val_sets = registered_sets(objects, [], 0, args.seed, args.fold)
+    test_sets = registered_sets(objects, sizes, args.per_size, args.seed, args.fold)
     a = answers(args, "val", val, val_sets)
-    t = answers(args, "test", test, test_sets) if test and not args.no_test else None
+    t = answers(args, "test", test, test_sets) if test != [] and not args.no_test else None
     if args.collect_only:
         return
     rule = ("right", args.keep_right) if args.keep_right else ("registered", args.reject_registered)
-    stem = args.model.stem
-    dataset = f"{args.dataset.resolve().name}/{args.scene:06d}"
+    stem = args.model.stem + (f"-{args.dataset.resolve().name}" if args.video_split is not None else "")
+    stem += "-shipped" if args.shipped else ""
+    dataset = f"{args.dataset.resolve().name}/" + "+".join(f"{s:06d}" for s in scenes_of(args, "val"))
     report: dict = {
         "model": str(args.model), "dataset": dataset, "objects": objects, "data": a.data,
         "command": " ".join(["scripts/calibrate_reject.py", *sys.argv[1:]]),
         "frames": {"val": val, "test": test},
-        "rule": f"keep {rule[1]} of right answers" if rule[0] == "right" else
+        "scenes": {"val": scenes_of(args, "val"), "test": scenes_of(args, "test")}, "fold": args.fold,
+        "rule": "the model's own (--shipped)" if args.shipped else
+        f"keep {rule[1]} of right answers" if rule[0] == "right" else
         f"reject at most {rule[1]} of the registered objects' validation patches",
         "calibrations": {}, "explored": {}, "compare_filtered": {}, "val_scores": {}, "test": {},
     }  # fmt: skip
@@ -409,7 +252,12 @@ def main() -> None:
     for kind in a.kinds:
         name, weight = chosen.get(kind, chosen.get("", ("distance", 0.0)))
         stat = Calibration(kind, 0.0, 0.0, 0.0, statistic=name, weight=weight)
-        cal, rep = calibrate(a, stat, rule, "val")
+        cal, rep = calibrate(a, shipped.get(kind) or stat, rule, "val")
+        if args.shipped:  # nothing fitted: the validation frames are measured like the test frames
+            cal = shipped[kind]
+            rep["at_threshold"] = measure(a, cal, val_sets, args.fold)["by_registered"]
+        if not args.shipped:
+            cal = replace(cal, graph=embedder.graph_digest)
         metadata[kind] = {**cal.to_json(), "dataset": dataset, "objects": len(objects), "rule": report["rule"],
                           "data": a.data}  # fmt: skip
         report["calibrations"][kind] = {**metadata[kind], **rep}
@@ -422,7 +270,7 @@ def main() -> None:
             print(f"  explored {kind}: {json.dumps(row)}")
         print(f"  one collection filtered against left-out runs: {report['compare_filtered'][kind]}")
         if t is not None:
-            report["test"][kind] = measure(t, cal, test_sets)
+            report["test"][kind] = measure(t, cal, test_sets, args.fold)
             for o, by in report["test"][kind]["per_unregistered_object"].items():
                 print(f"{kind} test, object {o} unregistered: {json.dumps(by)}")
     report["test_sets"] = test_sets

@@ -15,8 +15,9 @@ re-ranked answers) or "descriptor" (the descriptor distance, without re-ranking)
 - `slope`, `midpoint`: the confidence of an answer with statistic s is 1 / (1 + exp(slope * (s -
   midpoint))), a logistic fit on validation answers of whether the top answer was the right object (half of
   them with the object registered, half with it left out: a 1 in 2 chance that a patch shows an unknown);
-- `settings`: the settings its answers were made with (`settings_of`); `stale` tells the running service
-  when they differ from its own, as the scores then differ from those it was calibrated on.
+- `settings`: the settings its answers were made with (`settings_of`), and `graph`: the network it was
+  measured on (`Embedder.graph_digest`); `stale` tells the running service when either differs from its
+  own, as the scores then differ from those it was calibrated on.
 
 Example (JSON in the metadata): {"local": {"statistic": "lead", "weight": 1.0, "threshold": 0.6, "slope":
 9.1, "midpoint": 0.5, "frames": "val", "settings": {"rerank": 400, ...}, ...}, "descriptor": {...}}. The
@@ -96,6 +97,8 @@ class Calibration:
     statistic: str = "distance"
     weight: float = 0.0
     settings: Mapping[str, object] | None = field(default=None, hash=False, compare=False)
+    #: the digest of the model graph it was measured on (`Embedder.graph_digest`); None in older ones
+    graph: str | None = field(default=None, compare=False)
 
     def values(self, matches: Sequence[Match]) -> list[float]:
         """Each answer's statistic. "lead": its distance less `weight` times its lead over the nearest
@@ -129,6 +132,7 @@ class Calibration:
             "midpoint": self.midpoint,
             "frames": self.frames,
             **({} if self.settings is None else {"settings": dict(self.settings)}),
+            **({} if self.graph is None else {"graph": self.graph}),
         }
 
 
@@ -154,6 +158,7 @@ def _parse(text: str, model: str) -> dict[str, Calibration]:
                 str(c.get("statistic", "distance")),  # older calibrations threshold the distance
                 float(c.get("weight", 0.0)),
                 dict(c["settings"]) if c.get("settings") is not None else None,
+                str(c["graph"]) if c.get("graph") is not None else None,
             )
             for kind, c in raw.items()
             if kind in SCORE_KINDS
@@ -178,6 +183,12 @@ def stale(settings: Settings, embedders: Mapping[str, Embedder]) -> dict[str, st
             continue
         if cal.settings is None:
             out[modality] = f"{e.path.name}: its {score} calibration does not say which settings made it"
+            continue
+        if cal.graph is not None and cal.graph != e.graph_digest:
+            out[modality] = (
+                f"{e.path.name}: its {score} calibration was measured on another network (graph "
+                f"{cal.graph}, this file's {e.graph_digest}): recalibrate (scripts/calibrate_reject.py)"
+            )
             continue
         running = settings_of(settings, e, score)
         differ = [

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from evaluation.openset import Answers, best_values
+from evaluation.openset import Answers, best_values, compare_filtered
 from index.features.embed import Embedder
 from service.rejection import Calibration, read_calibrations
 
@@ -42,7 +42,7 @@ def test_the_best_answers_statistic_is_the_services(script):
     s, right, reg, obj = a.arrays("local", LEAD)
     assert list(right) == [True, True, True, False] and list(reg) == [True, True, True, False]
     # the stand-in for run 1 (object 3 filtered out of run 0's lists) answers the same object as the run
-    cmp = script("calibrate_reject").compare_filtered(a, "local", LEAD)
+    cmp = compare_filtered(a, "local", LEAD)
     assert cmp["n"] == 2 and cmp["same_object"] == 1.0
     # object 1's patch: [1, 1] left of [1, 1, 3], as the run listed it; object 3's: [1] left, lead 0 (one
     # answer listed) where the run listed two more of object 1, lead 0.1: the stand-in is not exact here

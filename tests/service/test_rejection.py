@@ -12,7 +12,7 @@ from service_helpers import ROOT, Server, png, register
 
 from index.features.embed import Embedder
 from index.geometry.pose import View
-from service.rejection import Calibration, settings_of, stale
+from service.rejection import Calibration, read_calibrations, served_score, settings_of, stale
 from service.settings import Settings
 
 # A template view of the tests' level (2): the registered object's patch is one of its own templates.
@@ -44,9 +44,9 @@ def test_unregistered_object_is_answered_unknown(tmp_path, posedesc_models, rend
     assert server.stop() in (0, -9)
 
 
-def calibrated_models(folder, models, settings: dict[str, object]):
-    """A copy of the test models, the rgb one with a descriptor calibration made with `settings` (written as
-    `scripts/calibrate_reject.py` writes it)."""
+def calibrated_models(folder, models, settings: dict[str, object], graph: str | None = None):
+    """A copy of the test models, the rgb one with a descriptor calibration made with `settings` on the
+    network `graph` (written as `scripts/calibrate_reject.py` writes it)."""
     spec = importlib.util.spec_from_file_location(
         "calibrate_reject", ROOT / "scripts" / "calibrate_reject.py"
     )
@@ -54,7 +54,7 @@ def calibrated_models(folder, models, settings: dict[str, object]):
     script = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(script)
     shutil.copytree(models, folder)
-    cal = Calibration("descriptor", 0.5, 10.0, 0.4, settings=settings)
+    cal = Calibration("descriptor", 0.5, 10.0, 0.4, settings=settings, graph=graph)
     model = folder / "posedesc-rgb.onnx"
     script.write_metadata(model, model, {"descriptor": cal.to_json()})
     return folder
@@ -78,3 +78,26 @@ def test_calibration_settings_that_differ_from_the_running_ones_are_said(tmp_pat
     )  # the others have none
     log = server.log.read_text()
     assert said in log and "its rejection and confidences were measured on other scores" in log
+
+
+def test_the_shipped_calibrations_were_made_on_the_shipped_models_with_the_shipped_settings():
+    """Retrain a model, or change a default setting its scores depend on, and this fails until
+    scripts/calibrate_reject.py has calibrated it again (the command is in docs/results/reject-*.json)."""
+    settings = Settings()
+    shipped = {m: Embedder(ROOT / "models" / f"posedesc-{m}.onnx") for m in ("rgb", "depth", "rgbd")}
+    for modality, e in shipped.items():
+        cal = read_calibrations(e.info.extra, e.path.name).get(served_score(settings, e))
+        assert cal is not None, f"{e.path.name}: no calibration of the score it is served with"
+        assert cal.graph == e.graph_digest and cal.settings is not None, modality
+    assert stale(settings, shipped) == {}
+
+
+def test_a_calibration_of_another_network_is_stale(tmp_path, posedesc_models):
+    running = Settings(level=2)
+    rgb = Embedder(posedesc_models / "posedesc-rgb.onnx")
+    made = settings_of(running, rgb, "descriptor")
+    own = calibrated_models(tmp_path / "own", posedesc_models, made, rgb.graph_digest) / "posedesc-rgb.onnx"
+    assert stale(running, {"rgb": Embedder(own)}) == {}
+    other = calibrated_models(tmp_path / "other", posedesc_models, made, "0" * 16) / "posedesc-rgb.onnx"
+    said = stale(running, {"rgb": Embedder(other)})["rgb"]
+    assert "measured on another network (graph 0000000000000000, this file's " in said
