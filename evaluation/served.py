@@ -236,7 +236,9 @@ def _bop_scores(
     if len(bop.widths) > 1:
         raise ValueError(f"frames of several widths {sorted(bop.widths)}: MSPD's thresholds need one")
     width = bop.widths.pop() if bop.widths else MSPD_REFERENCE_WIDTH  # every query refused: all missing
-    models = {o: object_model(dataset.models_info[o], dataset.mesh(o)) for o in {i.obj_id for i in instances}}
+    models = {
+        o: object_model(dataset.symmetry_info(o), dataset.mesh(o)) for o in {i.obj_id for i in instances}
+    }
     block = bop_block(instances, bop.bests, models, width, min_visib)
     if modality == "rgb":  # colour is sent the true centre and distance: the answer's t is the truth's
         block["translation"] = (

@@ -184,6 +184,14 @@ class ObjectOut(BaseModel):
         None, description="the object's diameter as registered, mm (None: registered before it was kept)"
     )
     window_mm: float = Field(description="the patch window the object is seen through, mm (its size's class)")
+    textured: bool | None = Field(
+        None, description="its mesh has colours; false: shape only (None: registered before it was kept)"
+    )
+    symmetry_from: str | None = Field(
+        None,
+        description="'given' (asked for), 'shape' (found from a shape-only mesh) or 'colours' (a "
+        "textured mesh: none)",
+    )
 
 
 class ObjectCreated(BaseModel):
@@ -198,6 +206,9 @@ class ObjectCreated(BaseModel):
                     "timings": {"render": 1.3, "embed": 1.1, "store": 0.04, "total": 1.84},
                     "diameter_mm": 163.2,
                     "window_mm": 200.0,
+                    "symmetry": "none",
+                    "textured": True,
+                    "symmetry_from": "colours",
                     "warnings": [],
                 }
             ]
@@ -217,6 +228,11 @@ class ObjectCreated(BaseModel):
         None,
         description="the patch window chosen for its size, mm: the model's for objects about its size, "
         "larger or smaller steps of sqrt(2) for others",
+    )
+    symmetry: str | None = Field(None, description="the symmetry it was registered with")
+    textured: bool | None = Field(None, description="its mesh has colours; false: shape only")
+    symmetry_from: str | None = Field(
+        None, description="'given', 'shape' (found from a shape-only mesh) or 'colours' (textured: none)"
     )
     warnings: list[str] = Field(default_factory=list)
 

@@ -213,7 +213,9 @@ def _bop(
 ) -> dict:
     """The JSON's "bop" block (`evaluation.bop.scores.detections_block`): models from the full meshes and
     models_info."""
-    models = {o: object_model(dataset.models_info[o], dataset.mesh(o)) for o in {i.obj_id for i in instances}}
+    models = {
+        o: object_model(dataset.symmetry_info(o), dataset.mesh(o)) for o in {i.obj_id for i in instances}
+    }
     return {
         **detections_block(instances, rows, models, width),
         "estimates": "the detections reported at the floor (the --bop-csv rows): the dataset's object of "

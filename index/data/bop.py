@@ -20,8 +20,9 @@ import trimesh
 from index.features.patches import PatchSpec, crop
 from index.geometry.pose import View, pose_to_view
 from index.geometry.sensor import fit_plane, plane_depth
-from index.geometry.symmetry import from_bop
-from index.templates.mesh import load_mesh
+from index.geometry.shape_symmetry import shape_symmetry, textured
+from index.geometry.symmetry import bop_form, from_bop
+from index.templates.mesh import diameter, load_mesh
 
 
 def nearest_rotation(M: np.ndarray) -> np.ndarray:
@@ -88,6 +89,7 @@ class BopDataset:
         self.root = Path(root)
         if not (self.root / "models" / "models_info.json").is_file():
             raise ValueError(f"{self.root} is not a BOP dataset: no models/models_info.json")
+        self._symmetry_info: dict[int, dict] = {}
 
     @cached_property
     def models_info(self) -> dict[int, dict]:
@@ -104,8 +106,28 @@ class BopDataset:
     def mesh(self, obj_id: int, max_faces: int | None = None) -> trimesh.Trimesh:
         return load_mesh(self.mesh_path(obj_id), units="mm", max_faces=max_faces)
 
+    @cached_property
+    def declares_symmetries(self) -> bool:
+        """Whether `models_info.json` states symmetries (BOP's `symmetries_*` keys on some object): if it
+        does, an object without them has none; if not (YCB-Video's shape-only meshes here), nobody said."""
+        return any(k.startswith("symmetries_") for info in self.models_info.values() for k in info)
+
+    def symmetry_info(self, obj_id: int) -> dict:
+        """The object's `models_info.json` entry, with, where the dataset declares no symmetries and the
+        mesh has no colours, the symmetry of its shape in BOP's form (`index.geometry.shape_symmetry`: a
+        shape-only object looks the same after those turns, so its pose errors must forgive them)."""
+        if obj_id not in self._symmetry_info:
+            info = dict(self.models_info[obj_id])
+            if not self.declares_symmetries:
+                mesh = self.mesh(obj_id)
+                if not textured(mesh):
+                    found = shape_symmetry(mesh, float(info.get("diameter") or diameter(mesh))).symmetry
+                    info |= bop_form(found) | {"symmetry_from": "shape"}
+            self._symmetry_info[obj_id] = info
+        return self._symmetry_info[obj_id]
+
     def symmetry(self, obj_id: int) -> str | list[np.ndarray]:
-        return from_bop(self.models_info[obj_id])
+        return from_bop(self.symmetry_info(obj_id))
 
     def scene_dirs(self, split: str = "test") -> list[Path]:
         base = self.root / split

@@ -54,6 +54,23 @@ def from_bop(info: dict) -> str | list[np.ndarray]:
     return mats
 
 
+def bop_form(symmetry: str) -> dict:
+    """One of `SYMMETRIES` as `models_info.json` states it (`from_bop`'s inverse): the keys to add."""
+    if symmetry == "full":
+        return {"symmetries_continuous": [{"axis": [0.0, 0.0, 1.0], "offset": [0.0, 0.0, 0.0]}]}
+    if symmetry == "180":
+        return {"symmetries_discrete": [_half_turn()]}
+    if symmetry == "none":
+        return {}
+    raise ValueError(f"unknown symmetry {symmetry!r}; use one of {SYMMETRIES}")
+
+
+def _half_turn() -> list[float]:
+    m = np.eye(4)
+    m[:3, :3] = _rot_z(180.0)
+    return m.ravel().tolist()
+
+
 #: BOP's rule for discretising a continuous symmetry: no model point may move more than this fraction of
 #: the object's diameter between two neighbouring samples (bop_toolkit's default `max_sym_disc_step`).
 MAX_SYM_DISC_STEP = 0.01

@@ -48,6 +48,7 @@ import trimesh
 from index.features.embed import Embedder
 from index.features.local import with_relief, with_silhouettes
 from index.geometry.pose import View
+from index.geometry.shape_symmetry import resolve
 from index.geometry.symmetry import SYMMETRIES
 from index.store import ObjectRecord, TemplateSet, TemplateStore
 from index.templates.mesh import MeshError, diameter, load_mesh, simplify
@@ -100,6 +101,12 @@ class TemplateConfig:
         if window_mm == model_window_mm:
             return self
         return replace(self, distance_mm=self.distance_mm * window_mm / model_window_mm)
+
+
+#: an object record's `extra`: whether its mesh has colours, and where its symmetry came from
+#: (`index.geometry.shape_symmetry.Resolved`)
+TEXTURED_KEY = "textured"
+SYMMETRY_FROM_KEY = "symmetry_from"
 
 
 @dataclass
@@ -411,11 +418,14 @@ def register(
     progress: Progress | None = None,
 ) -> Registration:
     """Adds `mesh` (mm) under `name` to every model's store, through the window its diameter asks for
-    (`index.templates.windows`); raises MeshError when it cannot be used. `progress`, when given, is told how far
-    it is (`Progress`)."""
+    (`index.templates.windows`), with `symmetry` (or, "auto", the one `index.geometry.shape_symmetry.resolve`
+    finds); raises MeshError when it cannot be used. `progress`, when given, is told how far it is
+    (`Progress`)."""
     t0 = time.perf_counter()
     light = decimated(worker, mesh)  # meanwhile, the diameter that decides the views
     size = diameter(mesh)
+    chosen = resolve(mesh, symmetry, size)
+    symmetry = chosen.symmetry
     model_window = min(e.info.window_mm for e in embedders.values())
     window = window_class(size, model_window)
     views = model_views(symmetry, cfg.through(window, model_window), embedders)
@@ -433,6 +443,8 @@ def register(
         SURFACE_KEY: np.round(offsets, 2).tolist(),
         WINDOW_KEY: window,
         DIAMETER_KEY: round(size, 1),
+        TEXTURED_KEY: chosen.textured,
+        SYMMETRY_FROM_KEY: chosen.source,
     }
     record = store.add_object(name, symmetry, sets, faces=len(mesh.faces), mesh=glb, extra=extra)
     t2 = time.perf_counter()

@@ -15,6 +15,7 @@ from fastapi.responses import JSONResponse
 from index.geometry.units import LARGEST_MM, ORDINARY_MM, SMALLEST_MM, Units
 from index.store import NameTaken, StoreError
 from index.templates.mesh import FORMATS_TEXT, MeshError, MeshTooLarge, load_mesh
+from index.templates.register import SYMMETRY_FROM_KEY, TEXTURED_KEY
 from index.templates.windows import DIAMETER_KEY, WINDOW_KEY, object_window
 from service.demo import DEMO_KEY
 from service.deps import ApiKeyDep, KnownFieldsDep, StateDep
@@ -27,6 +28,13 @@ router = APIRouter(tags=["objects"])
 log = logging.getLogger("service")
 
 MAX_QUEUED = 16  # registrations waiting for the render thread; more is a client hammering us
+
+
+#: the warning a shape-only mesh's registration answers with
+SHAPE_ONLY = (
+    "the mesh has no colours (no texture, no vertex or face colours): it is recognised by its shape, surely "
+    "with depth; in colour only by its silhouette and shading, at lower confidence"
+)
 
 
 def _out(state: AppState, object_id: int) -> ObjectOut:
@@ -43,11 +51,21 @@ def _out(state: AppState, object_id: int) -> ObjectOut:
         demo=bool(rec.extra.get(DEMO_KEY)),
         diameter_mm=_number(rec.extra.get(DIAMETER_KEY)),
         window_mm=object_window(rec.extra, min(e.info.window_mm for e in state.embedders.values())),
+        textured=_flag(rec.extra.get(TEXTURED_KEY)),
+        symmetry_from=_text(rec.extra.get(SYMMETRY_FROM_KEY)),
     )
 
 
 def _number(x: object) -> float | None:
     return float(x) if isinstance(x, (int, float)) else None
+
+
+def _flag(x: object) -> bool | None:
+    return x if isinstance(x, bool) else None
+
+
+def _text(x: object) -> str | None:
+    return x if isinstance(x, str) else None
 
 
 @router.post(
@@ -76,8 +94,13 @@ async def add_object(
         ),
     ] = None,
     symmetry: Annotated[
-        Literal["none", "180", "full"], Form(description="about the object's z axis")
-    ] = "none",
+        Literal["auto", "none", "180", "full"],
+        Form(
+            description="about the object's z axis: 'none', '180' (a half-turn), 'full' (any turn); 'auto': "
+            "'none' for a mesh with colours (a texture, vertex or face colours), and for a shape-only mesh "
+            "the symmetry of its shape (a box's half-turn, a can's full turn)"
+        ),
+    ] = "auto",
 ) -> Response | ObjectCreated:
     file_type = Path(mesh.filename or "").suffix.lstrip(".").lower()
     if not file_type:
@@ -191,6 +214,10 @@ def _register(state: AppState, job: Job, mesh, name: str, symmetry: str) -> None
         timings={k: round(v, 3) for k, v in reg.timings.items()},
         diameter_mm=float(reg.record.extra[DIAMETER_KEY]),  # type: ignore[arg-type]  # register stores it
         window_mm=float(reg.record.extra[WINDOW_KEY]),  # type: ignore[arg-type]
+        symmetry=reg.record.symmetry,
+        textured=_flag(reg.record.extra.get(TEXTURED_KEY)),
+        symmetry_from=_text(reg.record.extra.get(SYMMETRY_FROM_KEY)),
+        warnings=[] if reg.record.extra.get(TEXTURED_KEY) is not False else [SHAPE_ONLY],
     ).model_dump()
     job.status = "done"
 

@@ -282,7 +282,8 @@ async function register(event) {
     const r = await api("/objects", { method: "POST", body: form });
     const body = await r.json();
     const made = r.status === 202 ? await follow(body.job_id) : body;
-    say("reg-status", `Registered ${made.name} (id ${made.object_id}): ${made.templates} templates in ${fixed(made.seconds)} s.`);
+    const how = made.symmetry_from === "shape" ? ` Shape only (no colours): symmetry ${made.symmetry}, found from its shape.` : "";
+    say("reg-status", `Registered ${made.name} (id ${made.object_id}): ${made.templates} templates in ${fixed(made.seconds)} s.${how}`);
     $("name").value = "";
     await listObjects();
   } catch (e) {
@@ -313,7 +314,7 @@ function objectRow(o) {
   row.dataset.name = o.name;
   cell(row, String(o.object_id));
   cell(row, o.demo ? `${o.name} (demo)` : o.name);
-  cell(row, o.symmetry);
+  cell(row, o.symmetry_from === "shape" ? `${o.symmetry} (shape only)` : o.symmetry);
   cell(row, String(o.faces));
   cell(row, Object.entries(o.templates).map(([m, n]) => `${m} ${n}`).join(", "));
   cell(row, fixed(o.diameter_mm, 0));

@@ -50,3 +50,28 @@ def test_two_queued_registrations_of_one_name(tmp_path, posedesc_models, l_shape
         assert one["status"] == "done" and two["status"] == "failed", (one, two)
         assert f"object_id {one['object_id']}" in two["error"] and "exists already" in two["error"]
         assert sorted(o["name"] for o in c.get("/objects").json()) == ["other", "twin"]
+
+
+def test_a_shape_only_mesh_is_registered_as_such_with_its_shapes_symmetry(tmp_path, posedesc_models, l_shape):
+    """No symmetry asked for ("auto"): a shape-only can gets its full turn (and fewer templates), a coloured
+    L none; one asked for is kept. The answer and GET /objects say which, and where it came from."""
+    import trimesh
+
+    can = trimesh.creation.cylinder(radius=40, height=110, sections=64)
+    with TestClient(create_app(service_settings(tmp_path, posedesc_models, level=1))) as c:
+        wait_ready(c)
+        made = register(c, can, "can")
+        assert (made["symmetry"], made["textured"], made["symmetry_from"]) == ("full", False, "shape")
+        assert any("no colours" in w for w in made["warnings"])
+        listed = c.get(f"/objects/{made['object_id']}").json()
+        assert (listed["symmetry"], listed["textured"], listed["symmetry_from"]) == ("full", False, "shape")
+        coloured = register(c, l_shape, "L")
+        assert (coloured["symmetry"], coloured["textured"], coloured["symmetry_from"]) == (
+            "none",
+            True,
+            "colours",
+        )
+        assert coloured["warnings"] == [] and made["templates"] < coloured["templates"]
+        asked = register(c, can, "can-as-asked", symmetry="none")
+        assert (asked["symmetry"], asked["symmetry_from"]) == ("none", "given")
+        assert asked["templates"] == coloured["templates"]
