@@ -374,6 +374,18 @@ def render(result: dict) -> str:
                 for what in ("registration", "deletion")
             ],
         )  # fmt: skip
+    starts = [
+        r["replica_start"]
+        for r in (sec.get("milvus") or {}).get("by_size", {}).values()
+        if "replica_start" in r
+    ]
+    if starts:
+        lines += _table(
+            "a replica's store opened after the registrations through another: from opening it until its answers "
+            "equal the other's; s",
+            ["objects", "p50", "max", "runs"],
+            [[str(r["objects"]), _num(r["p50_s"], 2), _num(r["max_s"], 2), str(r["runs"])] for r in starts],
+        )
     if result.get("targets"):
         rows = []
         for v in result["targets"].values():

@@ -166,6 +166,8 @@ def _one_size(cfg: MilvusConfig, uri: str, n: int, tmp: Path, bulk: bool, rss=la
             "milvus": _registrations(milvus, new, cfg.registrations),
             **({"embedded": _registrations(embedded, new, cfg.registrations)} if embedded else {}),
         }
+        if not bulk:
+            row["replica_start"] = _replica_start(milvus, uri, tmp / "shared", models, queries[:20], cfg.k)
         row["milvus_memory"] = _milvus_memory(milvus)
         row["milvus_server_rss_bytes_loaded"] = rss()  # with this store's collection loaded
     finally:
@@ -222,6 +224,35 @@ def _propagation(cfg: MilvusConfig, uri: str, shared: Path) -> dict:
             "runs": len(pairs),
         }
     return out
+
+
+def _replica_start(store, uri: str, shared: Path, models: dict, queries: np.ndarray, k: int) -> dict:
+    """A replica's store started after the registrations (`store`'s, through the other replica): seconds
+    from opening it (the store's records, the shared directory's marker, every object's templates) until
+    its snapshot answers `queries` exactly as `store`'s does, three times (the median and the slowest)."""
+    from index.store.milvus import MilvusStore
+
+    def answers(snap) -> list[list[tuple[int, float, float]]]:
+        return [
+            [(m.object_id, m.azimuth, round(m.distance, 5)) for m in snap.answers(MODEL, q[None], k)]
+            for q in queries
+        ]
+
+    want = answers(store.snapshot)
+    seconds = []
+    for _ in range(3):
+        t0 = time.perf_counter()
+        replica = MilvusStore(uri, shared, models, prefix=store.prefix, timeout=120)
+        try:
+            while answers(replica.snapshot) != want:
+                if time.perf_counter() - t0 > 300:
+                    raise RuntimeError("the new replica never answered as the first one")
+                time.sleep(0.05)
+            seconds.append(time.perf_counter() - t0)
+        finally:
+            replica.close()
+    return {"objects": len(store.snapshot.objects), "p50_s": float(np.median(seconds)),
+            "max_s": float(np.max(seconds)), "runs": len(seconds)}  # fmt: skip
 
 
 def _seen(change, seen, hang_s: float = 300.0) -> tuple[float, float]:

@@ -110,7 +110,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--milvus-uri", default=None,
                    help="the milvus section against this Milvus (default: the PyPI server, started for the run)")  # fmt: skip
     p.add_argument("--milvus-templates", default=None,
-                   help="large store sizes of the milvus section, templates (default 1e6)")  # fmt: skip
+                   help="large store sizes of the milvus section, templates (default 1e6; none: only the 100 objects)")  # fmt: skip
     p.add_argument("--seed", type=int, default=0, help="seed of the generated data")  # fmt: skip
 
 
@@ -189,7 +189,8 @@ def configure(args: argparse.Namespace) -> BenchConfig:
     if args.milvus_uri:
         cfg = replace(cfg, milvus=replace(cfg.milvus, uri=args.milvus_uri))
     if args.milvus_templates:
-        cfg = replace(cfg, milvus=replace(cfg.milvus, large=_ints(args.milvus_templates)))
+        large = () if args.milvus_templates == "none" else _ints(args.milvus_templates)
+        cfg = replace(cfg, milvus=replace(cfg.milvus, large=large))
     if cfg.distinct is not None:  # --quick: few shapes, but enough for the largest count
         needed = max(cfg.recognition.counts) if "recognition" in cfg.sections else 0
         cfg = replace(cfg, distinct=max(cfg.distinct, -(-needed // VARIANTS)))

@@ -25,6 +25,10 @@ def test_milvus_section(milvus):
         assert row["recognition"]["milvus"]["runs"] == 10 and row["recognition"]["embedded"]["p50_ms"] > 0
         assert row["registration"]["milvus"]["p50_ms"] > 0
     assert "embedded" in small["registration"] and "embedded" not in large["registration"]
+    # a replica's store opened after the registrations answers as the first one (it waited until it did)
+    start = small["replica_start"]
+    assert start["objects"] == 3 and start["runs"] == 3 and 0 < start["p50_s"] <= start["max_s"]
+    assert "replica_start" not in large
     # two stores on one Milvus, as two replicas: each saw the other's registration and deletion
     for what in ("registration", "deletion"):
         pr = out["propagation"][what]
@@ -33,3 +37,4 @@ def test_milvus_section(milvus):
                     "threads": {"onnxruntime_intra_op": 1, "faiss_omp": 1, "opencv": 1}, "seconds": {"total": 1},
                     "sections": {"milvus": out}})  # fmt: skip
     assert "Milvus recall@5" in table and "until the other store shows the change" in table
+    assert "a replica's store opened after the registrations" in table
