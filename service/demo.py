@@ -3,7 +3,8 @@
 The demo objects are generated shapes (`index.templates.shapes.demo_shapes`), registered through the same code path
 as `POST /objects`, so the README's first `POST /recognize` finds them: once, and only into a data dir
 that has never held an object (`Store.has_held_objects`), so they never mix with a user's objects, nor
-come back after the user removed every object."""
+come back after the user removed every object. Their names start with `DEMO_PREFIX`, and `DELETE
+/objects?demo=true` removes them all."""
 
 from __future__ import annotations
 
@@ -17,6 +18,8 @@ log = logging.getLogger("service")
 
 SEEDED = "demo_seeded"
 DEMO_KEY = "demo"  # in a demo object's record (`ObjectRecord.extra`): `GET /objects` marks it
+#: before a demo object's name ("demo-robot"): a user's own "duck" never meets a demo one
+DEMO_PREFIX = "demo-"
 SEEDING = "demo_seeding"  # set before the first demo object: a seeding cut short goes on at the next start
 
 
@@ -48,7 +51,8 @@ def seed(state: AppState) -> None:
     from index.templates.shapes import demo_shapes
 
     present = {r.name for r in store.snapshot.objects.values()}
-    for name, mesh in demo_shapes().items():
+    for shape, mesh in demo_shapes().items():
+        name = DEMO_PREFIX + shape
         if state.stopping.is_set():
             return
         if name in present:

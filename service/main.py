@@ -108,8 +108,9 @@ def ready_line(snap: Snapshot, url: str | None, startup_error: str | None = None
     if demo:
         named = ", ".join(f"{name} ({oid})" for name, oid in demo)
         objects += (
-            f" ({len(demo)} of them demo objects, which answer for your frames too: {named}; remove one for "
-            f"good with `curl -X DELETE {where or 'URL'}/objects/ID`, or serve a new data dir with "
+            f" ({len(demo)} of them demo objects, which answer for your frames too: {named}; remove them all "
+            f"for good with `curl -X DELETE '{where or 'URL'}/objects?demo=true'` (one: "
+            f"`curl -X DELETE {where or 'URL'}/objects/ID`), or serve a new data dir with "
             "`posedesc serve --no-demo` or POSEDESC_DEMO_OBJECTS=false)"
         )
     templates = ", ".join(f"{m} {mi.size}" for m, mi in sorted(snap.models.items()))

@@ -9,7 +9,7 @@ from pydantic.config import JsonDict
 
 MATCH_EXAMPLE: JsonDict = {
     "object_id": 3,
-    "name": "robot",
+    "name": "demo-robot",
     "azimuth": 126.0,
     "elevation": 31.7,
     "inplane": 0.0,
@@ -235,6 +235,10 @@ class ObjectCreated(BaseModel):
         None, description="'given', 'shape' (found from a shape-only mesh) or 'colours' (textured: none)"
     )
     warnings: list[str] = Field(default_factory=list)
+
+
+class ObjectsRemoved(BaseModel):
+    removed: list[int] = Field(description="the ids of the objects removed")
 
 
 class JobAccepted(BaseModel):

@@ -9,7 +9,7 @@ import logging
 from pathlib import Path
 from typing import Annotated, Literal
 
-from fastapi import APIRouter, File, Form, Response, UploadFile
+from fastapi import APIRouter, File, Form, Query, Response, UploadFile
 from fastapi.responses import JSONResponse
 
 from index.geometry.units import LARGEST_MM, ORDINARY_MM, SMALLEST_MM, Units
@@ -21,7 +21,7 @@ from service.demo import DEMO_KEY
 from service.deps import ApiKeyDep, KnownFieldsDep, StateDep
 from service.errors import DISK_FULL, ApiError, responses
 from service.jobs import Busy, Job
-from service.schemas import JobAccepted, ObjectCreated, ObjectOut
+from service.schemas import JobAccepted, ObjectCreated, ObjectOut, ObjectsRemoved
 from service.state import AppState
 
 router = APIRouter(tags=["objects"])
@@ -233,6 +233,30 @@ def list_objects(state: StateDep) -> list[ObjectOut]:
 )
 def get_object(object_id: int, state: StateDep) -> ObjectOut:
     return _out(state, object_id)
+
+
+@router.delete(
+    "/objects",
+    response_model=ObjectsRemoved,
+    summary="Remove the demo objects (demo=true): the one call that clears a new data dir for your own",
+    responses=responses(401, 422, 507),
+)
+def delete_demo_objects(
+    state: StateDep,
+    _key: ApiKeyDep,
+    demo: Annotated[
+        bool, Query(description="true: remove every demo object (they do not come back)")
+    ] = False,
+) -> ObjectsRemoved:
+    if not demo:
+        raise ApiError(
+            422,
+            "DELETE /objects removes the demo objects only, with ?demo=true; one object: DELETE /objects/{id}",
+        )
+    snap = state.store.snapshot
+    gone = [oid for oid, rec in sorted(snap.objects.items()) if rec.extra.get(DEMO_KEY)]
+    removed = [oid for oid in gone if state.store.remove_object(oid)]  # one may go meanwhile (a replica)
+    return ObjectsRemoved(removed=removed)
 
 
 @router.delete(

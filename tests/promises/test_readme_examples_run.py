@@ -18,7 +18,7 @@ from service_helpers import ROOT, Server
 pytestmark = pytest.mark.slow
 
 MODELS = ROOT / "models"
-DEMO = ["mug", "lamp", "robot", "duck"]
+DEMO = ["demo-mug", "demo-lamp", "demo-robot", "demo-duck"]
 
 
 def blocks(lang: str, needle: str) -> list[str]:
@@ -67,7 +67,7 @@ def test_the_curl_examples(server):
     assert '"detail":"' not in out  # no error answered (errors are {"detail": "..."})
     # the three recognitions of the demo robot's frame and patch, and the frame searched whole: its first
     # detection's best is the answer's best too
-    assert out.count('"best":{"object_id":3,"name":"robot"') == 5, out[:3000]
+    assert out.count('"best":{"object_id":3,"name":"demo-robot"') == 5, out[:3000]
     assert '"detections":[{"u":' in out
     assert '"name":"part"' in out and re.search(r"\}204\n", out)  # registered, shown, then deleted
     assert "posedesc_requests_total" in out  # the metrics
@@ -86,11 +86,11 @@ def test_the_python_example(server):
     r = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stdout[-2000:] + r.stderr
     lines = r.stdout.splitlines()
-    assert lines[0].startswith("{'object_id': 3, 'name': 'robot'"), r.stdout[:500]  # as its comment says
+    assert lines[0].startswith("{'object_id': 3, 'name': 'demo-robot'"), r.stdout[:500]  # as its comment says
     assert "'name': 'part'" in lines[1] and "'part'" in lines[1].rsplit("[", 1)[1]  # registered, then listed
     assert "404" in lines[2] or "no object" in lines[2], lines[2]  # the second delete: an ApiError
     assert "'status': 'ready'" in lines[3]  # health
-    assert lines[4].startswith("[('robot', ["), lines[4]  # the frame searched whole: the robot first
+    assert lines[4].startswith("[('demo-robot', ["), lines[4]  # the frame searched whole: the robot first
     assert names(server) == DEMO
     assert float(registrations(server)) == before + 1
 

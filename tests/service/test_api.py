@@ -360,11 +360,15 @@ def test_demo_objects_are_registered_once(tmp_path, posedesc_models):
     with TestClient(create_app(settings)) as c:
         ready = wait_ready(c)
         names = {o["name"]: o["object_id"] for o in c.get("/objects").json()}
-        assert set(names) == {"mug", "lamp", "robot", "duck"} and ready["objects"] == 4
-        assert c.delete(f"/objects/{names['duck']}").status_code == 204
+        assert set(names) == {"demo-mug", "demo-lamp", "demo-robot", "demo-duck"} and ready["objects"] == 4
+        assert c.delete(f"/objects/{names['demo-duck']}").status_code == 204
     with TestClient(create_app(settings)) as c:
         wait_ready(c)
-        assert {o["name"] for o in c.get("/objects").json()} == {"mug", "lamp", "robot"}  # not seeded again
+        assert {o["name"] for o in c.get("/objects").json()} == {
+            "demo-mug",
+            "demo-lamp",
+            "demo-robot",
+        }  # not again
 
 
 def test_intrinsics_are_used(client, l_frame):
