@@ -65,8 +65,12 @@ const fixed = (x, digits = 1) => (typeof x === "number" ? x.toFixed(digits) : "â
 
 // ---------------------------------------------------------------- recognition
 
-const frame = { rgb: null, depth: null, url: null };
+const frame = { rgb: null, depth: null, url: null, example: false };
 let asked = 0; // the latest question: an earlier one's late answer is not shown over it
+// The objects the last "Find objects" answered: a click inside one's box in a colour frame without depth
+// takes its distance. `distanceFound`: the distance field holds such a distance (not one typed).
+let found = [];
+let distanceFound = false;
 
 function loadCamera() {
   let camera = EXAMPLE_CAMERA;
@@ -89,9 +93,26 @@ function saveCamera() {
   localStorage.setItem(CAMERA_STORE, JSON.stringify(camera));
 }
 
-function setFrame(rgb, depth) {
+function sameAsExample() {
+  return Object.entries(EXAMPLE_CAMERA).every(([n, x]) => Number($(n).value) === x);
+}
+
+// A frame of the user's own with the example's camera still in the fields: said, never used silently.
+function checkCamera() {
+  const own = (frame.rgb || frame.depth) && !frame.example;
+  say(
+    "camera-note",
+    own && sameAsExample()
+      ? "These are the example frame's camera values: enter your own camera's fx, fy, cx, cy (or empty them for a patch centred on the object)."
+      : "",
+  );
+}
+
+function setFrame(rgb, depth, example = false) {
   frame.rgb = rgb;
   frame.depth = depth;
+  frame.example = example;
+  found = [];
   const shown = rgb || depth;
   if (frame.url) URL.revokeObjectURL(frame.url);
   frame.url = shown ? URL.createObjectURL(shown) : null;
@@ -100,6 +121,7 @@ function setFrame(rgb, depth) {
   $("marker").hidden = true;
   const names = [rgb && `colour ${rgb.name}`, depth && `depth ${depth.name}`].filter(Boolean);
   say("frame-files", names.length ? `Frame: ${names.join(", ")}.` : "No frame yet.");
+  checkCamera();
   clearAnswers();
 }
 
@@ -112,6 +134,33 @@ function clearAnswers() {
   if (drawn.src.startsWith("blob:")) URL.revokeObjectURL(drawn.src);
   drawn.removeAttribute("src");
   drawn.hidden = true;
+  const link = $("download-json");
+  if (link.href.startsWith("blob:")) URL.revokeObjectURL(link.href);
+  link.removeAttribute("href");
+  link.hidden = true;
+}
+
+// What the answer area shows, to put back when a question fails: an error does not wipe a good answer.
+function keptAnswers() {
+  return {
+    rows: [...$("answers").tBodies[0].children],
+    note: $("answers-note").textContent,
+    drawn: $("drawn").hidden ? null : $("drawn").src,
+    json: $("download-json").hidden ? null : $("download-json").href,
+  };
+}
+
+function restoreAnswers(kept) {
+  $("answers").tBodies[0].replaceChildren(...kept.rows);
+  say("answers-note", kept.note);
+  if (kept.drawn) {
+    $("drawn").src = kept.drawn;
+    $("drawn").hidden = false;
+  }
+  if (kept.json) {
+    $("download-json").href = kept.json;
+    $("download-json").hidden = false;
+  }
 }
 
 // Dropped files: one whose name says "depth" is the depth image, another the colour image.
@@ -133,7 +182,7 @@ async function loadExampleFrame() {
   try {
     const [rgb, depth] = await Promise.all([exampleFile(EXAMPLE_FRAME.rgb), exampleFile(EXAMPLE_FRAME.depth)]);
     setCamera(EXAMPLE_CAMERA); // the camera the example was taken with
-    setFrame(rgb, depth);
+    setFrame(rgb, depth, true);
     say("rec-status", "The example frame and its camera are loaded: click on the robot, or find the objects.");
   } catch (e) {
     say("rec-error", String(e.message));
@@ -148,6 +197,11 @@ function questionForm(point) {
   if (point) Object.assign(fields, point);
   fields.distance_mm = $("distance").value;
   fields.k = $("k").value;
+  if (frame.depth) fields.depth_scale = $("depth_scale").value;
+  if (!point) {
+    fields.min_confidence = $("min_confidence").value;
+    fields.max_detections = $("max_detections").value;
+  }
   for (const [name, value] of Object.entries(fields)) {
     if (String(value).trim() !== "") form.append(name, String(value).trim());
   }
@@ -161,7 +215,15 @@ async function ask(point) {
     say("rec-error", "Pick a frame first (a colour image, a depth image, or both), or load the example.");
     return;
   }
+  if (point && frame.rgb && !frame.depth && !distanceFor(point)) {
+    say(
+      "rec-error",
+      "A colour frame without depth needs the object's distance: enter it (mm), or use Find objects first and click inside an object found.",
+    );
+    return; // nothing sent, nothing wiped
+  }
   const mine = ++asked;
+  const kept = keptAnswers();
   clearAnswers();
   say("rec-status", point ? `Asking about (${point.u}, ${point.v}) ...` : "Looking for objects ...");
   try {
@@ -169,16 +231,44 @@ async function ask(point) {
     const [answer, drawing] = await Promise.all([post("/recognize"), post("/recognize/draw")]);
     const [body, png] = [await answer.json(), await drawing.blob()];
     if (mine !== asked) return;
+    if (kept.drawn?.startsWith("blob:")) URL.revokeObjectURL(kept.drawn);
+    if (kept.json?.startsWith("blob:")) URL.revokeObjectURL(kept.json);
     showAnswers(body);
+    if (!point) found = foundObjects(body);
     const drawn = $("drawn");
     drawn.src = URL.createObjectURL(png);
     drawn.hidden = false;
-    say("rec-status", `Answered by the ${body.model} model in ${fixed(body.timings_ms?.total, 0)} ms.`);
+    const link = $("download-json");
+    link.href = URL.createObjectURL(new Blob([JSON.stringify(body, null, 1)], { type: "application/json" }));
+    link.hidden = false;
+    const from = distanceFound && point ? ` (distance ${$("distance").value} mm, from the object found there)` : "";
+    say("rec-status", `Answered by the ${body.model} model in ${fixed(body.timings_ms?.total, 0)} ms${from}.`);
   } catch (e) {
     if (mine !== asked) return;
+    restoreAnswers(kept);
     say("rec-status", "");
     say("rec-error", String(e.message));
   }
+}
+
+// The objects of a whole-frame answer: each one's box and distance from the camera, mm.
+function foundObjects(body) {
+  return (body.detections || [])
+    .filter((d) => Array.isArray(d.box) && Array.isArray(d.best?.t))
+    .map((d) => ({ box: d.box, distance: Math.round(norm(d.best.t)) }));
+}
+
+// The distance to send with a click in a colour frame without depth: the one typed, else that of the
+// object found whose box holds the point (filled into the field); none when neither.
+function distanceFor(point) {
+  const typed = $("distance").value.trim();
+  if (typed !== "" && !distanceFound) return typed;
+  const [u, v] = [Number(point.u), Number(point.v)];
+  const hit = found.find(({ box: [x0, y0, x1, y1] }) => u >= x0 && u <= x1 && v >= y0 && v <= y1);
+  if (!hit) return distanceFound ? "" : typed;
+  $("distance").value = hit.distance;
+  distanceFound = true;
+  return String(hit.distance);
 }
 
 function norm(t) {
@@ -239,18 +329,27 @@ function setMesh(file) {
 
 const wait = (ms) => new Promise((resolve) => setTimeout(resolve, ms));
 
+// One bar for the whole registration, in percent: the views rendered and embedded (they overlap: the
+// embedding is the later) up to 95 %, storing the templates the rest. Stages count different things (views,
+// templates), so the bar never shows a stage's own total, and never moves back.
+let registered = 0;
+
 function showProgress(p) {
   const bar = $("reg-progress");
   bar.hidden = false;
   if (!p) {
+    registered = 0;
     bar.removeAttribute("value"); // indeterminate until the first chunk of views is done
     say("reg-status", "Registering: starting ...");
     return;
   }
-  bar.max = Math.max(p.total, 1);
-  bar.value = p.done;
-  const unit = p.stage === "store" ? "templates" : "views";
-  say("reg-status", `Registering: ${p.stage} ${p.done} / ${p.total} ${unit} ...`);
+  const share = p.done / Math.max(p.total, 1);
+  const part = p.stage === "store" ? 0.95 + 0.05 * share : p.stage === "embed" ? 0.95 * share : 0.9 * share;
+  registered = Math.max(registered, part);
+  bar.max = 100;
+  bar.value = Math.round(100 * registered);
+  const unit = p.stage === "store" ? "templates stored" : `views ${p.stage === "embed" ? "embedded" : "rendered"}`;
+  say("reg-status", `Registering: ${Math.round(100 * registered)} % (${p.done} of ${p.total} ${unit}) ...`);
 }
 
 // A job until it is done (its object) or failed (its error, as POST /objects would have answered it).
@@ -357,7 +456,15 @@ function dropZone(id, onFiles) {
 
 function start() {
   loadCamera();
-  for (const input of document.querySelectorAll("input.camera")) input.addEventListener("change", saveCamera);
+  for (const input of document.querySelectorAll("input.camera")) {
+    input.addEventListener("change", () => {
+      saveCamera();
+      checkCamera();
+    });
+  }
+  $("distance").addEventListener("input", () => {
+    distanceFound = false; // typed: the user's own
+  });
   $("rgb").addEventListener("change", (e) => setFrame(e.target.files[0] || null, frame.depth));
   $("depth").addEventListener("change", (e) => setFrame(frame.rgb, e.target.files[0] || null));
   $("clear-depth").addEventListener("click", () => {

@@ -135,6 +135,87 @@ def test_the_api_s_errors_are_shown_on_the_page(server, browser):
     assert "a full frame needs its camera" in text(b, "rec-error")
 
 
+@pytest.mark.slow  # a real server and a browser
+def test_a_colour_frame_a_users_own_camera_and_what_the_page_offers(server, browser):
+    """A click in a colour frame without depth and without a distance is not sent (it would be a 422) and
+    wipes nothing; after Find objects, a click inside an object found takes that object's distance. A frame
+    of the user's own with the example's camera still in the fields says so. The find's settings are sent,
+    the answer can be downloaded as JSON, and a registration's bar only moves forward."""
+    from index.templates.shapes import demo_shapes
+
+    robot = demo_shapes()["robot"].export(file_type="ply")
+    headers = {"X-API-Key": API_KEY}
+    r = httpx.post(f"{server.url}/objects", files={"mesh": ("robot.ply", robot)}, data={"name": "robot"},
+                   headers=headers, timeout=HANG)  # fmt: skip
+    assert r.status_code in (201, 202), r.text
+    b, wait = browser, WebDriverWait(browser, HANG)
+    try:
+        wait.until(lambda _: [o["name"] for o in httpx.get(f"{server.url}/objects").json()] == ["robot"])
+        b.get(f"{server.url}/")
+        b.find_element(By.ID, "example-frame").click()
+        wait.until(lambda d: d.execute_script("return document.getElementById('frame').naturalWidth") == W)
+        assert text(b, "camera-note") == ""  # the example, with its own camera
+        b.find_element(By.ID, "clear-depth").click()  # colour only
+        b.find_element(By.ID, "distance").clear()
+
+        # no distance and nothing found yet: said at once, nothing sent
+        before = httpx.get(f"{server.url}/metrics").text.count('route="/recognize"')
+        click_on_frame(b, OBJECT_UV)
+        wait.until(EC.text_to_be_present_in_element((By.ID, "rec-error"), "needs the object's distance"))
+        assert httpx.get(f"{server.url}/metrics").text.count('route="/recognize"') == before
+
+        # Find objects, its settings sent: at most one object; then a click inside it takes its distance
+        b.find_element(By.ID, "max_detections").clear()
+        b.find_element(By.ID, "max_detections").send_keys("1")
+        b.find_element(By.ID, "find").click()
+        wait.until(lambda d: drawn_width(d) == W)
+        found = b.execute_script("return found")
+        assert len(found) <= 1
+        link = b.find_element(By.ID, "download-json")
+        assert link.is_displayed() and link.get_attribute("href").startswith("blob:")
+        assert (
+            link.get_attribute("download") == "answer.json"
+        )  # (the page's CSP keeps a test from reading it)
+        if found:  # the robot found in colour: click in its box
+            x0, y0, x1, y1 = found[0]["box"]
+            click_on_frame(b, ((x0 + x1) / 2, (y0 + y1) / 2))
+            wait.until(EC.text_to_be_present_in_element((By.ID, "rec-status"), "from the object found there"))
+            assert float(b.find_element(By.ID, "distance").get_attribute("value")) == found[0]["distance"]
+            assert text(b, "rec-error") == "" and drawn_width(b) == W
+        # a click outside every object found, with no distance of the user's: refused on the page, and the
+        # last answer and its drawing stay
+        rows = len(b.find_elements(By.CSS_SELECTOR, "#answers tbody tr"))
+        b.find_element(By.ID, "distance").clear()
+        b.execute_script("distanceFound = false; found = []")
+        click_on_frame(b, (5, 5))
+        wait.until(EC.text_to_be_present_in_element((By.ID, "rec-error"), "needs the object's distance"))
+        assert drawn_width(b) == W and len(b.find_elements(By.CSS_SELECTOR, "#answers tbody tr")) == rows
+
+        # the user's own image: the example's camera is not used silently
+        b.find_element(By.ID, "rgb").send_keys(str(EXAMPLES / "robot-rgb.png"))
+        wait.until(EC.text_to_be_present_in_element((By.ID, "camera-note"), "example frame's camera values"))
+        fx = b.find_element(By.ID, "fx")
+        fx.clear()
+        fx.send_keys("600\t")
+        wait.until(lambda d: text(d, "camera-note") == "")
+
+        # the registration's bar: percent of the whole, never back when the stage (and its count) changes
+        shown = b.execute_script(
+            "const out = [];"
+            "for (const p of [null, {stage: 'render', done: 40, total: 100}, {stage: 'embed', done: 30, total: 100},"
+            " {stage: 'embed', done: 100, total: 100}, {stage: 'store', done: 0, total: 400},"
+            " {stage: 'store', done: 400, total: 400}]) {"
+            " showProgress(p); out.push(document.getElementById('reg-progress').value); }"
+            "return [out, document.getElementById('reg-status').textContent]"
+        )
+        values, status = shown
+        assert values[1:] == sorted(values[1:]) and values[-1] == 100, values
+        assert status == "Registering: 100 % (400 of 400 templates stored) ..."
+    finally:
+        for o in httpx.get(f"{server.url}/objects").json():
+            httpx.delete(f"{server.url}/objects/{o['object_id']}", headers=headers)
+
+
 def page_client() -> TestClient:
     """The app without its lifespan: the page's files need no models, store or state."""
     return TestClient(create_app(service_settings(ROOT / "data" / "never-made", MODELS)))
