@@ -37,6 +37,9 @@ class Config:
     #: service protocol: every frame sent again at these camera rolls, degrees (`evaluation.rolls`);
     #: empty: each frame once, as it is
     rolls: tuple[float, ...] = ()
+    #: service protocol: a second BOP dataset whose every object is registered too and never queried (an
+    #: answer naming one is wrong): how much registering other objects takes from these ones
+    distractors: Path | None = None
     seed: int = 0
 
 

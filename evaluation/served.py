@@ -57,7 +57,7 @@ from index.templates.register import template_views
 from index.templates.render import Renderer
 from service.errors import ApiError
 from service.pipeline.answer import Result
-from service.pipeline.query import Query, cut, decode
+from service.pipeline.query import Query, cut, decode, shape_only
 from service.recognition import recognise
 from service.rejection import read_calibrations
 from service.settings import Settings
@@ -99,10 +99,11 @@ def evaluate_served(cfg: Config) -> Evaluation:
         embedder = Embedder(cfg.model, settings.threads)  # as the service loads it
         if embedder.modality != cfg.modality:
             raise ValueError(f"{cfg.model} is a {embedder.modality} model, not {cfg.modality}")
-        state = load_state(settings, {cfg.modality: embedder})
+        state = load_state(settings, served_models(embedder, settings.threads))
         try:
             t0 = time.perf_counter()
             meshes, dataset_ids = register_objects(state, dataset, obj_ids)
+            distractors = register_distractors(state, cfg.distractors)
             seconds["register"] = time.perf_counter() - t0
             t0 = time.perf_counter()
             depth_errors: list[tuple[float, float]] = []
@@ -112,6 +113,12 @@ def evaluate_served(cfg: Config) -> Evaluation:
             )
             seconds["ours"] = time.perf_counter() - t0
             n_templates = state.store.snapshot.models[cfg.modality].size
+            routed = (
+                cfg.modality == "rgbd"
+                and settings.shape_only_depth
+                and "depth" in state.embedders
+                and shape_only(state.store)
+            )
         finally:
             close_state(state)
 
@@ -126,11 +133,17 @@ def evaluate_served(cfg: Config) -> Evaluation:
             "the principal point, poses turned with it: evaluation/rolls.py); instances whose centre left "
             f"the frame at a roll were not sent at it ({dropped})"
         )
+    if routed:
+        notes.append(
+            "every registered object is shape-only: the RGB-D frames were answered by the depth model beside "
+            "the RGB-D one, as the service answers them (service.pipeline.query.shape_only)"
+        )
     if refused:
         notes.append(f"the service refused {len(refused)} queries (counted as wrong): {sorted(set(refused))}")
     ev = Evaluation(cfg, samples, None, symmetries, seconds=seconds, notes=notes)
     ev.extra = {
         "n_templates": n_templates,
+        **({"distractors": distractors} if cfg.distractors is not None else {}),
         "service": {
             "model_inplane_step": step,
             "inplane_step": settings.inplane_step,
@@ -209,6 +222,35 @@ def register_objects(
             dataset_ids[reg.record.object_id] = o
             b.update()
     return meshes, dataset_ids
+
+
+def served_models(embedder: Embedder, threads: int | None = None) -> dict[str, Embedder]:
+    """The models a service with `embedder` in its models folder loads for its modality: the model, and for
+    an RGB-D one the depth model beside it (posedesc-depth.onnx), which answers RGB-D frames while every
+    registered object is shape-only (`service.pipeline.query.shape_only`)."""
+    out = {embedder.modality: embedder}
+    beside = embedder.path.parent / "posedesc-depth.onnx"
+    if embedder.modality == "rgbd" and beside.is_file():
+        depth = Embedder(beside, threads)
+        if depth.modality == "depth":
+            out["depth"] = depth
+    return out
+
+
+def register_distractors(state: AppState, folder: Path | None) -> dict[str, object]:
+    """Every object of the BOP dataset at `folder` registered as `register_objects` registers (none when
+    None): never asked about, and not in the answers' dataset ids, so an answer naming one is wrong."""
+    if folder is None:
+        return {}
+    other = BopDataset(folder)
+    names = []
+    with bar(len(other.obj_ids), "register distractors", "object") as b:
+        for o in other.obj_ids:
+            mesh = other.mesh(o, max_faces=state.settings.max_faces)
+            names.append(f"distractor_{o:06d}")
+            state.register_mesh(mesh, names[-1], service_symmetry(other.symmetry(o)))
+            b.update()
+    return {"dataset": str(folder), "objects": len(names)}
 
 
 class _BopAnswers:

@@ -8,6 +8,9 @@ from typing import Annotated, Literal
 from pydantic import Field, SecretStr, field_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
+#: `Settings.shape_handicap`'s default
+SHAPE_HANDICAP = 0.3
+
 
 class Settings(BaseSettings):
     model_config = SettingsConfigDict(env_prefix="POSEDESC_", env_file=None, extra="ignore")
@@ -96,6 +99,16 @@ class Settings(BaseSettings):
     # 5 (residuals clipped at 20 mm, `relief_clip_mm`): chosen on the RGB-D validation
     # frames sent at five camera rolls among 1, 3, 6, 10 unclipped, 3, 5, 8 clipped at 10 mm, 8, 12 at 6 mm
     # (docs/experiments.md: +14.8 points within 20 deg; 8 at 10 mm tied, the wider clip kept for real depth)
+    # chosen on LM-O's validation frames with YCB-V's 12 shape-only meshes registered beside (docs/experiments.md,
+    # "Shape-only meshes beside textured ones")
+    shape_only_depth: bool = Field(
+        True, description="an RGB-D frame while every registered object is shape-only (no colours): answered by "
+        "the depth model (false: by the RGB-D model, whose colour half sees grey renders)",
+    )  # fmt: skip
+    shape_handicap: float = Field(
+        SHAPE_HANDICAP, ge=0, le=10, description="colour and RGB-D answers: a shape-only object's distance "
+        "times 1 + this (its grey renders are near any colour patch: without it, it takes textured objects' names)",
+    )  # fmt: skip
     relief_weight: float = Field(
         5.0, ge=0, le=100, description="re-ranking with depth: add this times the distance between the "
         "query's relief and a template's (rms of their cells' depth difference, in windows; 0: off)",

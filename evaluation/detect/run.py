@@ -52,7 +52,7 @@ from evaluation.paper.samples import RENDERED, select_instances, served_data
 from evaluation.paper.templates import service_symmetry
 from evaluation.progress import bar
 from evaluation.queries import frame_files
-from evaluation.served import register_objects
+from evaluation.served import register_objects, served_models
 from index.data.bop import BopDataset, Instance
 from index.features.embed import Embedder
 from index.templates.register import template_views
@@ -125,7 +125,7 @@ def evaluate_detect(cfg: DetectConfig) -> tuple[dict, list[Estimate]]:
         settings = service_settings(cfg.model, Path(tmp) / "objects")
         embedder = Embedder(cfg.model, settings.threads)  # as the service loads it
         kind = served_data(embedder.modality, instances, None)
-        state = load_state(settings, {embedder.modality: embedder})
+        state = load_state(settings, served_models(embedder, settings.threads))
         try:
             t0 = time.perf_counter()
             meshes, dataset_ids = register_objects(state, dataset, obj_ids)

@@ -79,6 +79,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "(its split_frames metadata); 'heldout': those its heldout_frames metadata says "
                    "training never saw (default: all)")  # fmt: skip
     p.add_argument("--objects", default=None, help="register only these object ids (default: all)")
+    p.add_argument("--distractors", type=Path, default=None,
+                   help="service protocol: register every object of this BOP dataset too, never asked about "
+                   "(an answer naming one is wrong), e.g. shape-only meshes beside textured ones")  # fmt: skip
     p.add_argument("--inplane-step", type=float, default=None,
                    help="full protocol: in-plane step of the templates, degrees (default 20); service "
                    "protocol: the service's INPLANE_STEP setting (default: POSEDESC_INPLANE_STEP, else "
@@ -179,6 +182,13 @@ def run(args: argparse.Namespace) -> int:
         )
     if args.query_turns is not None and not (1 <= args.query_turns <= 36):
         raise UserError("--query-turns must be in 1..36")
+    if args.distractors is not None:
+        if args.protocol != "service":
+            raise UserError("--distractors needs the service protocol")
+        if not (args.distractors / "models" / "models_info.json").is_file():
+            raise UserError(
+                f"--distractors: {args.distractors} is not a BOP dataset (no models/models_info.json)"
+            )
     cfg = Config(
         dataset=args.dataset,
         model=args.model,
@@ -196,6 +206,7 @@ def run(args: argparse.Namespace) -> int:
         synthetic=True if args.synthetic else None,
         oracle_mask=args.oracle_mask,
         rolls=rolls,
+        distractors=args.distractors,
         seed=args.seed,
     )
     t0 = time.perf_counter()

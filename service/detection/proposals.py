@@ -43,7 +43,7 @@ def propose(
             Proposal(p.u, p.v, None, p.box, p.score, "depth")
             for p in depth_proposals(d.depth, K, limit=depth_limit)
         ]
-    if d.rgb is not None:
+    if d.rgb is not None and d.modality != "depth":  # the depth model answers: its segments only
         if colour is None:
             if d.depth is None:
                 raise ApiError(

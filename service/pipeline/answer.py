@@ -24,6 +24,7 @@ from index.features.embed import Embedder
 from index.features.patches import surface_depth
 from index.refine.fit import Fit
 from index.store import Match, Snapshot
+from index.templates.register import TEXTURED_KEY
 from index.templates.surface import offset_of
 from service.pipeline.context import Context
 from service.poses import match_pose
@@ -91,6 +92,15 @@ def ranked_matches(ctx: Context) -> list[Match]:
     return out + list(itertools.islice(rest, max(k - len(out), 0)))
 
 
+def handicapped(m: Match, snapshot: Snapshot, handicap: float) -> Match:
+    """`m` with its distance times 1 + `handicap` when its object is shape-only (`TEXTURED_KEY` false): in
+    colour, a grey render is near any patch (`Settings.shape_handicap`)."""
+    rec = snapshot.objects.get(m.object_id)
+    if rec is None or rec.extra.get(TEXTURED_KEY) is not False:
+        return m
+    return replace(m, distance=m.distance * (1.0 + handicap))
+
+
 def answer(runs: Sequence[Context], timings_ms: dict[str, float], settings: Settings) -> Result:
     """The response to a query run once per window class (`runs`, at least one): the first k of their
     answers (`ranked_matches`; merged by distance when several) with the verdict, read on all of them
@@ -98,6 +108,9 @@ def answer(runs: Sequence[Context], timings_ms: dict[str, float], settings: Sett
     ctx, d, p = runs[0], runs[0].decoded, runs[0].patches
     assert p is not None  # `Cut` ran
     found = [(m, i) for i, run in enumerate(runs) for m in ranked_matches(run)]
+    if settings.shape_handicap > 0 and d.modality != "depth":
+        found = [(handicapped(m, runs[i].snapshot, settings.shape_handicap), i) for m, i in found]
+        found = sorted(found, key=lambda f: f[0].distance)  # stable: ties keep their order
     if len(runs) > 1:
         found = sorted(found, key=lambda f: f[0].distance)[: ctx.wanted]
     matches = [m for m, _ in found]

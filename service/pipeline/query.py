@@ -15,7 +15,8 @@ import numpy as np
 
 from index.features.embed import Embedder
 from index.features.patches import PatchSpec, crops, patch_camera
-from index.templates.register import TemplateConfig
+from index.store import TemplateStore
+from index.templates.register import TEXTURED_KEY, TemplateConfig
 from service.errors import ApiError
 from service.inputs.camera import undistorted
 from service.inputs.depth_units import check_frame_distance, check_given_distance, check_patch_distance
@@ -44,9 +45,21 @@ class Loaded(Protocol):
     @property
     def embedders(self) -> Mapping[str, Embedder]: ...
 
+    @property
+    def store(self) -> TemplateStore: ...
+
+
+def shape_only(store: TemplateStore) -> bool:
+    """Whether every registered object is shape-only (its mesh without colours, `TEXTURED_KEY` false): then
+    the colour of an RGB-D frame can match nothing but grey renders, and the depth model answers (objects
+    registered before the flag was kept count as textured)."""
+    objects = store.snapshot.objects.values()
+    return bool(objects) and all(rec.extra.get(TEXTURED_KEY) is False for rec in objects)
+
 
 def decode(state: Loaded, q: Query) -> Decoded:
-    """Checks what was sent, picks the model of its modality and decodes the images."""
+    """Checks what was sent, picks the model of its modality (an RGB-D frame: the depth model when every
+    registered object is shape-only, `shape_only`) and decodes the images."""
     embedders, settings = state.embedders, state.settings
     if q.k > settings.max_k:
         raise ApiError(422, f"k: must be at most {settings.max_k}, got {q.k}")
@@ -55,6 +68,8 @@ def decode(state: Loaded, q: Query) -> Decoded:
     modality = (
         "rgbd" if q.rgb is not None and q.depth is not None else "rgb" if q.rgb is not None else "depth"
     )
+    if modality == "rgbd" and settings.shape_only_depth and "depth" in embedders and shape_only(state.store):
+        modality = "depth"  # the colour still decoded: drawn on, and checked against the depth's size
     embedder = embedders.get(modality)
     if embedder is None:
         loaded = ", ".join(sorted(embedders))

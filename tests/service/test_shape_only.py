@@ -1,0 +1,97 @@
+"""Shape-only objects and RGB-D frames: while every registered object's mesh is without colours, an RGB-D
+frame is answered by the depth model (the colour could only be matched against grey renders), centre given
+or the frame searched whole; once a textured object is registered too, by the RGB-D model again."""
+
+from __future__ import annotations
+
+import numpy as np
+import trimesh
+from fastapi.testclient import TestClient
+from service_helpers import depth_png, frame, frame_fields, png, register, service_settings, wait_ready
+
+from index.geometry.pose import View
+from service.main import create_app
+
+VIEW = View(azimuth=40.0, elevation=30.0, inplane=0.0, distance=600.0)
+UV = (380.0, 240.0)
+
+
+def shape_only_part() -> trimesh.Trimesh:
+    """An L of two boxes, no colours: asymmetric, so its templates are every view's."""
+    a = trimesh.creation.box(extents=[120, 30, 30])
+    b = trimesh.creation.box(extents=[30, 80, 30])
+    b.apply_translation([45, 55, 0])
+    m = trimesh.util.concatenate([a, b])
+    m.apply_translation(-m.bounding_box.centroid)
+    return m
+
+
+def test_rgbd_frames_of_shape_only_objects_are_answered_by_the_depth_model(
+    tmp_path, posedesc_models, renderer, l_shape
+):
+    part = shape_only_part()
+    rgb, depth = frame(renderer, part, VIEW, UV, wall_mm=1500.0)
+    files = {"rgb": ("f.png", png(rgb)), "depth": ("d.png", depth_png(depth))}
+    with TestClient(create_app(service_settings(tmp_path, posedesc_models, level=1))) as c:
+        wait_ready(c)
+        made = register(c, part, "part")
+        assert made["textured"] is False
+        r = c.post("/recognize", files=files, data=frame_fields(UV, k=3))
+        assert r.status_code == 200, r.text
+        assert r.json()["model"] == "posedesc-depth" and r.json()["matches"][0]["name"] == "part"
+        whole = c.post(
+            "/recognize", files=files, data={k: v for k, v in frame_fields(UV).items() if k not in ("u", "v")}
+        )
+        assert whole.status_code == 200, whole.text
+        assert whole.json()["model"] == "posedesc-depth"
+        drawn = c.post("/recognize/draw", files=files, data=frame_fields(UV, k=3))
+        assert drawn.status_code == 200 and drawn.content[:4] == b"\x89PNG"
+        register(c, l_shape, "L")  # coloured: the RGB-D model answers again, for both
+        again = c.post("/recognize", files=files, data=frame_fields(UV, k=3))
+        assert again.status_code == 200 and again.json()["model"] == "posedesc-rgbd"
+        assert np.isfinite(again.json()["matches"][0]["distance"])
+
+
+def test_in_colour_a_shape_only_objects_distances_carry_the_handicap(
+    tmp_path, posedesc_models, renderer, l_shape
+):
+    """The same colour query with and without `shape_handicap`: the shape-only object's answers are as far
+    as before times 1 + the handicap, the coloured object's unchanged; with depth alone, no handicap."""
+    rgb, depth = frame(renderer, l_shape, VIEW, UV, wall_mm=1500.0)
+    answers = {}
+    for handicap in (0.0, 0.5):
+        settings = service_settings(
+            tmp_path / str(handicap), posedesc_models, level=1, shape_handicap=handicap
+        )
+        with TestClient(create_app(settings)) as c:
+            wait_ready(c)
+            register(c, l_shape, "L")
+            register(c, shape_only_part(), "part")
+            sent = {"rgb": ("f.png", png(rgb))}
+            r = c.post("/recognize", files=sent, data=frame_fields(UV, k=40, distance_mm=600))
+            assert r.status_code == 200, r.text
+            d = c.post(
+                "/recognize", files={"depth": ("d.png", depth_png(depth))}, data=frame_fields(UV, k=40)
+            )
+            assert d.status_code == 200, d.text
+            answers[handicap] = (r.json()["matches"], d.json()["matches"])
+    key = lambda m: (m["name"], m["azimuth"], m["elevation"], m["inplane"])  # noqa: E731
+    plain, handicapped = ({key(m): m["distance"] for m in answers[h][0]} for h in (0.0, 0.5))
+    common = plain.keys() & handicapped.keys()
+    assert any(k[0] == "part" for k in common) and any(k[0] == "L" for k in common)
+    for k in common:
+        factor = 1.5 if k[0] == "part" else 1.0
+        assert abs(handicapped[k] - factor * plain[k]) <= 1e-4 * max(1.0, plain[k]), k
+    assert [m["distance"] for m in answers[0.0][1]] == [m["distance"] for m in answers[0.5][1]]
+
+
+def test_the_setting_keeps_the_rgbd_model_for_shape_only_objects(tmp_path, posedesc_models, renderer):
+    part = shape_only_part()
+    rgb, depth = frame(renderer, part, VIEW, UV, wall_mm=1500.0)
+    files = {"rgb": ("f.png", png(rgb)), "depth": ("d.png", depth_png(depth))}
+    settings = service_settings(tmp_path, posedesc_models, level=1, shape_only_depth=False)
+    with TestClient(create_app(settings)) as c:
+        wait_ready(c)
+        register(c, part, "part")
+        r = c.post("/recognize", files=files, data=frame_fields(UV, k=3))
+        assert r.status_code == 200 and r.json()["model"] == "posedesc-rgbd"
