@@ -36,7 +36,14 @@ def _train(args: argparse.Namespace) -> int:
     from training.objectness import ObjectnessConfig, train
 
     cfg = ObjectnessConfig(
-        minutes=args.minutes, seed=args.seed, batch=args.batch, val_every=args.val_every, lr=args.lr
+        minutes=args.minutes,
+        seed=args.seed,
+        batch=args.batch,
+        val_every=args.val_every,
+        lr=args.lr,
+        background=args.background,
+        scrambled=args.scrambled,
+        holdout=tuple(int(x) for x in args.holdout.split(",") if x),
     )
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "command.txt").write_text(
@@ -79,7 +86,14 @@ def _measure(args: argparse.Namespace) -> int:
     net = ObjectnessNet(args.model, threads=1)
     frames = load_frames(args.data, args.split)
     levels = tuple(float(x) for x in args.levels.split(",")) if args.levels else net.levels
-    pairs = [(propose(net, f.rgb, limit=30, levels=levels), f.truths(0.5)) for f in frames]
+    found = [propose(net, f.rgb, limit=30, levels=levels) for f in frames]
+    pairs = [(p, f.truths(0.5)) for p, f in zip(found, frames, strict=True)]
+    ids = sorted({int(i) for f in frames for i in f.ids})
+    per_object = {  # each object's recall alone: a held-out object's against the others'
+        str(i): recall([(p, f.truths(0.5, only={i})) for p, f in zip(found, frames, strict=True)])["w/8, 12%"]
+        | {"n": sum(len(f.truths(0.5, only={i})) for f in frames)}
+        for i in ids
+    }
     frame = frames[0].rgb
     propose(net, frame, levels=levels)
     times = []
@@ -95,6 +109,8 @@ def _measure(args: argparse.Namespace) -> int:
         "levels": list(levels),
         "recall_by_window": recall(pairs),
         "recall_by_extent_and_true_diameter": recall(pairs, by_extent=True),
+        "per_object_w8_12": per_object,
+        "held_out": json.loads(net.metadata.get("config", "{}")).get("holdout", []),
         "propose_ms_640x480_median": round(1000 * float(np.median(times)), 1),
         "threads": 1,
         "repeats": args.repeats,
@@ -128,6 +144,9 @@ def main(argv: list[str] | None = None) -> int:
     t.add_argument("--batch", type=int, default=names["batch"])
     t.add_argument("--val-every", type=int, default=names["val_every"])
     t.add_argument("--lr", type=float, default=names["lr"])
+    t.add_argument("--background", choices=("negative", "ignore"), default=names["background"])
+    t.add_argument("--scrambled", type=float, default=names["scrambled"])
+    t.add_argument("--holdout", default="", help="object ids treated as never seen, comma-separated")
     t.add_argument("--init", type=Path, help="a checkpoint (best.pt) whose head this run goes on training")
     e = sub.add_parser("export")
     e.add_argument("--run", type=Path, required=True)

@@ -34,6 +34,10 @@ class Settings(BaseSettings):
         "templates are swept",
     )  # fmt: skip
     models_dir: Path = Field(Path("models"), description="posedesc-{rgb,depth,rgbd}.onnx, any of them")
+    objectness_model: Path | None = Field(
+        None, description="the objectness network colour frames without u and v are searched with "
+        "(default: posedesc-objectness.onnx in models_dir)",
+    )  # fmt: skip
     api_key: SecretStr | None = Field(None, description="when set, POST/DELETE /objects need it (X-API-Key)")
     allow_open_writes: bool = Field(
         False, description="without an API key on a non-loopback address, allow POST/DELETE /objects anyway"

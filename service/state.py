@@ -187,8 +187,13 @@ def load_state(settings: Settings, embedders: dict[str, Embedder] | None = None)
     log.info("models %s, %d objects in %s", sorted(embedders), len(store.snapshot.objects), where)
     # behind a load balancer a job is polled on any replica: with a shared store, job states are shared files
     jobs = Jobs() if settings.store == EMBEDDED else Jobs(files=SharedFiles(settings.data_dir))
-    colour = colour_proposals(settings.models_dir / OBJECTNESS_FILE, settings.threads)
+    colour = colour_proposals(objectness_path(settings), settings.threads)
     return AppState(settings, embedders, store, worker, cfg, jobs=jobs, colour_proposals=colour)
+
+
+def objectness_path(settings: Settings) -> Path:
+    """Where the service's objectness network is: `Settings.objectness_model`, else beside the models."""
+    return settings.objectness_model or settings.models_dir / OBJECTNESS_FILE
 
 
 def colour_proposals(path: Path, threads: int) -> Colour | None:

@@ -54,7 +54,7 @@ from evaluation.progress import bar
 from evaluation.queries import frame_files
 from evaluation.served import register_objects, served_models
 from index.data.bop import BopDataset, Instance
-from index.features.embed import Embedder
+from index.features.embed import Embedder, fingerprint
 from index.templates.register import template_views
 from index.templates.render import Renderer
 from index.templates.shapes import demo_shapes, random_shape
@@ -62,7 +62,7 @@ from service.detection import Detection, detect, reported
 from service.errors import ApiError
 from service.pipeline.context import Query
 from service.settings import Settings
-from service.state import AppState, close_state, load_state
+from service.state import AppState, close_state, load_state, objectness_path
 
 ALL = 100  # detections asked for per frame: every one the detector keeps (a frame of LM-O holds 7 objects)
 GENERATED = 3  # generated shapes beside the 4 demo shapes: as many unknown objects as LM-O has objects
@@ -123,6 +123,7 @@ def evaluate_detect(cfg: DetectConfig) -> tuple[dict, list[Estimate]]:
     seconds: dict[str, float] = {}
     with tempfile.TemporaryDirectory(prefix="posedesc-detect-") as tmp:
         settings = service_settings(cfg.model, Path(tmp) / "objects")
+        objectness = objectness_path(settings)
         embedder = Embedder(cfg.model, settings.threads)  # as the service loads it
         kind = served_data(embedder.modality, instances, None)
         state = load_state(settings, served_models(embedder, settings.threads))
@@ -164,6 +165,9 @@ def evaluate_detect(cfg: DetectConfig) -> tuple[dict, list[Estimate]]:
         "objects": obj_ids,
         "model": str(cfg.model),
         "modality": embedder.modality,
+        "objectness": {"file": str(objectness), "fingerprint": fingerprint(objectness)}
+        if objectness.is_file() and embedder.modality != "depth"
+        else None,
         "test_data": kind,
         "targets": sum(t.target for t in truths),
         "settings": {

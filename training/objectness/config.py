@@ -49,3 +49,12 @@ class ObjectnessConfig:
     paste_px: tuple[float, float] = (30.0, 120.0)  # their windows at the crop's scale
     scale_weight: float = 2.0  # of the log window's L1, against the offset's
     seed: int = 0
+    #: what the real frames' cells outside their annotated objects teach: "negative" (background: every
+    #: object nobody annotated, too) or "ignore" (nothing: only the annotated and pasted objects and their
+    #: surroundings are scored there; background is taught by `scrambled` crops)
+    background: str = "negative"
+    scrambled: float = (
+        0.0  # share of crops whose real content is shuffled in tiles: background, every cell scored
+    )
+    #: objects treated as never seen: their annotations removed and their pixels neither target nor background
+    holdout: tuple[int, ...] = ()

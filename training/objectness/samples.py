@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Collection
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -37,12 +38,14 @@ class Frame:
     rgb: np.ndarray
     objects: np.ndarray
     diameters: np.ndarray  # mm, one per object row
+    ids: np.ndarray  # the object id of each row
 
-    def truths(self, min_visib: float = 0.5) -> list[Truth]:
+    def truths(self, min_visib: float = 0.5, only: Collection[int] | None = None) -> list[Truth]:
+        """The objects at least `min_visib` visible (of the ids `only`, default all)."""
         return [
             Truth(float(o[0]), float(o[1]), float(o[2]), float(o[3]), float(d))
-            for o, d in zip(self.objects, self.diameters, strict=True)
-            if o[4] >= min_visib
+            for o, d, i in zip(self.objects, self.diameters, self.ids, strict=True)
+            if o[4] >= min_visib and (only is None or int(i) in only)
         ]
 
 
@@ -64,7 +67,8 @@ def load_frames(root: Path, split: str, scene: int = 2) -> list[Frame]:
             diams.append(t.diameter_mm)
         rgb = group[0].load_rgb()
         assert rgb is not None
-        out.append(Frame(fid, rgb, np.array(rows, np.float64), np.array(diams)))
+        ids = np.array([i.obj_id for i in group])
+        out.append(Frame(fid, rgb, np.array(rows, np.float64), np.array(diams), ids))
     return out
 
 
@@ -153,7 +157,9 @@ def make_sample(
     """One random training crop: a real train frame scaled and cropped, shapes pasted, colours jittered."""
     fr = frames[int(rng.integers(len(frames)))]
     objs = fr.objects
-    seen = np.nonzero(objs[:, 4] >= cfg.min_visib)[0]
+    held = np.isin(fr.ids, cfg.holdout)
+    scrambled = rng.random() < cfg.scrambled
+    seen = np.nonzero((objs[:, 4] >= cfg.min_visib) & ~held)[0]
     c = cfg.crop
     h, w = fr.rgb.shape[:2]
     if len(seen) and rng.random() < 0.85:
@@ -175,10 +181,12 @@ def make_sample(
         int(np.clip(y0, min(0, lh - c), max(0, lh - c))),
     )
     img = np.zeros((c, c, 3), np.uint8)
+    real = np.zeros((c, c), bool)  # the crop's pixels of the real frame (the rest is the pyramid's black)
     ax0, ay0, ax1, ay1 = max(0, x0), max(0, y0), min(lw, x0 + c), min(lh, y0 + c)
     if ax1 > ax0 and ay1 > ay0:
         img[ay0 - y0 : ay1 - y0, ax0 - x0 : ax1 - x0] = level[ay0:ay1, ax0:ax1]
-    # rows: u, v, window, extent, visible fraction, in crop pixels
+        real[ay0 - y0 : ay1 - y0, ax0 - x0 : ax1 - x0] = True
+    # rows: u, v, window, extent, visible fraction, kind (REAL, PASTED, HELD), in crop pixels
     rows = [
         [
             (o[0] + 0.5) * sx - 0.5 - x0,
@@ -186,9 +194,13 @@ def make_sample(
             o[2] * (sx + sy) / 2,
             o[3] * (sx + sy) / 2,
             o[4],
+            HELD if h else REAL,
         ]
-        for o in objs
+        for o, h in zip(objs, held, strict=True)
     ]
+    if scrambled:  # no object survives its tiles being shuffled: every real cell is background
+        img = _shuffled_tiles(img, rng)
+        rows = []
     for _ in range(int(rng.integers(cfg.paste[0], cfg.paste[1] + 1))):
         win = math.exp(rng.uniform(*np.log(cfg.paste_px)))
         pu, pv = rng.uniform(-0.1, 1.1) * c, rng.uniform(-0.1, 1.1) * c
@@ -197,34 +209,67 @@ def make_sample(
             iu, iv = int(round(r[0])), int(round(r[1]))
             if 0 <= iu < c and 0 <= iv < c and m[iv, iu]:
                 r[4] = 0.0
-        rows.append([pu, pv, win, ext, 1.0])
+        rows.append([pu, pv, win, ext, 1.0, PASTED])
     if rng.random() < 0.5:  # a mirrored object is still an object
-        img = img[:, ::-1]
+        img, real = img[:, ::-1], real[:, ::-1]
         for r in rows:
             r[0] = c - 1 - r[0]
     img = colour_jitter(np.ascontiguousarray(img), rng, 1.0)
     if rng.random() < 0.3:  # a camera's focus and motion
         img = np.asarray(cv2.GaussianBlur(img, (0, 0), rng.uniform(0.3, 1.2)), np.uint8)
-    return Sample(img, *_targets(np.array(rows, np.float64).reshape(-1, 5), cfg))
+    # where nobody said what is there: a real frame's cells outside its objects, when only they are scored
+    unknown = None
+    if cfg.background == "ignore" and not scrambled:
+        unknown = (
+            cv2.resize(real.astype(np.float32), (c // STRIDE, c // STRIDE), interpolation=cv2.INTER_AREA) > 0
+        )
+    return Sample(img, *_targets(np.array(rows, np.float64).reshape(-1, 6), cfg, unknown))
 
 
-def _targets(rows: np.ndarray, cfg: ObjectnessConfig) -> tuple[np.ndarray, ...]:
+REAL, PASTED, HELD = 0, 1, 2  # a sample row's kind: an annotated object, a pasted shape, a held-out object
+
+
+def _shuffled_tiles(img: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """The crop cut in square tiles of 12-40 px, shuffled: the frame's colours and textures, no object."""
+    c = img.shape[0]
+    t = int(rng.integers(12, 41))
+    n = -(-c // t)
+    big = np.zeros((n * t, n * t, 3), np.uint8)
+    big[:c, :c] = img
+    tiles = big.reshape(n, t, n, t, 3).transpose(0, 2, 1, 3, 4).reshape(n * n, t, t, 3)
+    tiles = tiles[rng.permutation(n * n)]
+    tiles = np.rot90(tiles, int(rng.integers(4)), axes=(1, 2))
+    out = tiles.reshape(n, n, t, t, 3).transpose(0, 2, 1, 3, 4).reshape(n * t, n * t, 3)
+    return np.ascontiguousarray(out[:c, :c])
+
+
+def _targets(
+    rows: np.ndarray, cfg: ObjectnessConfig, unknown: np.ndarray | None = None
+) -> tuple[np.ndarray, ...]:
+    """The crop's targets from its rows (`make_sample`). `unknown` (G, G): the cells nothing is known of
+    (unscored unless near an object), None: every cell is scored."""
     g = cfg.crop // STRIDE
     centres = STRIDE * np.arange(g) + (STRIDE - 1) / 2
     heat = np.zeros((g, g), np.float32)
     weight = np.ones((g, g), np.float32)
+    near_object = np.zeros((g, g), bool)  # scored although unknown: around an object, its peak's shape
     reg = np.zeros((4, g, g), np.float32)
     reg_w = np.zeros((g, g), np.float32)
     best = np.zeros((g, g), np.float32)  # the Gaussian a cell's regression target belongs to
     lo, hi = cfg.positive_px
-    for u, v, win, ext, vis in rows:
+    held = np.zeros((g, g), bool)
+    for u, v, win, ext, vis, kind in rows:
+        dist2 = (centres[None, :] - u) ** 2 + (centres[:, None] - v) ** 2
+        if kind == HELD:  # never seen: neither target nor background, wherever it may show
+            held |= dist2 <= (0.5 * max(ext, win)) ** 2
+            continue
         if vis < 0.1:
             continue  # hidden: background
         positive = lo <= win <= hi and vis >= cfg.min_visib
         near = cfg.ignore_px[0] <= win <= cfg.ignore_px[1]
         if not positive and not near:
             continue  # far out of the head's range: background
-        dist2 = (centres[None, :] - u) ** 2 + (centres[:, None] - v) ** 2
+        near_object |= dist2 <= (0.75 * win) ** 2
         if not positive:  # the band around the range, or too hidden: not scored near its centre
             weight[dist2 <= (0.25 * win) ** 2] = 0.0
             continue
@@ -242,4 +287,7 @@ def _targets(rows: np.ndarray, cfg: ObjectnessConfig) -> tuple[np.ndarray, ...]:
         reg[2, ii, jj] = math.log(win / cfg.reference_px)
         reg[3, ii, jj] = math.log(ext / cfg.reference_px)
         reg_w[ii, jj] = gauss[ii, jj]
+    if unknown is not None:
+        weight[unknown & ~near_object] = 0.0
+    weight[held] = 0.0
     return heat, weight, reg, reg_w

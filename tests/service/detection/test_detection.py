@@ -98,3 +98,15 @@ def test_iou():
     assert iou((0, 0, 10, 10), (0, 0, 10, 10)) == 1.0
     assert iou((0, 0, 10, 10), (10, 0, 20, 10)) == 0.0
     assert iou((0, 0, 10, 10), (5, 0, 15, 10)) == pytest.approx(50 / 150)
+
+
+def test_the_objectness_network_is_beside_the_models_unless_a_setting_says_where(tmp_path):
+    from index.features.objectness import OBJECTNESS_FILE
+    from service.settings import Settings
+    from service.state import colour_proposals, objectness_path
+
+    beside = Settings(data_dir=tmp_path, models_dir=tmp_path / "m")
+    assert objectness_path(beside) == tmp_path / "m" / OBJECTNESS_FILE
+    elsewhere = Settings(data_dir=tmp_path, models_dir=tmp_path / "m", objectness_model=tmp_path / "o.onnx")
+    assert objectness_path(elsewhere) == tmp_path / "o.onnx"
+    assert colour_proposals(objectness_path(elsewhere), 1) is None  # no file there: colour needs u and v

@@ -20,7 +20,7 @@ from training.objectness.train import export  # noqa: E402
 def test_a_target_peaks_at_its_cell_with_its_offset_and_sizes() -> None:
     cfg = ObjectnessConfig(crop=64)
     u, v = 8 * 3 + 3.5 + 2.0, 8 * 5 + 3.5 - 1.0  # 2 px right of cell (5, 3)'s centre, 1 px above
-    heat, weight, reg, reg_w = _targets(np.array([[u, v, 64.0, 32.0, 1.0]]), cfg)
+    heat, weight, reg, reg_w = _targets(np.array([[u, v, 64.0, 32.0, 1.0, 0]]), cfg)
     assert heat.shape == (8, 8) and heat[5, 3] == 1.0 and (heat < 1).sum() == 63
     assert weight.min() == 1.0
     assert reg[0, 5, 3] == pytest.approx(2 / STRIDE) and reg[1, 5, 3] == pytest.approx(-1 / STRIDE)
@@ -30,12 +30,33 @@ def test_a_target_peaks_at_its_cell_with_its_offset_and_sizes() -> None:
 
 def test_objects_out_of_the_heads_range_are_ignored_near_it_and_background_far_from_it() -> None:
     cfg = ObjectnessConfig(crop=64)
-    near = _targets(np.array([[30.0, 30.0, 120.0, 100.0, 1.0]]), cfg)  # in the band around the range
-    far = _targets(np.array([[30.0, 30.0, 300.0, 200.0, 1.0]]), cfg)
-    hidden = _targets(np.array([[30.0, 30.0, 64.0, 60.0, 0.2]]), cfg)  # in range, too hidden
+    near = _targets(np.array([[30.0, 30.0, 120.0, 100.0, 1.0, 0]]), cfg)  # in the band around the range
+    far = _targets(np.array([[30.0, 30.0, 300.0, 200.0, 1.0, 0]]), cfg)
+    hidden = _targets(np.array([[30.0, 30.0, 64.0, 60.0, 0.2, 0]]), cfg)  # in range, too hidden
     assert near[0].max() == 0 and near[1][3, 3] == 0 and near[1][0, 7] == 1
     assert far[0].max() == 0 and far[1].min() == 1
     assert hidden[0].max() == 0 and hidden[1][3, 3] == 0
+
+
+def test_a_held_out_object_is_neither_target_nor_background_and_unknown_cells_are_unscored() -> None:
+    cfg = ObjectnessConfig(crop=64)
+    held = _targets(np.array([[20.0, 20.0, 64.0, 60.0, 1.0, 2]]), cfg)  # kind 2: held out
+    assert held[0].max() == 0 and held[1][2, 2] == 0 and held[1][7, 7] == 1
+    unknown = np.ones((8, 8), bool)  # a real crop whose background nobody labelled
+    one = _targets(np.array([[20.0, 20.0, 64.0, 60.0, 1.0, 0]]), cfg, unknown)
+    assert one[0][2, 2] == 1.0 and one[1][2, 2] == 1 and one[1][7, 7] == 0  # scored around it only
+    assert _targets(np.zeros((0, 6)), cfg, unknown)[1].max() == 0
+
+
+def test_shuffled_tiles_keep_the_crops_pixels() -> None:
+    from training.objectness.samples import _shuffled_tiles
+
+    img = np.random.default_rng(0).integers(0, 255, (96, 96, 3), dtype=np.uint8)
+    out = _shuffled_tiles(img, np.random.default_rng(1))
+    assert out.shape == img.shape and not np.array_equal(out, img)
+    assert (
+        abs(float(out.mean()) - float(img.mean())) < 10
+    )  # tiles moved, not invented (edge tiles may be cut)
 
 
 def test_the_network_maps_a_frame_to_cells_and_the_loss_prefers_the_truth() -> None:
