@@ -173,6 +173,17 @@ class Settings(BaseSettings):
         le=500,
         description="a frame without u and v: how many colour proposals are verified",
     )
+    # The objectness network proposes any object, registered or not: with this above `detect_proposals`,
+    # this many are each screened once at their centre and the best `detect_proposals` of them by that
+    # screening's confidence times their score are verified (docs/experiments.md)
+    detect_looked: int = Field(
+        0, ge=0, le=500, description="a frame without u and v: colour proposals looked at once each before "
+        "the best detect_proposals are verified (0 or at most detect_proposals: none looked at)",
+    )  # fmt: skip
+    detect_by_extent: bool = Field(
+        False, description="a frame without u and v, colour: each place is also verified at the distance "
+        "its extent gives each registered size class (objects the objectness network never saw)",
+    )  # fmt: skip
     # Depth segments rank worse than the network's proposals in clutter (the real Kinect frame: 5 of its 6
     # instances in the first 30 segments, 1 in the first 10; docs/results/depth_proposals.json)
     detect_depth_proposals: int = Field(

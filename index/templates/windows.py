@@ -70,3 +70,20 @@ def window_classes(
         by.setdefault(object_window(rec.extra, model_window_mm), set()).add(oid)
     order = sorted(by, key=lambda w: (abs(math.log(w / model_window_mm)), w))
     return {w: frozenset(by[w]) for w in order}
+
+
+def size_classes(objects: Mapping[int, ObjectRecord], ratio: float = 1.25) -> dict[float, frozenset[int]]:
+    """The objects with a stored diameter grouped so that each group's largest is at most `ratio` times its
+    smallest, keyed by the group's geometric mean diameter (mm), smallest first."""
+    sized = sorted(
+        (float(d), oid)
+        for oid, rec in objects.items()
+        if isinstance(d := rec.extra.get(DIAMETER_KEY), (int, float)) and d > 0
+    )
+    groups: list[list[tuple[float, int]]] = []
+    for d, oid in sized:
+        if groups and d <= groups[-1][0][0] * ratio:
+            groups[-1].append((d, oid))
+        else:
+            groups.append([(d, oid)])
+    return {round(math.sqrt(g[0][0] * g[-1][0]), 2): frozenset(oid for _, oid in g) for g in groups}

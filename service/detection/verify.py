@@ -32,23 +32,43 @@ class Verify:
     grids: int
     scale: float
     screens: int
+    keep: int = 0  # colour proposals kept after one look each (`looked`); 0: all are verified
     name: str = "verify"
 
     @classmethod
     def build(cls, state: AppState) -> Verify:
         s = state.settings
-        return cls(state, s.detect_shift, s.detect_grids, s.detect_scale, s.detect_screens)
+        keep = s.detect_proposals if s.detect_looked > s.detect_proposals else 0
+        return cls(state, s.detect_shift, s.detect_grids, s.detect_scale, s.detect_screens, keep)
 
     def __call__(self, frame: Frame) -> Frame:
-        found = (self.verify(frame, p) for p in frame.proposals)
+        screened: dict[Proposal, dict] = {p: {} for p in frame.proposals}
+        proposals = self.looked(frame, screened) if self.keep else frame.proposals
+        found = (self.verify(frame, p, screened[p]) for p in proposals)
         return replace(frame, detections=tuple(x for x in found if x is not None))
 
-    def verify(self, frame: Frame, p: Proposal) -> Detection | None:
+    def looked(self, frame: Frame, screened: dict[Proposal, dict]) -> tuple[Proposal, ...]:
+        """The proposals worth verifying: every depth one, and the best `keep` colour ones by the screening's
+        confidence at their centre times their score. The network proposes any object, registered or not;
+        one screening each says which look like a registered one (`Settings.detect_looked`)."""
+        colour = [p for p in frame.proposals if p.source == "colour"]
+        if len(colour) <= self.keep:
+            return frame.proposals
+        looks = {p: self.screen(frame, self.seen(frame, p), p.u, p.v, p, screened[p]) for p in colour}
+        best = set(sorted(colour, key=lambda p: -max(looks[p][0], 0.0) * p.score)[: self.keep])
+        return tuple(p for p in frame.proposals if p.source != "colour" or p in best)
+
+    @staticmethod
+    def seen(frame: Frame, p: Proposal) -> Snapshot:
+        """The objects a proposal is verified against (a colour proposal's distance holds for one class)."""
+        return frame.snapshot if p.objects is None else frame.snapshot.within(p.objects)
+
+    def verify(self, frame: Frame, p: Proposal, screened: dict | None = None) -> Detection | None:
         """The verifier's answer at a proposal: screened at its shifts (`centred`), then the whole pipeline
-        cut at the best of them; None when nothing there can be answered."""
+        cut at the best of them; None when nothing there can be answered. `screened`: screenings made."""
         d, K = frame.d, frame.K
-        seen = frame.snapshot if p.objects is None else frame.snapshot.within(p.objects)
-        at = self.centred(frame, seen, p)
+        seen = self.seen(frame, p)
+        at = self.centred(frame, seen, p, {} if screened is None else screened)
         if at is None:
             return None
         try:
@@ -65,32 +85,51 @@ class Verify:
         u, v = (at.u, at.v) if result.fitted(0) is None else tuple(float(x) for x in (K @ t)[:2] / t[2])
         return Detection(u, v, box, confidence(result, p), result, p)
 
-    def centred(self, frame: Frame, snapshot: Snapshot, p: Proposal) -> Query | None:
+    def screen(
+        self,
+        frame: Frame,
+        snapshot: Snapshot,
+        u: float,
+        v: float,
+        p: Proposal,
+        seen: dict,
+        log_d: float | None = None,
+    ) -> tuple[float, float]:
+        """The screening pipeline's (confidence, -distance) of its best answer cut at (u, v) at the distance
+        `exp(log_d)` (default the proposal's), (-1, 0) when nothing is there, remembered in `seen`."""
+        if log_d is None and p.distance_mm is not None:
+            log_d = float(np.log(p.distance_mm))
+        key = (round(u, 1), round(v, 1), round(log_d, 4) if log_d is not None else 0.0)
+        if key not in seen:
+            q, d = frame.q, frame.d
+            distance = None if log_d is None else float(np.exp(log_d))
+            try:
+                r = self.state.screens[d.modality](
+                    replace(q, u=u, v=v, distance_mm=distance, k=1), d, snapshot
+                )
+            except ApiError:  # no depth there
+                seen[key] = (-1.0, 0.0)
+            else:
+                seen[key] = (
+                    (float(r.confidences[0] or 0.0), -r.matches[0].distance) if r.matches else (-1.0, 0.0)
+                )
+        return seen[key]
+
+    def centred(self, frame: Frame, snapshot: Snapshot, p: Proposal, seen: dict) -> Query | None:
         """Where around the proposal the screening pipeline is most confident: a 3 x 3 grid of centres
         `shift` of its window's side apart around the proposal's (and, for `grids` > 1, grids of half the
         step around the best), then (a colour proposal) its distance nearer and farther by `scale`; at most
-        `screens` screenings. None when nothing there can be answered (outside the frame, no depth there)."""
+        `screens` screenings (`seen`: those made already). None when nothing there can be answered (outside
+        the frame, no depth there)."""
         q, d = frame.q, frame.d
         w, h = d.size
         side = p.box[2] - p.box[0]  # the proposal's window (colour) or the segment's extent (depth), px
-        screen = self.state.screens[d.modality]
-        seen: dict[tuple[float, float, float], tuple[float, float]] = {}
 
         def score(u: float, v: float, log_d: float | None) -> tuple[float, float] | None:
             key = (round(u, 1), round(v, 1), round(log_d, 4) if log_d is not None else 0.0)
-            if key not in seen:
-                if not (0 <= u < w and 0 <= v < h) or len(seen) >= self.screens:
-                    return None
-                distance = None if log_d is None else float(np.exp(log_d))
-                try:
-                    r = screen(replace(q, u=u, v=v, distance_mm=distance, k=1), d, snapshot)
-                except ApiError:  # no depth there
-                    seen[key] = (-1.0, 0.0)
-                else:
-                    seen[key] = (
-                        (float(r.confidences[0] or 0.0), -r.matches[0].distance) if r.matches else (-1.0, 0.0)
-                    )
-            return seen[key]
+            if key not in seen and (not (0 <= u < w and 0 <= v < h) or len(seen) >= self.screens):
+                return None
+            return self.screen(frame, snapshot, u, v, p, seen, log_d)
 
         u, v = p.u, p.v
         log_d = None if p.distance_mm is None else float(np.log(p.distance_mm))

@@ -24,6 +24,7 @@ def test_measure_reproduces_the_committed_validation_recall(tmp_path, lmo, scrip
     assert now["instances"] == committed["instances"] == 115
     assert now["recall_by_window"] == committed["recall_by_window"]
     assert now["recall_by_extent_and_true_diameter"] == committed["recall_by_extent_and_true_diameter"]
+    assert now["per_object_w8_12"] == committed["per_object_w8_12"] and now["held_out"] == []
     assert now["propose_ms_640x480_median"] > 0
 
 

@@ -10,11 +10,13 @@ import pytest
 from index.geometry.units import LARGEST_MM, SMALLEST_MM
 from index.store.records import ObjectRecord
 from index.templates.windows import (
+    DIAMETER_KEY,
     FILL_HIGH,
     FILL_LOW,
     STEP,
     WINDOW_KEY,
     object_window,
+    size_classes,
     window_class,
     window_classes,
 )
@@ -48,6 +50,17 @@ def test_the_ends_of_the_range():
 
 def record(oid: int, extra: dict) -> ObjectRecord:
     return ObjectRecord(oid, f"o{oid}", "none", 10, 0.0, {"rgb": 1}, extra)
+
+
+def test_objects_group_by_size_each_group_within_the_ratio_and_old_objects_left_out():
+    objects = {oid: record(oid, {DIAMETER_KEY: d}) for oid, d in LMO.items()} | {99: record(99, {})}
+    classes = size_classes(objects, 1.25)
+    assert sorted(set().union(*classes.values())) == sorted(LMO)  # 99 has no diameter: in none
+    for mm, ids in classes.items():
+        ds = [LMO[i] for i in ids]
+        assert max(ds) <= 1.25 * min(ds) and min(ds) <= mm <= max(ds)
+    assert list(classes) == sorted(classes) and classes[list(classes)[0]] == {1}  # the ape alone
+    assert size_classes({}) == {}
 
 
 def test_objects_group_by_window_the_models_first_and_old_objects_keep_it():
