@@ -50,6 +50,17 @@ def unregistered(modality: str, kind: str, command: str) -> Row:
 
 
 CALIBRATE = "PYTHONPATH=. .venv/bin/python scripts/calibrate_reject.py --dataset ../shared/data/lmo"
+# Real depth: YCB-V's 3 videos, one `posedesc evaluate --dataset ../shared/data/ycbv --scene S` run each
+# (docs/experiments.md), pooled as one run (`scripts/pool_results.py`)
+POOL = "PYTHONPATH=. .venv/bin/python scripts/pool_results.py"
+
+
+def ycbv(label: str, model: str) -> Row:
+    runs = " ".join(f"docs/results/ycbv-service-{model}-{s}-sym.json" for s in range(3))
+    command = f"{POOL} {runs} --json docs/results/ycbv-service-{model}.json"
+    return Row(label, f"ycbv-service-{model}.json", command, {"method": "ours"})
+
+
 NO_OPEN_SET = {"answered unknown": "", "open set off: right object": "", "open set off: 3-D < 20°": ""}
 ACCURACY_COLUMNS = (
     Column("set-up"),
@@ -146,6 +157,11 @@ ACCURACY = Table(
             f"{DEPTH} --json docs/results/test-depth.json",
             {"method": "ours"},
         ),
+        ycbv(
+            "**depth, real depth** (YCB-V: 3 videos, 12 shape-only meshes; RGB-D frames of them go here)",
+            "depth",
+        ),
+        ycbv("rgbd model, the same real frames (its colour half meets grey renders)", "rgbd"),
         unregistered(
             "depth",
             "descriptor",

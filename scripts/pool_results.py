@@ -1,0 +1,97 @@
+"""Pools `posedesc evaluate --protocol service` results of several scenes (one run per video, as YCB-V's
+frames must be split) into one JSON, as if one run had sent every query: each share weighted by its run's
+queries (BOP's by its targets), counts summed, the translation errors of the right objects pooled. A float is a share, an integer a count.
+
+    PYTHONPATH=. .venv/bin/python scripts/pool_results.py docs/results/ycbv-service-depth-{0,1,2}-sym.json \
+        --json docs/results/ycbv-service-depth.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shlex
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+SHARES = ("methods", "view_direction", "open_set_off", "rejected")  # shares of each run's queries
+BOP_SHARES = ("ar", "ar_mssd", "ar_mspd", "recall_add_s", "recall_5deg_5cm")  # shares of its targets
+
+
+def pooled_share(parts: list[Any], weights: list[float]) -> Any:
+    """The weighted mean of the floats at the same place in every part, the sum of the integers (dicts
+    walked key by key; a key missing from a part, or a value that is not a number, is left out)."""
+    if all(isinstance(p, dict) for p in parts):
+        keys = [k for k in parts[0] if all(k in p for p in parts)]
+        out = {}
+        for k in keys:
+            value = pooled_share([p[k] for p in parts], weights)
+            if value is not None:
+                out[k] = value
+        return out
+    if all(isinstance(p, int) and not isinstance(p, bool) for p in parts):
+        return sum(parts)  # a count
+    if all(isinstance(p, (int, float)) and not isinstance(p, bool) for p in parts):
+        return float(np.average(parts, weights=weights))
+    return None
+
+
+def pool(runs: list[dict]) -> dict:
+    """One result of several runs of the service protocol (see the module's docstring)."""
+    n = [r["n_samples"] for r in runs]
+    out: dict[str, Any] = {
+        "n_samples": sum(n),
+        "modality": runs[0]["modality"],
+        "dataset": runs[0]["dataset"],
+        "scenes": [r["scene"] for r in runs],
+        "test_data": runs[0]["test_data"],
+    }
+    for key in SHARES:
+        out[key] = pooled_share([r[key] for r in runs], n)
+    targets = [r["bop"]["n_targets"] for r in runs]
+    bop: dict[str, Any] = {
+        k: float(np.average([r["bop"][k] for r in runs], weights=targets)) for k in BOP_SHARES
+    }
+    te = [i["te"] for r in runs for i in r["bop"]["per_instance"] if i.get("te") is not None]
+    bop |= {
+        "n_targets": sum(targets),
+        "n_estimated": sum(r["bop"]["n_estimated"] for r in runs),
+        "te_mm_right_object": {
+            "n": len(te),
+            "median": float(np.median(te)) if te else None,
+            "p90": float(np.percentile(te, 90)) if te else None,
+        },
+    }
+    out["bop"] = bop
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("runs", type=Path, nargs="+", help="results JSONs of the service protocol")
+    p.add_argument("--json", type=Path, required=True)
+    args = p.parse_args(argv)
+    runs = []
+    for path in args.runs:
+        if not path.is_file():
+            p.error(f"{path} does not exist")
+        run = json.loads(path.read_text())
+        if run.get("protocol") != "service" or "n_samples" not in run:
+            p.error(f"{path}: not a service-protocol result of posedesc evaluate")
+        runs.append(run)
+    if len({(r["modality"], r["dataset"]) for r in runs}) > 1:
+        p.error("the runs pooled must be of one model's modality on one dataset")
+    out = pool(runs) | {
+        "sources": [str(x) for x in args.runs],
+        "command": shlex.join(["PYTHONPATH=.", ".venv/bin/python", "scripts/pool_results.py", *sys.argv[1:]]),
+    }
+    args.json.write_text(json.dumps(out, indent=1) + "\n")
+    print(f"{args.json}: {out['n_samples']} queries of {len(runs)} runs")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
