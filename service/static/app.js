@@ -84,13 +84,32 @@ function loadCamera() {
 
 function setCamera(camera) {
   for (const name of Object.keys(EXAMPLE_CAMERA)) $(name).value = camera[name] ?? "";
+  $("dist_coeffs").value = camera.dist_coeffs ?? "";
   saveCamera();
 }
 
 function saveCamera() {
-  const camera = {};
+  const camera = { dist_coeffs: $("dist_coeffs").value };
   for (const name of Object.keys(EXAMPLE_CAMERA)) camera[name] = $(name).value;
   localStorage.setItem(CAMERA_STORE, JSON.stringify(camera));
+}
+
+// K pasted as OpenCV and BOP write it (cam_K: 9 numbers, row by row) fills fx, fy, cx, cy; anything else
+// is said, and the fields keep their values.
+function pasteK() {
+  const text = $("cam_K").value.trim();
+  if (!text) return;
+  const k = text.split(/[\s,;\[\]]+/).filter((x) => x !== "").map(Number);
+  const ok = k.length === 9 && k.every(Number.isFinite) && k[0] > 0 && k[4] > 0 && k[1] === 0 &&
+    k[3] === 0 && k[6] === 0 && k[7] === 0 && k[8] === 1;
+  if (!ok) {
+    say("camera-note", "K: 9 numbers row by row, fx 0 cx 0 fy cy 0 0 1 (as OpenCV and BOP's cam_K write it).");
+    return;
+  }
+  setCamera({ fx: k[0], fy: k[4], cx: k[2], cy: k[5], dist_coeffs: $("dist_coeffs").value });
+  $("cam_K").value = "";
+  say("camera-note", "");
+  checkCamera();
 }
 
 function sameAsExample() {
@@ -195,6 +214,7 @@ function questionForm(point) {
   if (frame.depth) form.append("depth", frame.depth, frame.depth.name || "depth.png");
   const fields = Object.fromEntries(Object.keys(EXAMPLE_CAMERA).map((n) => [n, $(n).value]));
   if (point) Object.assign(fields, point);
+  fields.dist_coeffs = $("dist_coeffs").value;
   fields.distance_mm = $("distance").value;
   fields.k = $("k").value;
   if (frame.depth) fields.depth_scale = $("depth_scale").value;
@@ -456,12 +476,13 @@ function dropZone(id, onFiles) {
 
 function start() {
   loadCamera();
-  for (const input of document.querySelectorAll("input.camera")) {
+  for (const input of [...document.querySelectorAll("input.camera"), $("dist_coeffs")]) {
     input.addEventListener("change", () => {
       saveCamera();
       checkCamera();
     });
   }
+  $("cam_K").addEventListener("change", pasteK);
   $("distance").addEventListener("input", () => {
     distanceFound = false; // typed: the user's own
   });

@@ -199,6 +199,21 @@ def test_a_colour_frame_a_users_own_camera_and_what_the_page_offers(server, brow
         fx.send_keys("600\t")
         wait.until(lambda d: text(d, "camera-note") == "")
 
+        # K pasted as OpenCV and BOP write it fills the four fields; a malformed one is said, nothing changed
+        paste = b.find_element(By.ID, "cam_K")
+        paste.send_keys("[572.4, 0, 325.3, 0, 573.6, 242.0, 0, 0, 1]\t")
+        wait.until(lambda d: d.find_element(By.ID, "cx").get_attribute("value") == "325.3")
+        camera = [b.find_element(By.ID, n).get_attribute("value") for n in ("fx", "fy", "cx", "cy")]
+        assert camera == ["572.4", "573.6", "325.3", "242"] and paste.get_attribute("value") == ""
+        paste.send_keys("572.4 0 325.3\t")
+        wait.until(EC.text_to_be_present_in_element((By.ID, "camera-note"), "9 numbers row by row"))
+        assert b.find_element(By.ID, "fx").get_attribute("value") == "572.4"
+        # distortion coefficients are sent with the frame: too few are the API's 422, shown on the page
+        b.find_element(By.ID, "dist_coeffs").send_keys("0.1 0.2\t")
+        b.find_element(By.ID, "find").click()
+        wait.until(EC.text_to_be_present_in_element((By.ID, "rec-error"), "dist_coeffs"))
+        b.find_element(By.ID, "dist_coeffs").clear()
+
         # the registration's bar: percent of the whole, never back when the stage (and its count) changes
         shown = b.execute_script(
             "const out = [];"
