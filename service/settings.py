@@ -219,6 +219,13 @@ class Settings(BaseSettings):
         0.4, ge=0, le=1, description="a frame without u and v and without min_confidence: the confidence a "
         "detection from a colour proposal needs to be reported",
     )  # fmt: skip
+    # The pose fit's score on depth is the share of the object's visible points the depth explains at the
+    # fitted pose (`index.refine.depth.score_of`). Chosen on YCB-V video 0000 (real depth, the shape-only
+    # objects registered; docs/experiments.md): 0.2 took precision 0.22 -> 0.37 at recall 0.667 -> 0.650
+    detect_depth_fit_floor: float = Field(
+        0.2, ge=0, le=1, description="a frame without u and v, with depth, without min_confidence: a detection "
+        "whose pose fitted to the depth explains less than this share of its visible points is not reported",
+    )  # fmt: skip
     detect_screen_rerank: int = Field(
         60, ge=1, le=1000, description="a frame without u and v: the answers the screening re-ranks"
     )

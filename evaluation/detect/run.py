@@ -306,7 +306,10 @@ def ask_service(
                 stage_ms.setdefault(k, []).append(v)
             hits = [(d, _hit(frame.key, d, dataset_ids)) for d in found.detections]
             ranked += [h for _, h in hits[: cfg.max_detections]]
-            at_floor = [h for d, h in hits if reported(d, cfg.min_confidence, state.settings.detect_floor)]
+            fit_floor = state.settings.detect_depth_fit_floor if frame.depth is not None else 0.0
+            at_floor = [
+                h for d, h in hits if reported(d, cfg.min_confidence, state.settings.detect_floor, fit_floor)
+            ]
             floor += at_floor[: cfg.max_detections]
             b.update()
     return Asked(ranked, floor, frame_ms, stage_ms)

@@ -16,14 +16,18 @@ class Report:
     the query's `max_detections`. `colour_floor`: `Settings.detect_floor`."""
 
     colour_floor: float
+    depth_fit_floor: float = 0.0
     name: str = "report"
 
     @classmethod
     def build(cls, settings: Settings) -> Report:
-        return cls(settings.detect_floor)
+        return cls(settings.detect_floor, settings.detect_depth_fit_floor)
 
     def __call__(self, frame: Frame) -> Frame:
-        shown = [x for x in frame.detections if reported(x, frame.q.min_confidence, self.colour_floor)]
+        fit_floor = self.depth_fit_floor if frame.d.depth is not None else 0.0
+        shown = [
+            x for x in frame.detections if reported(x, frame.q.min_confidence, self.colour_floor, fit_floor)
+        ]
         return replace(frame, detections=tuple(shown[: frame.q.max_detections]))
 
 
@@ -36,13 +40,20 @@ def confidence(result: Result, p: Proposal) -> float:
     return verified * p.score if p.source == "colour" else verified
 
 
-def reported(x: Detection, min_confidence: float | None, colour_floor: float) -> bool:
-    """Whether a detection is reported: its confidence at least `min_confidence` when given; else, from a
-    colour proposal, at least `colour_floor` (`Settings.detect_floor`), and from depth, accepted by the
-    model's open-set verdict (the verdict alone accepted nearly every colour proposal: ten a frame where
-    no registered object was)."""
+def reported(
+    x: Detection, min_confidence: float | None, colour_floor: float, depth_fit_floor: float = 0.0
+) -> bool:
+    """Whether a detection is reported: its confidence at least `min_confidence` when given; else its pose
+    fitted to the frame's depth explaining at least `depth_fit_floor` of its visible points (a frame with
+    depth, `Settings.detect_depth_fit_floor`; a detection not fitted passes), and then, from a colour
+    proposal, its confidence at least `colour_floor` (`Settings.detect_floor`), from depth, accepted by
+    the model's open-set verdict (the verdict alone accepted nearly every colour proposal: ten a frame
+    where no registered object was)."""
     if min_confidence is not None:
         return x.confidence >= min_confidence
+    fit = x.result.fits[0] if x.result.fits else None
+    if fit is not None and fit.score < depth_fit_floor:
+        return False
     if x.proposal.source == "colour":
         return x.confidence >= colour_floor
     return x.result.reason is None

@@ -1,0 +1,35 @@
+"""`service.detection.report.reported`: what a detection needs to be reported, the depth fit's floor included."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from index.refine.fit import Fit
+from service.detection.found import Detection, Proposal
+from service.detection.report import reported
+from service.pipeline.answer import Result
+
+
+def detection(source: str, confidence: float, fit: float | None, rejected: bool = False) -> Detection:
+    fits = [] if fit is None else [Fit(np.eye(3), np.zeros(3), fit, 0.0, 1, True)]
+    result = Result(
+        "posedesc-depth", [], {}, np.array([0.0, 0.0, 1.0]), 500.0, "local", [confidence],
+        "unknown" if rejected else None, [500.0], fits,
+    )  # fmt: skip
+    p = Proposal(10.0, 10.0, None, (0.0, 0.0, 20.0, 20.0), 0.9, source)
+    return Detection(10.0, 10.0, p.box, confidence, result, p)
+
+
+def test_a_pose_the_depth_does_not_bear_out_is_not_reported():
+    assert reported(detection("depth", 0.9, 0.5), None, 0.4, 0.2)
+    assert not reported(detection("depth", 0.9, 0.1), None, 0.4, 0.2)  # 10 % of it where depth says
+    assert not reported(detection("colour", 0.9, 0.1), None, 0.4, 0.2)
+    assert reported(detection("depth", 0.9, None), None, 0.4, 0.2)  # not fitted: nothing to bear it out
+    assert reported(detection("depth", 0.9, 0.1), None, 0.4, 0.0)  # no depth in the frame: no floor
+
+
+def test_the_other_floors_still_apply_and_min_confidence_replaces_them_all():
+    assert not reported(detection("depth", 0.9, 0.5, rejected=True), None, 0.4, 0.2)  # the open set
+    assert not reported(detection("colour", 0.3, 0.5), None, 0.4, 0.2)  # under the colour floor
+    assert reported(detection("depth", 0.3, 0.1), 0.2, 0.4, 0.2)
+    assert not reported(detection("depth", 0.1, 0.9), 0.2, 0.4, 0.2)
