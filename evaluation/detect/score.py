@@ -21,7 +21,7 @@ curve at 101 recalls instead)."""
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -105,13 +105,15 @@ def iou(a: Box, b: Box) -> float:
 
 @dataclass(frozen=True)
 class Matched:
-    """`match`'s outcome: hits most confident first, what each was (TRUE, FALSE, IGNORED), and for each
-    true one the index in `truths` of the instance it found (-1 otherwise)."""
+    """`match`'s outcome: hits most confident first, what each was (TRUE, FALSE, IGNORED), for each
+    true one the index in `truths` of the instance it found (-1 otherwise), and which false ones are
+    duplicates (`duplicate`: the right object on an instance a more confident hit already found)."""
 
     hits: list[Hit]
     outcome: list[str]
     truth_of: list[int]
     truths: Sequence[Truth]
+    duplicate: list[bool] = field(default_factory=list)
 
 
 def match(hits: Sequence[Hit], truths: Sequence[Truth]) -> Matched:
@@ -121,9 +123,9 @@ def match(hits: Sequence[Hit], truths: Sequence[Truth]) -> Matched:
     for j, tr in enumerate(truths):
         by_key.setdefault((tr.frame, tr.obj_id), []).append(j)
     taken = np.zeros(len(truths), bool)
-    outcome, truth_of = [], []
+    outcome, truth_of, duplicate = [], [], []
     for h in ranked:
-        best, best_iou, ignored = -1, IOU, False
+        best, best_iou, ignored, again = -1, IOU, False, False
         for j in by_key.get((h.frame, h.obj_id), []):
             tr = truths[j]
             overlap = max(iou(h.box, tr.box_visib), iou(h.box, tr.box_obj))
@@ -133,11 +135,14 @@ def match(hits: Sequence[Hit], truths: Sequence[Truth]) -> Matched:
                 ignored = True
             elif not taken[j] and overlap >= best_iou:
                 best, best_iou = j, overlap
+            elif taken[j]:
+                again = True
         if best >= 0:
             taken[best] = True
         outcome.append(TRUE if best >= 0 else IGNORED if ignored else FALSE)
         truth_of.append(best)
-    return Matched(ranked, outcome, truth_of, truths)
+        duplicate.append(best < 0 and not ignored and again)
+    return Matched(ranked, outcome, truth_of, truths, duplicate)
 
 
 def average_precision(right: Sequence[bool], n_targets: int) -> float:
@@ -177,6 +182,7 @@ def _figures(m: Matched, hits: list[int], targets: list[int], symmetries: Mappin
         "hits": len(kept),
         "true_positives": tp,
         "false_positives": len(kept) - tp,
+        "duplicates": sum(m.duplicate[i] for i in kept) if m.duplicate else None,  # of the false positives
         "ignored": len(hits) - len(kept),
         "recall": tp / n if n else None,
         "precision": tp / len(kept) if kept else None,

@@ -84,9 +84,11 @@ def test_a_low_visibility_instance_is_neither_target_nor_error():
 def test_two_hits_on_one_instance_are_one_true_and_one_false():
     m = match([hit(score=0.4), hit(score=0.8, box=(102.0, 100.0, 202.0, 200.0))], [truth()])
     assert [h.score for h in m.hits] == [0.8, 0.4]  # greedy by score: the more confident one finds it
-    assert m.outcome == [TRUE, FALSE]
+    assert m.outcome == [TRUE, FALSE] and m.duplicate == [False, True]
     s = scores(m)["all"]
-    assert s["recall"] == 1.0 and s["precision"] == 0.5 and s["ap50"] == 1.0
+    assert s["recall"] == 1.0 and s["precision"] == 0.5 and s["ap50"] == 1.0 and s["duplicates"] == 1
+    away = match([hit(score=0.8), hit(score=0.4, box=(400.0, 400.0, 450.0, 450.0))], [truth()])
+    assert away.duplicate == [False, False] and scores(away)["all"]["duplicates"] == 0  # false, not twice
 
 
 def test_hits_only_match_their_own_frame():
