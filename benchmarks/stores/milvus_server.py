@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import random
 import socket
 import time
 from pathlib import Path
@@ -17,10 +18,32 @@ from typing import Any
 SERVER_ENV = {"GOMAXPROCS": "2", "OMP_NUM_THREADS": "1"}
 
 
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
+def _ephemeral_low() -> int:
+    """The lowest port the kernel hands out for outgoing connections and `bind(0)`."""
+    try:
+        return int(Path("/proc/sys/net/ipv4/ip_local_port_range").read_text().split()[0])
+    except (OSError, ValueError, IndexError):
+        return 32768
+
+
+def free_port(rng: random.Random | None = None, taken: frozenset[int] = frozenset()) -> int:
+    """A free loopback port below the ephemeral range: a port from `bind(0)` can be taken, before the server
+    listens on it, as the local end of any connection the machine opens meanwhile (CI lost a run to that)."""
+    rng = rng or random.Random()
+    low = _ephemeral_low()
+    lo, hi = (20000, low - 1) if low > 21000 else (low, 65535)
+    for _ in range(1000):
+        port = rng.randint(lo, hi)
+        if port in taken:
+            continue
+        with socket.socket() as s:
+            s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            try:
+                s.bind(("127.0.0.1", port))
+            except OSError:
+                continue
+            return port
+    raise RuntimeError(f"no free loopback port in {lo}-{hi}")
 
 
 class LocalMilvus:
@@ -44,12 +67,19 @@ class LocalMilvus:
                 return sock
 
         self.base_dir = Path(base_dir)
-        config = Config(data_dir=str(self.base_dir))
-        # every listening port fixed once: the ports survive a restart, so clients reconnect to the same URI
-        ports = {k: free_port() for k in config.configurable_items if k.endswith("_port")}
-        config.update(**ports)
-        self.server: Any = MilvusServer(config)
-        self.server.webservice_port = free_port()
+        self._make = lambda: MilvusServer(Config(data_dir=str(self.base_dir)))
+        self._choose_ports()
+        self.started = False
+
+    def _choose_ports(self) -> None:
+        """Every listening port fixed once: the ports survive a restart, so clients reconnect to the same URI."""
+        self.server: Any = self._make()
+        keys = [k for k in self.server.config.configurable_items if k.endswith("_port")] + ["webservice_port"]
+        ports: dict[str, int] = {}
+        for k in keys:
+            ports[k] = free_port(taken=frozenset(ports.values()))
+        self.server.webservice_port = ports.pop("webservice_port")
+        self.server.config.update(**ports)
         self.port = ports["proxy_port"]
 
     @property
@@ -60,7 +90,18 @@ class LocalMilvus:
         saved = {k: os.environ.get(k) for k in SERVER_ENV}
         os.environ.update(SERVER_ENV)
         try:
-            self.server.start()  # waits for its /healthz
+            for attempt in range(5):
+                try:
+                    self.server.start()  # waits for its /healthz
+                    break
+                except RuntimeError as e:  # "set X_port=N, but bind failed": taken since it was chosen
+                    if "bind failed" not in str(e) or attempt == 4:
+                        raise
+                    if self.started:  # a restart keeps its address: wait for the port to come free
+                        time.sleep(2.0)
+                    else:
+                        self._choose_ports()
+            self.started = True
         finally:
             for k, v in saved.items():
                 if v is None:
