@@ -105,6 +105,15 @@ class DetectionOut(BaseModel):
     )
     best: MatchOut = Field(description="the answer at (u, v): the object and its pose")
     matches: list[MatchOut] = Field(description="the k nearest distinct answers at (u, v), `best` first")
+    confidence: float = Field(
+        description="the detection's confidence, what `min_confidence` is compared with: the answer's, times "
+        "the proposal's score and, in a colour frame, how well the frame's colours agree with the object's"
+    )
+    colour_distance: float | None = Field(
+        None,
+        description="0-2: how far the frame's colours where the object is are from its own (chromaticity, "
+        "mean L1); null when not measured (a frame with depth, an object without colours)",
+    )
     mask: RleMask | None = Field(
         None, description="the object's mesh at its pose in the frame, as COCO's compressed RLE (pycocotools)"
     )

@@ -18,8 +18,10 @@ from index.draw import DrawMesh, MeshCache
 from index.features.embed import Embedder, load_models, store_keys
 from index.features.objectness import OBJECTNESS_FILE, Colour, ObjectnessNet
 from index.features.objectness import propose as propose_objects
+from index.refine.chroma import SurfaceColours
 from index.store import EMBEDDED, TemplateStore, open_store
 from index.store.shared_files import SharedFiles
+from index.templates.mesh import load_mesh
 from index.templates.register import Progress, Registration, TemplateConfig, register
 from index.templates.render import RenderWorker
 from service.jobs import Jobs
@@ -59,6 +61,8 @@ class AppState:
     draw_meshes: MeshCache[DrawMesh] = field(init=False)
     #: what the pose fit needs of each object, made from `draw_meshes` (`service.pipeline.fit`)
     shapes: Shapes = field(init=False)
+    #: each coloured object's surface colours, for the detection's colour check (`service.detection.agree`)
+    surfaces: MeshCache[SurfaceColours] = field(init=False)
     #: colour proposals for finding objects in a whole frame (`service.detection.proposals`): the objectness model
     #: of the models dir, or None without one
     colour_proposals: Colour | None = None
@@ -85,6 +89,12 @@ class AppState:
         self.fitter = worker_pool(1, "fit", n)
         self.draw_meshes = MeshCache(lambda oid: DrawMesh.from_glb(self.store.mesh_bytes(oid)))
         self.shapes = Shapes(self.draw_meshes)
+        self.surfaces = MeshCache(self._surface, CAPACITY)
+
+    def _surface(self, object_id: int) -> SurfaceColours | None:
+        """An object's surface colours from its stored mesh (GLB, with its colours); None: no mesh, or none."""
+        glb = self.store.mesh_bytes(object_id)
+        return None if glb is None else SurfaceColours.of(load_mesh(glb, file_type="glb", max_faces=None))
 
     @property
     def pipelines(self) -> dict[str, Pipeline]:
@@ -142,7 +152,16 @@ class AppState:
         model, the depth one for a model that reads depth) made on the fit thread, ahead of the first query
         that needs them; as many as the cache keeps. Nothing with the pose fit off. `meshes`: those of
         the objects at hand (just registered), so their drawing meshes are made from them, not read back
-        from the store (`DrawMesh.as_stored`)."""
+        from the store (`DrawMesh.as_stored`). The detection's colour check's surface colours too (the rgb
+        model and `Settings.detect_colour_weight`), whether the pose fit is on or not."""
+        if "rgb" in self.embedders and self.settings.detect_colour_weight > 0:
+            for oid in list(object_ids)[:CAPACITY]:
+                if meshes is not None and oid in meshes:
+                    self.fitter.submit(
+                        lambda o, m: self.surfaces.put(o, SurfaceColours.of(m)), oid, meshes[oid]
+                    )
+                else:
+                    self.fitter.submit(self.surfaces.get, oid)
         if self.settings.pose_fit == 0:
             return
         caches = self.shapes.needed(self.embedders)

@@ -58,7 +58,7 @@ from index.features.embed import Embedder, fingerprint
 from index.templates.register import template_views
 from index.templates.render import Renderer
 from index.templates.shapes import demo_shapes, random_shape
-from service.detection import Detection, detect, reported
+from service.detection import Detection, detect, floors, reported
 from service.errors import ApiError
 from service.pipeline.context import Query
 from service.settings import Settings
@@ -306,10 +306,8 @@ def ask_service(
                 stage_ms.setdefault(k, []).append(v)
             hits = [(d, _hit(frame.key, d, dataset_ids)) for d in found.detections]
             ranked += [h for _, h in hits[: cfg.max_detections]]
-            fit_floor = state.settings.detect_depth_fit_floor if frame.depth is not None else 0.0
-            at_floor = [
-                h for d, h in hits if reported(d, cfg.min_confidence, state.settings.detect_floor, fit_floor)
-            ]
+            colour_floor, fit_floor = floors(state.settings, frame.depth is not None)
+            at_floor = [h for d, h in hits if reported(d, cfg.min_confidence, colour_floor, fit_floor)]
             floor += at_floor[: cfg.max_detections]
             b.update()
     return Asked(ranked, floor, frame_ms, stage_ms)

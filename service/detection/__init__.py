@@ -9,6 +9,8 @@ The stages, in order (`stages`), each a module of this package with one call on 
   depth, the segments standing on the support (`depth_segments`);
 - `verify` (`verify.Verify`): each place screened around its centre and then recognised by the model's
   whole pipeline, which names the object, gives its pose, its box and the open-set verdict;
+- `agree` (`agree.Agree`): in a colour frame, each confidence weighed by how well the frame's colours agree
+  with the object's at its pose, which tells a registered object from one nobody registered;
 - `merge` (`merge.Merge`): one instance found twice (boxes overlapping) reported once, the more confident;
 - `report` (`report.Report`): the confidence a detection needs (`report.confidence`, `report.reported`) and
   at most `max_detections`;
@@ -23,11 +25,12 @@ import time
 from typing import Protocol
 
 from index.templates.windows import window_classes
+from service.detection.agree import Agree
 from service.detection.found import Detection, Found, Frame, Proposal
 from service.detection.mask import Mask
 from service.detection.merge import Merge
 from service.detection.proposals import Propose
-from service.detection.report import Report, reported
+from service.detection.report import Report, floors, reported
 from service.detection.verify import Verify
 from service.errors import ApiError
 from service.inputs.depth_units import check_scene_depth
@@ -35,7 +38,17 @@ from service.pipeline.query import Decoded, Query, decode
 from service.recognition import answerable
 from service.state import AppState
 
-__all__ = ["Detection", "Found", "Proposal", "check", "detect", "detect_decoded", "reported", "stages"]
+__all__ = [
+    "Detection",
+    "Found",
+    "Proposal",
+    "check",
+    "detect",
+    "detect_decoded",
+    "floors",
+    "reported",
+    "stages",
+]
 
 
 class Stage(Protocol):
@@ -53,6 +66,7 @@ def stages(state: AppState) -> tuple[Stage, ...]:
     return (
         Propose.build(s, state.colour_proposals),
         Verify.build(state),
+        Agree.build(state),
         Merge.build(s),
         Report.build(s),
         Mask.build(state),
@@ -92,7 +106,7 @@ def detect_decoded(state: AppState, q: Query, d: Decoded, decode_s: float = 0.0)
         windows = sorted(window_classes(state.store.snapshot.objects, model), key=lambda w: w != model)
         focal = (K[0, 0] + K[1, 1]) / 2
         check_scene_depth(d.depth, focal, windows or [model], d.embedder.info.spec.size, d.depth_scale)
-    floor = state.settings.detect_floor if q.min_confidence is None else q.min_confidence
+    floor = floors(state.settings, d.depth is not None)[0] if q.min_confidence is None else q.min_confidence
     frame = Frame(q, d, K, state.store.snapshot, floor)
     ms: dict[str, float] = {"decode": decode_s}
     proposals = 0

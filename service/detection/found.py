@@ -42,6 +42,9 @@ class Detection:
     proposal: Proposal
     #: its silhouette at the answered pose as COCO's compressed RLE (`service.detection.mask`), once reported
     mask: dict[str, object] | None = None
+    #: how far the frame's colours are from its object's at its pose (`service.detection.agree`, 0-2;
+    #: None: not measured: a frame with depth, an object without colours)
+    colour_distance: float | None = None
 
 
 @dataclass(frozen=True)

@@ -12,23 +12,32 @@ from service.settings import Settings
 
 @dataclass(frozen=True)
 class Report:
-    """The detections a frame reports, most confident first: those `reported` at the frame's floor, at most
-    the query's `max_detections`. `colour_floor`: `Settings.detect_floor`."""
+    """The detections a frame reports, most confident first: those `reported` at the frame's floors
+    (`floors`), at most the query's `max_detections`."""
 
-    colour_floor: float
-    depth_fit_floor: float = 0.0
+    settings: Settings
     name: str = "report"
 
     @classmethod
     def build(cls, settings: Settings) -> Report:
-        return cls(settings.detect_floor, settings.detect_depth_fit_floor)
+        return cls(settings)
 
     def __call__(self, frame: Frame) -> Frame:
-        fit_floor = self.depth_fit_floor if frame.d.depth is not None else 0.0
-        shown = [
-            x for x in frame.detections if reported(x, frame.q.min_confidence, self.colour_floor, fit_floor)
-        ]
+        colour_floor, fit_floor = floors(self.settings, frame.d.depth is not None)
+        shown = [x for x in frame.detections if reported(x, frame.q.min_confidence, colour_floor, fit_floor)]
         return replace(frame, detections=tuple(shown[: frame.q.max_detections]))
+
+
+def floors(settings: Settings, depth: bool) -> tuple[float, float]:
+    """The floors a frame's detections are reported at when no `min_confidence` is asked: (the confidence a
+    detection from a colour proposal needs, the share of its visible points its depth fit must explain).
+    A colour frame whose confidences are weighed by their colours (`Settings.detect_colour_weight`,
+    `service.detection.agree`) has its own floor, `Settings.detect_rgb_floor`; a frame with depth has
+    `Settings.detect_floor` and `Settings.detect_depth_fit_floor`."""
+    if depth:
+        return settings.detect_floor, settings.detect_depth_fit_floor
+    weighed = settings.detect_colour_weight > 0
+    return (settings.detect_rgb_floor if weighed else settings.detect_floor), 0.0
 
 
 def confidence(result: Result, p: Proposal) -> float:
@@ -46,7 +55,7 @@ def reported(
     """Whether a detection is reported: its confidence at least `min_confidence` when given; else its pose
     fitted to the frame's depth explaining at least `depth_fit_floor` of its visible points (a frame with
     depth, `Settings.detect_depth_fit_floor`; a detection not fitted passes), and then, from a colour
-    proposal, its confidence at least `colour_floor` (`Settings.detect_floor`), from depth, accepted by
+    proposal, its confidence at least `colour_floor` (`floors`), from depth, accepted by
     the model's open-set verdict (the verdict alone accepted nearly every colour proposal: ten a frame
     where no registered object was)."""
     if min_confidence is not None:

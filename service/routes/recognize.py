@@ -268,7 +268,16 @@ def found_out(found: Found, K: np.ndarray | None) -> RecognizeOut:
         matches = matches_out(x.result, K)
         mask = RleMask.model_validate(x.mask) if x.mask is not None else None
         detections.append(
-            DetectionOut(u=x.u, v=x.v, box=list(x.box), best=matches[0], matches=matches, mask=mask)
+            DetectionOut(
+                u=x.u,
+                v=x.v,
+                box=list(x.box),
+                best=matches[0],
+                matches=matches,
+                confidence=round(x.confidence, 4),
+                colour_distance=None if x.colour_distance is None else round(x.colour_distance, 4),
+                mask=mask,
+            )
         )
     first = detections[0] if detections else None
     return RecognizeOut(
@@ -348,6 +357,7 @@ def picture(state: AppState, q: Query, d: Decoded, answers: list[tuple[Result, i
     if K is None:  # a patch: its answers are in the patch camera, at the distance it was cut at
         image, K = patch_view(image, d.embedder.info.spec, answers[0][0].distance_mm)
     state.shapes.prune(set(state.store.snapshot.objects))
+    state.surfaces.prune(set(state.store.snapshot.objects))
     drawn = []
     for result, n in answers:
         for i, (m, c) in enumerate(zip(result.matches[:n], result.confidences[:n], strict=True)):

@@ -33,3 +33,16 @@ def test_the_other_floors_still_apply_and_min_confidence_replaces_them_all():
     assert not reported(detection("colour", 0.3, 0.5), None, 0.4, 0.2)  # under the colour floor
     assert reported(detection("depth", 0.3, 0.1), 0.2, 0.4, 0.2)
     assert not reported(detection("depth", 0.1, 0.9), 0.2, 0.4, 0.2)
+
+
+def test_a_colour_frame_weighed_by_its_colours_has_its_own_floor():
+    from service.detection.report import floors
+    from service.settings import Settings
+
+    s = Settings(
+        detect_floor=0.4, detect_rgb_floor=0.25, detect_depth_fit_floor=0.2, detect_colour_weight=8.0
+    )
+    assert floors(s, depth=False) == (0.25, 0.0)
+    assert floors(s, depth=True) == (0.4, 0.2)  # with depth: not weighed by colours, the depth fit checks
+    unweighed = s.model_copy(update={"detect_colour_weight": 0.0})
+    assert floors(unweighed, depth=False) == (0.4, 0.0)
