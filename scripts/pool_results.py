@@ -1,9 +1,16 @@
-"""Pools `posedesc evaluate --protocol service` results of several scenes (one run per video, as YCB-V's
-frames must be split) into one JSON, as if one run had sent every query: each share weighted by its run's
-queries (BOP's by its targets), counts summed, the translation errors of the right objects pooled. A float is a share, an integer a count.
+"""Pools `posedesc evaluate` results of several scenes (one run per video, as YCB-V's frames must be split)
+into one JSON, as if one run had sent every frame.
+
+- the service protocol: each share weighted by its run's queries (BOP's by its targets), counts summed, the
+  translation errors of the right objects pooled. A float is a share, an integer a count;
+- the detect protocol: the counts summed and recall, precision and found within 20° made again from them (per
+  object too), BOP's shares weighted by targets. What needs the runs' rankings or frames (AP50, the median
+  distance error, frame times) is not pooled: it is listed under `not_pooled`.
 
     PYTHONPATH=. .venv/bin/python scripts/pool_results.py docs/results/ycbv-service-depth-{0,1,2}-sym.json \
         --json docs/results/ycbv-service-depth.json
+    PYTHONPATH=. .venv/bin/python scripts/pool_results.py docs/results/ycbv-detect-rgbd-{0,1,2}.json \
+        --json docs/results/ycbv-detect-rgbd.json
 """
 
 from __future__ import annotations
@@ -69,9 +76,54 @@ def pool(runs: list[dict]) -> dict:
     return out
 
 
+COUNTS = ("targets", "hits", "true_positives", "false_positives", "duplicates", "ignored")
+
+
+def detections(blocks: list[dict]) -> dict:
+    """One detect protocol's figures block (`evaluation.detect.score.scores`) of several: counts summed, the
+    shares made again from them."""
+    out = {k: sum(b[k] for b in blocks) for k in COUNTS}
+    tp, fp, targets = out["true_positives"], out["false_positives"], out["targets"]
+    within = sum((b["rotation_within_20"] or 0.0) * b["targets"] for b in blocks)  # None: no target
+    return out | {
+        "recall": tp / targets if targets else 0.0,
+        "precision": tp / (tp + fp) if tp + fp else 0.0,
+        "rotation_within_20": within / targets if targets else 0.0,
+    }
+
+
+def pool_detect(runs: list[dict]) -> dict:
+    """One result of several runs of the detect protocol (see the module's docstring)."""
+    frames = [len(r["frames"]) for r in runs]
+    objects = sorted({o for r in runs for o in r["posedesc"]["per_object"]}, key=int)
+    targets = [r["bop"]["n_targets"] for r in runs]
+    return {
+        "protocol": "detect",
+        "modality": runs[0]["modality"],
+        "dataset": runs[0]["dataset"],
+        "scenes": [r["scene"] for r in runs],
+        "frames": sum(frames),
+        "posedesc": {
+            "all": detections([r["posedesc"]["all"] for r in runs]),
+            "per_object": {
+                o: detections(
+                    [r["posedesc"]["per_object"][o] for r in runs if o in r["posedesc"]["per_object"]]
+                )
+                for o in objects
+            },
+            "detections_per_frame": float(
+                np.average([r["posedesc"]["detections_per_frame"] for r in runs], weights=frames)
+            ),
+        },
+        "bop": {k: float(np.average([r["bop"][k] for r in runs], weights=targets)) for k in BOP_SHARES}
+        | {"n_targets": sum(targets), "n_estimated": sum(r["bop"]["n_estimated"] for r in runs)},
+        "not_pooled": "AP50, the median distance error and the frame times: each run's own, in its JSON",
+    }
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("runs", type=Path, nargs="+", help="results JSONs of the service protocol")
+    p.add_argument("runs", type=Path, nargs="+", help="results JSONs of the service or the detect protocol")
     p.add_argument("--json", type=Path, required=True)
     args = p.parse_args(argv)
     runs = []
@@ -79,17 +131,20 @@ def main(argv: list[str] | None = None) -> int:
         if not path.is_file():
             p.error(f"{path} does not exist")
         run = json.loads(path.read_text())
-        if run.get("protocol") != "service" or "n_samples" not in run:
-            p.error(f"{path}: not a service-protocol result of posedesc evaluate")
+        service = run.get("protocol") == "service" and "n_samples" in run
+        if not service and not (run.get("protocol") == "detect" and "posedesc" in run):
+            p.error(f"{path}: not a service- or detect-protocol result of posedesc evaluate")
         runs.append(run)
-    if len({(r["modality"], r["dataset"]) for r in runs}) > 1:
-        p.error("the runs pooled must be of one model's modality on one dataset")
-    out = pool(runs) | {
+    if len({(r["protocol"], r["modality"], r["dataset"]) for r in runs}) > 1:
+        p.error("the runs pooled must be of one protocol and one model's modality on one dataset")
+    pooled = pool(runs) if runs[0]["protocol"] == "service" else pool_detect(runs)
+    out = pooled | {
         "sources": [str(x) for x in args.runs],
         "command": shlex.join(["PYTHONPATH=.", ".venv/bin/python", "scripts/pool_results.py", *sys.argv[1:]]),
     }
     args.json.write_text(json.dumps(out, indent=1) + "\n")
-    print(f"{args.json}: {out['n_samples']} queries of {len(runs)} runs")
+    size = f"{out['n_samples']} queries" if "n_samples" in out else f"{out['frames']} frames"
+    print(f"{args.json}: {size} of {len(runs)} runs")
     return 0
 
 

@@ -28,8 +28,30 @@ def test_the_pooled_ycbv_results_are_the_committed_ones(tmp_path, script) -> Non
     assert now["rejected"]["ours"]["n"] == sum(p["rejected"]["ours"]["n"] for p in parts)  # a count
 
 
-def test_a_result_of_another_protocol_is_a_one_line_error(tmp_path, capsys, script) -> None:
+def test_the_pooled_ycbv_detections_are_made_again_from_the_counts(tmp_path, script) -> None:
+    runs = [RESULTS / f"ycbv-detect-rgbd-{s}.json" for s in range(3)]
+    out = tmp_path / "pooled.json"
+    assert script("pool_results").main([*map(str, runs), "--json", str(out)]) == 0
+    now = json.loads(out.read_text())
+    committed = json.loads((RESULTS / "ycbv-detect-rgbd.json").read_text())
+    assert now["posedesc"] == committed["posedesc"] and now["bop"] == committed["bop"]
+    parts = [json.loads(r.read_text())["posedesc"]["all"] for r in runs]
+    tp, targets = sum(p["true_positives"] for p in parts), sum(p["targets"] for p in parts)
+    found = sum(p["true_positives"] + p["false_positives"] for p in parts)
+    assert now["posedesc"]["all"]["recall"] == pytest.approx(tp / targets)
+    assert now["posedesc"]["all"]["precision"] == pytest.approx(tp / found)  # not a mean of the precisions
+    assert now["frames"] == 60 and "ap50" not in now["posedesc"]["all"]
+
+
+@pytest.mark.parametrize(
+    "files, says",
+    [
+        (["bench-detect.json"], "not a service- or detect-protocol result"),
+        (["ycbv-detect-rgbd-0.json", "ycbv-service-depth-0-sym.json"], "of one protocol"),
+    ],
+)
+def test_what_cannot_be_pooled_is_a_one_line_error(tmp_path, capsys, script, files, says) -> None:
     with pytest.raises(SystemExit) as e:
-        script("pool_results").main([str(RESULTS / "detect-test.json"), "--json", str(tmp_path / "x.json")])
+        script("pool_results").main([*(str(RESULTS / f) for f in files), "--json", str(tmp_path / "x.json")])
     assert e.value.code == 2
-    assert "not a service-protocol result" in capsys.readouterr().err.strip().splitlines()[-1]
+    assert says in capsys.readouterr().err.strip().splitlines()[-1]
