@@ -40,6 +40,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Mapping
+from dataclasses import replace
 
 from index.features.embed import Embedder
 from index.store import Snapshot
@@ -48,7 +49,7 @@ from index.templates.windows import window_classes
 from service.errors import ApiError
 from service.pipeline.answer import Result, answer, judged
 from service.pipeline.context import Context, Stage
-from service.pipeline.fit import PoseFit, Shapes
+from service.pipeline.fit import PoseFit, Shapes, first
 from service.pipeline.mask import Mask
 from service.pipeline.query import FRAME_FIELDS, Cut, Decoded, Query
 from service.pipeline.refine import Refine
@@ -79,7 +80,11 @@ class Pipeline:
     ) -> Pipeline:
         """The model's stages at these settings; `shapes`: the objects' fit models (None: no pose fit)."""
         made = (stage.build(settings, embedder, templates) for stage in STAGES)
-        fit = None if shapes is None or settings.pose_fit == 0 else PoseFit(settings.pose_fit, shapes)
+        fit = (
+            None
+            if shapes is None or settings.pose_fit == 0
+            else PoseFit(settings.pose_fit, shapes, settings.depth_rerank)
+        )
         return cls(tuple(s for s in made if s is not None), settings, judged(settings, embedder), fit)
 
     @property
@@ -92,9 +97,12 @@ class Pipeline:
         t0 = time.perf_counter()
         spent: dict[str, float] = {}
         runs, refused = [], []
+        # the answers the query needs: k, more when the fit re-orders them (then cut back to k)
+        k = q.k if self.fit is None else self.fit.considered(q, d)
+        asked = q if k == q.k else replace(q, k=k)
         for window, objects in classes(q, d, snapshot):
             seen = snapshot if objects is None else snapshot.within(objects)
-            ctx = Context(q, d, seen, wanted=max(q.k, self.judged), window_mm=window)
+            ctx = Context(asked, d, seen, wanted=max(k, self.judged), window_mm=window)
             try:
                 runs.append(self.run(ctx, spent))
             except ApiError as e:
@@ -111,6 +119,7 @@ class Pipeline:
             if (fitted := self.fit(result, runs)) is not None:
                 result = fitted
                 spent[self.fit.name] = time.perf_counter() - t
+            result = first(result, q.k)
         result.timings_ms = timings(spent, time.perf_counter() - t0, decode_s)
         return result
 

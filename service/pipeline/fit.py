@@ -83,13 +83,23 @@ class PoseFit:
 
     count: int
     shapes: Shapes
+    #: with depth, this many best answers fitted and re-ordered by what they explain (`Settings.depth_rerank`)
+    rerank: int = 0
+
+    def considered(self, q: Query, d: Decoded) -> int:
+        """How many answers a query needs for this step: k, or `rerank` when its depth re-orders them."""
+        return max(q.k, self.rerank) if self.reorders(q, d) else q.k
+
+    def reorders(self, q: Query, d: Decoded) -> bool:
+        return self.rerank > 1 and d.depth is not None and q.camera is not None and q.u is not None
 
     def __call__(self, result: Result, runs: Sequence[Context]) -> Result | None:
         q, d, K = runs[0].query, runs[0].decoded, runs[0].query.camera
         if self.count <= 0 or K is None or q.u is None or q.v is None:
             return None
+        count = max(self.count, self.rerank) if self.reorders(q, d) else self.count
         fits: list[Fit | None] = []
-        for i, m in enumerate(result.matches[: self.count]):
+        for i, m in enumerate(result.matches[:count]):
             try:
                 fits.append(self.fit(q, d, K, m.object_id, *result.pose(i)))
             except Exception:  # a fit only improves an answer: one that fails leaves it where it was
@@ -97,7 +107,8 @@ class PoseFit:
                     "the pose fit of object %d failed; its answer keeps its template's pose", m.object_id
                 )
                 fits.append(None)
-        return replace(result, fits=fits)
+        fitted = replace(result, fits=fits)
+        return reranked(fitted, len(fits)) if self.reorders(q, d) else fitted
 
     def fit(
         self, q: Query, d: Decoded, K: np.ndarray, object_id: int, R0: np.ndarray, t0: np.ndarray
@@ -111,3 +122,41 @@ class PoseFit:
                 fit = replace(fit, t=t0)  # what the user sent is kept: see the class's docstring
             return fit
         return None
+
+
+def reranked(result: Result, n: int) -> Result:
+    """`result` with its first `n` answers re-ordered by the share of their visible points the depth explains
+    at their fitted pose (`index.refine.depth`, 0-1) plus their confidence (0-1; none: 0), best first; the
+    rest after them as they were. On real depth of shape-only objects (YCB-V video 0000, centre given, the
+    depth model) the best answer was the right object for 25 % of instances and one of the first five for
+    67 %; re-ordered, 67 % (docs/experiments.md). The open-set verdict stays the query's."""
+    n = min(n, len(result.matches), len(result.fits))
+
+    def key(i: int) -> float:
+        fit = result.fits[i]
+        conf = result.confidences[i] if i < len(result.confidences) else None
+        return -((fit.score if fit is not None else 0.0) + (conf or 0.0))
+
+    order = sorted(range(n), key=key) + list(range(n, len(result.matches)))
+
+    def pick(xs: list) -> list:
+        return [xs[i] for i in order if i < len(xs)]
+
+    return replace(
+        result,
+        matches=pick(result.matches),
+        confidences=pick(result.confidences),
+        origins_mm=pick(result.origins_mm),
+        fits=pick(result.fits),
+    )
+
+
+def first(result: Result, k: int) -> Result:
+    """`result` cut to its first `k` answers."""
+    return replace(
+        result,
+        matches=result.matches[:k],
+        confidences=result.confidences[:k],
+        origins_mm=result.origins_mm[:k],
+        fits=result.fits[:k],
+    )

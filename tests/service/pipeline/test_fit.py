@@ -22,7 +22,11 @@ from service_helpers import (
 
 from index.geometry.pose import View, view_to_pose
 from index.geometry.pose_error import rotation_error
+from index.refine.fit import Fit
+from index.store.records import Match
 from service.main import create_app
+from service.pipeline.answer import Result
+from service.pipeline.fit import first, reranked
 
 #: between level 1's viewpoints and off the in-plane grid
 VIEW, UV = View(52.0, 38.0, 11.0, 600.0), (350.0, 230.0)
@@ -92,15 +96,54 @@ def test_a_patch_is_not_fitted(client, shot):
     assert (m["azimuth"], m["elevation"], m["inplane"]) == tuple(m["template"].values())
 
 
-def test_only_the_best_answer_is_fitted_by_default(client, shot):
+def test_in_colour_only_the_best_answer_is_fitted_by_default(client, shot):
     r = client.post(
         "/recognize",
-        files={"rgb": ("f.png", png(shot["rgb"])), "depth": ("d.png", depth_png(shot["depth"]))},
-        data=frame_fields(UV, k="3"),
+        files={"rgb": ("f.png", png(shot["rgb"]))},
+        data=frame_fields(UV, k="3", distance_mm="600"),
     )
     matches = r.json()["matches"]
+    assert len(matches) == 3 and matches[0]["refined"] is True
     assert [m["refined"] for m in matches[1:]] == [False] * (len(matches) - 1)
     assert "fit" in r.json()["timings_ms"]
+
+
+def test_with_depth_one_answer_asked_is_still_chosen_among_the_fitted_five(client, shot):
+    files = {"rgb": ("f.png", png(shot["rgb"])), "depth": ("d.png", depth_png(shot["depth"]))}
+    r = client.post("/recognize", files=files, data=frame_fields(UV, k="1"))
+    assert r.status_code == 200, r.text
+    matches = r.json()["matches"]
+    assert len(matches) == 1 and matches[0]["name"] == "ell" and matches[0]["refined"] is True
+
+
+def result_of(scores: list[float | None], confidences: list[float | None], n: int) -> Result:
+    matches = [Match(i, f"o{i}", 10.0 * i, 20.0, 0.0, 0.1 * i) for i in range(n)]
+    fits = [
+        None if s is None else Fit(np.eye(3), np.array([0.0, 0.0, 500.0 + i]), s, s, 1, True)
+        for i, s in enumerate(scores)
+    ]
+    return Result(
+        "m",
+        matches,
+        {},
+        np.array([0.0, 0.0, 1.0]),
+        500.0,
+        "local",
+        confidences,
+        None,
+        [500.0 + i for i in range(n)],
+        fits,
+    )
+
+
+def test_the_fitted_answers_are_ordered_by_the_depth_they_explain_plus_their_confidence():
+    r = reranked(result_of([0.1, 0.9, 0.5, None], [0.5, 0.3, 0.2, 0.9], 5), 4)
+    # 0.6, 1.2, 0.7, 0.9 (not fitted: its confidence alone); the fifth, not fitted, stays last
+    assert [m.object_id for m in r.matches] == [1, 3, 2, 0, 4]
+    assert r.confidences == [0.3, 0.9, 0.2, 0.5]  # each list moved with its answer
+    assert r.origins_mm == [501.0, 503.0, 502.0, 500.0, 504.0]
+    assert [f.score if f else None for f in r.fits] == [0.9, None, 0.5, 0.1]
+    assert [m.object_id for m in first(r, 2).matches] == [1, 3] and len(first(r, 2).fits) == 2
 
 
 def test_colour_only_the_rotation_is_fitted_and_the_sent_centre_and_distance_kept(client, shot):
