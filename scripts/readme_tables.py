@@ -56,7 +56,7 @@ POOL = "PYTHONPATH=. .venv/bin/python scripts/pool_results.py"
 
 
 def ycbv(label: str, model: str) -> Row:
-    runs = " ".join(f"docs/results/ycbv-service-{model}-{s}-sym.json" for s in range(3))
+    runs = " ".join(f"docs/results/ycbv-service-{model}-{s}-rerank.json" for s in range(3))
     command = f"{POOL} {runs} --json docs/results/ycbv-service-{model}.json"
     return Row(label, f"ycbv-service-{model}.json", command, {"method": "ours"})
 

@@ -83,21 +83,26 @@ class PoseFit:
 
     count: int
     shapes: Shapes
-    #: with depth, this many best answers fitted and re-ordered by what they explain (`Settings.depth_rerank`)
+    #: with depth, this many best answers fitted and re-ordered by what they explain (`Settings.depth_rerank`;
+    #: a detection's verification, its centre estimated: `Settings.detect_depth_rerank`)
     rerank: int = 0
+    detect_rerank: int = 0
+
+    def reordered(self, q: Query) -> int:
+        return self.detect_rerank if q.estimated else self.rerank
 
     def considered(self, q: Query, d: Decoded) -> int:
         """How many answers a query needs for this step: k, or `rerank` when its depth re-orders them."""
-        return max(q.k, self.rerank) if self.reorders(q, d) else q.k
+        return max(q.k, self.reordered(q)) if self.reorders(q, d) else q.k
 
     def reorders(self, q: Query, d: Decoded) -> bool:
-        return self.rerank > 1 and d.depth is not None and q.camera is not None and q.u is not None
+        return self.reordered(q) > 1 and d.depth is not None and q.camera is not None and q.u is not None
 
     def __call__(self, result: Result, runs: Sequence[Context]) -> Result | None:
         q, d, K = runs[0].query, runs[0].decoded, runs[0].query.camera
         if self.count <= 0 or K is None or q.u is None or q.v is None:
             return None
-        count = max(self.count, self.rerank) if self.reorders(q, d) else self.count
+        count = max(self.count, self.reordered(q)) if self.reorders(q, d) else self.count
         fits: list[Fit | None] = []
         for i, m in enumerate(result.matches[:count]):
             try:
