@@ -112,7 +112,7 @@ class DetectionOut(BaseModel):
     colour_distance: float | None = Field(
         None,
         description="0-2: how far the frame's colours where the object is are from its own (chromaticity, "
-        "mean L1); null when not measured (a frame with depth, an object without colours)",
+        "mean L1); null when not measured (no colour image, an object without colours)",
     )
     mask: RleMask | None = Field(
         None, description="the object's mesh at its pose in the frame, as COCO's compressed RLE (pycocotools)"

@@ -306,8 +306,8 @@ def ask_service(
                 stage_ms.setdefault(k, []).append(v)
             hits = [(d, _hit(frame.key, d, dataset_ids)) for d in found.detections]
             ranked += [h for _, h in hits[: cfg.max_detections]]
-            colour_floor, fit_floor = floors(state.settings, frame.depth is not None)
-            at_floor = [h for d, h in hits if reported(d, cfg.min_confidence, colour_floor, fit_floor)]
+            at = floors(state.settings, frame.depth is not None)
+            at_floor = [h for d, h in hits if reported(d, cfg.min_confidence, at)]
             floor += at_floor[: cfg.max_detections]
             b.update()
     return Asked(ranked, floor, frame_ms, stage_ms)

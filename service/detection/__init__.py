@@ -106,7 +106,8 @@ def detect_decoded(state: AppState, q: Query, d: Decoded, decode_s: float = 0.0)
         windows = sorted(window_classes(state.store.snapshot.objects, model), key=lambda w: w != model)
         focal = (K[0, 0] + K[1, 1]) / 2
         check_scene_depth(d.depth, focal, windows or [model], d.embedder.info.spec.size, d.depth_scale)
-    floor = floors(state.settings, d.depth is not None)[0] if q.min_confidence is None else q.min_confidence
+    at = floors(state.settings, d.depth is not None)
+    floor = at.confidence if q.min_confidence is None else q.min_confidence
     frame = Frame(q, d, K, state.store.snapshot, floor)
     ms: dict[str, float] = {"decode": decode_s}
     proposals = 0

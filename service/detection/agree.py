@@ -9,8 +9,9 @@ two apart for an object it never saw; the object's own colours do. A detection's
 surface and of the frame there (0-2; a right detection's median 0.12 on the validation frames, a wrong
 one's 0.29, an unregistered object's 0.36). An object without colours (a shape-only mesh) has none to
 check: its detections keep their confidence (their names are already handicapped, `Settings.shape_handicap`).
-Frames with depth are not weighed: their check is the depth fit (`report.reported`), and this one was
-chosen on colour frames alone."""
+Frames with depth are measured, not weighed: a detection from depth is reported on the model's open-set
+verdict, not on a confidence, so `report.floors` puts a ceiling on the distance instead
+(`Settings.detect_colour_ceiling`, chosen on RGB-D validation frames). A depth model's frame is not measured."""
 
 from __future__ import annotations
 
@@ -25,7 +26,7 @@ from service.state import AppState
 
 @dataclass(frozen=True)
 class Agree:
-    """Each colour-frame detection's confidence times `exp(-weight * max(its colour distance - allowance, 0))`
+    """Each detection's colour distance; in a colour frame, its confidence times `exp(-weight * max(its colour distance - allowance, 0))`
     (`Settings.detect_colour_weight`, 0: not weighed; `Settings.detect_colour_allowance`), most confident
     first. Reported at their own floor (`report.floors`)."""
 
@@ -40,21 +41,30 @@ class Agree:
         return cls(state, s.detect_colour_weight, s.detect_colour_allowance)
 
     def __call__(self, frame: Frame) -> Frame:
-        if self.weight <= 0 or frame.d.rgb is None or frame.d.depth is not None or not frame.detections:
+        if frame.d.rgb is None or frame.d.modality == "depth" or not frame.detections:
+            return frame
+        if frame.d.depth is not None:  # measured, not weighed: `report.floors` puts a ceiling on it
+            return replace(frame, detections=tuple(self.measure(frame, x) for x in frame.detections))
+        if self.weight <= 0:
             return frame
         weighed = tuple(self.weigh(frame, x) for x in frame.detections)
         return replace(frame, detections=tuple(sorted(weighed, key=lambda x: -x.confidence)))
 
-    def weigh(self, frame: Frame, x: Detection) -> Detection:
-        """`x` with its colour distance and its confidence weighed by it (unchanged without a measure)."""
-        if not x.result.matches:
+    def measure(self, frame: Frame, x: Detection) -> Detection:
+        """`x` with its colour distance (unchanged without a measure: an object without colours)."""
+        if not x.result.matches or frame.d.rgb is None:
             return x
         model = self.state.surfaces.get(x.result.matches[0].object_id)
         if model is None:
             return x
         R, t = x.result.pose(0)
-        assert frame.d.rgb is not None
         distance = chroma_distance(frame.d.rgb, frame.K, model, R, t)
+        return x if distance is None else replace(x, colour_distance=distance)
+
+    def weigh(self, frame: Frame, x: Detection) -> Detection:
+        """`x` with its colour distance and its confidence weighed by it (unchanged without a measure)."""
+        x = self.measure(frame, x)
+        distance = x.colour_distance
         if distance is None:
             return x
         factor = float(np.exp(-self.weight * max(distance - self.allowance, 0.0)))

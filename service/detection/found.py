@@ -43,7 +43,7 @@ class Detection:
     #: its silhouette at the answered pose as COCO's compressed RLE (`service.detection.mask`), once reported
     mask: dict[str, object] | None = None
     #: how far the frame's colours are from its object's at its pose (`service.detection.agree`, 0-2;
-    #: None: not measured: a frame with depth, an object without colours)
+    #: None: not measured: no colour, or an object without colours)
     colour_distance: float | None = None
 
 

@@ -23,21 +23,32 @@ class Report:
         return cls(settings)
 
     def __call__(self, frame: Frame) -> Frame:
-        colour_floor, fit_floor = floors(self.settings, frame.d.depth is not None)
-        shown = [x for x in frame.detections if reported(x, frame.q.min_confidence, colour_floor, fit_floor)]
+        at = floors(self.settings, frame.d.depth is not None)
+        shown = [x for x in frame.detections if reported(x, frame.q.min_confidence, at)]
         return replace(frame, detections=tuple(shown[: frame.q.max_detections]))
 
 
-def floors(settings: Settings, depth: bool) -> tuple[float, float]:
-    """The floors a frame's detections are reported at when no `min_confidence` is asked: (the confidence a
-    detection from a colour proposal needs, the share of its visible points its depth fit must explain).
-    A colour frame whose confidences are weighed by their colours (`Settings.detect_colour_weight`,
-    `service.detection.agree`) has its own floor, `Settings.detect_rgb_floor`; a frame with depth has
-    `Settings.detect_floor` and `Settings.detect_depth_fit_floor`."""
+@dataclass(frozen=True)
+class Floors:
+    """What a detection needs to be reported when no `min_confidence` is asked: `confidence`, from a colour
+    proposal; `depth_fit`, the share of its visible points its depth fit explains; `colour_distance`, at most
+    this far from its object's colours (`service.detection.agree`; None: no ceiling)."""
+
+    confidence: float
+    depth_fit: float = 0.0
+    colour_distance: float | None = None
+
+
+def floors(settings: Settings, depth: bool) -> Floors:
+    """A frame's `Floors`. A colour frame whose confidences are weighed by their colours
+    (`Settings.detect_colour_weight`) has its own confidence floor, `Settings.detect_rgb_floor`; a frame
+    with depth has `Settings.detect_floor`, `Settings.detect_depth_fit_floor` and, its detections not
+    weighed, a ceiling on their colour distance (`Settings.detect_colour_ceiling`)."""
     if depth:
-        return settings.detect_floor, settings.detect_depth_fit_floor
+        ceiling = settings.detect_colour_ceiling if settings.detect_colour_ceiling < 2 else None
+        return Floors(settings.detect_floor, settings.detect_depth_fit_floor, ceiling)
     weighed = settings.detect_colour_weight > 0
-    return (settings.detect_rgb_floor if weighed else settings.detect_floor), 0.0
+    return Floors(settings.detect_rgb_floor if weighed else settings.detect_floor)
 
 
 def confidence(result: Result, p: Proposal) -> float:
@@ -49,20 +60,21 @@ def confidence(result: Result, p: Proposal) -> float:
     return verified * p.score if p.source == "colour" else verified
 
 
-def reported(
-    x: Detection, min_confidence: float | None, colour_floor: float, depth_fit_floor: float = 0.0
-) -> bool:
+def reported(x: Detection, min_confidence: float | None, at: Floors) -> bool:
     """Whether a detection is reported: its confidence at least `min_confidence` when given; else its pose
-    fitted to the frame's depth explaining at least `depth_fit_floor` of its visible points (a frame with
-    depth, `Settings.detect_depth_fit_floor`; a detection not fitted passes), and then, from a colour
-    proposal, its confidence at least `colour_floor` (`floors`), from depth, accepted by
-    the model's open-set verdict (the verdict alone accepted nearly every colour proposal: ten a frame
-    where no registered object was)."""
+    fitted to the frame's depth explaining at least `at.depth_fit` of its visible points (a detection not
+    fitted passes), its colours within `at.colour_distance` of its object's (one not measured passes), and
+    then, from a colour proposal, its confidence at least `at.confidence`, from depth, accepted by the
+    model's open-set verdict (the verdict alone accepted nearly every colour proposal: ten a frame where no
+    registered object was)."""
     if min_confidence is not None:
         return x.confidence >= min_confidence
     fit = x.result.fits[0] if x.result.fits else None
-    if fit is not None and fit.score < depth_fit_floor:
+    if fit is not None and fit.score < at.depth_fit:
+        return False
+    ceiling, distance = at.colour_distance, x.colour_distance
+    if ceiling is not None and distance is not None and distance > ceiling:
         return False
     if x.proposal.source == "colour":
-        return x.confidence >= colour_floor
+        return x.confidence >= at.confidence
     return x.result.reason is None

@@ -6,43 +6,57 @@ import numpy as np
 
 from index.refine.fit import Fit
 from service.detection.found import Detection, Proposal
-from service.detection.report import reported
+from service.detection.report import Floors, floors, reported
 from service.pipeline.answer import Result
 
 
-def detection(source: str, confidence: float, fit: float | None, rejected: bool = False) -> Detection:
+def detection(
+    source: str, confidence: float, fit: float | None, rejected: bool = False, colours: float | None = None
+) -> Detection:
     fits = [] if fit is None else [Fit(np.eye(3), np.zeros(3), fit, 0.0, 1, True)]
     result = Result(
         "posedesc-depth", [], {}, np.array([0.0, 0.0, 1.0]), 500.0, "local", [confidence],
         "unknown" if rejected else None, [500.0], fits,
     )  # fmt: skip
     p = Proposal(10.0, 10.0, None, (0.0, 0.0, 20.0, 20.0), 0.9, source)
-    return Detection(10.0, 10.0, p.box, confidence, result, p)
+    return Detection(10.0, 10.0, p.box, confidence, result, p, colour_distance=colours)
+
+
+def test_with_depth_a_detection_in_other_colours_than_its_objects_is_not_reported():
+    at = Floors(0.4, 0.2, 0.25)
+    assert reported(detection("depth", 0.9, 0.5, colours=0.1), None, at)
+    assert not reported(detection("depth", 0.9, 0.5, colours=0.4), None, at)  # the frame is not its colours
+    assert not reported(detection("colour", 0.9, 0.5, colours=0.4), None, at)
+    assert reported(detection("depth", 0.9, 0.5, colours=None), None, at)  # a shape: nothing to compare
+    assert reported(detection("depth", 0.9, 0.5, colours=0.4), None, Floors(0.4, 0.2, None))
+    assert reported(detection("depth", 0.9, 0.5, colours=0.4), 0.5, at)  # min_confidence replaces them all
 
 
 def test_a_pose_the_depth_does_not_bear_out_is_not_reported():
-    assert reported(detection("depth", 0.9, 0.5), None, 0.4, 0.2)
-    assert not reported(detection("depth", 0.9, 0.1), None, 0.4, 0.2)  # 10 % of it where depth says
-    assert not reported(detection("colour", 0.9, 0.1), None, 0.4, 0.2)
-    assert reported(detection("depth", 0.9, None), None, 0.4, 0.2)  # not fitted: nothing to bear it out
-    assert reported(detection("depth", 0.9, 0.1), None, 0.4, 0.0)  # no depth in the frame: no floor
+    assert reported(detection("depth", 0.9, 0.5), None, Floors(0.4, 0.2))
+    assert not reported(detection("depth", 0.9, 0.1), None, Floors(0.4, 0.2))  # 10 % of it where depth says
+    assert not reported(detection("colour", 0.9, 0.1), None, Floors(0.4, 0.2))
+    assert reported(
+        detection("depth", 0.9, None), None, Floors(0.4, 0.2)
+    )  # not fitted: nothing to bear it out
+    assert reported(detection("depth", 0.9, 0.1), None, Floors(0.4, 0.0))  # no depth in the frame: no floor
 
 
 def test_the_other_floors_still_apply_and_min_confidence_replaces_them_all():
-    assert not reported(detection("depth", 0.9, 0.5, rejected=True), None, 0.4, 0.2)  # the open set
-    assert not reported(detection("colour", 0.3, 0.5), None, 0.4, 0.2)  # under the colour floor
-    assert reported(detection("depth", 0.3, 0.1), 0.2, 0.4, 0.2)
-    assert not reported(detection("depth", 0.1, 0.9), 0.2, 0.4, 0.2)
+    assert not reported(detection("depth", 0.9, 0.5, rejected=True), None, Floors(0.4, 0.2))  # the open set
+    assert not reported(detection("colour", 0.3, 0.5), None, Floors(0.4, 0.2))  # under the colour floor
+    assert reported(detection("depth", 0.3, 0.1), 0.2, Floors(0.4, 0.2))
+    assert not reported(detection("depth", 0.1, 0.9), 0.2, Floors(0.4, 0.2))
 
 
 def test_a_colour_frame_weighed_by_its_colours_has_its_own_floor():
-    from service.detection.report import floors
     from service.settings import Settings
 
     s = Settings(
         detect_floor=0.4, detect_rgb_floor=0.25, detect_depth_fit_floor=0.2, detect_colour_weight=8.0
     )
-    assert floors(s, depth=False) == (0.25, 0.0)
-    assert floors(s, depth=True) == (0.4, 0.2)  # with depth: not weighed by colours, the depth fit checks
-    unweighed = s.model_copy(update={"detect_colour_weight": 0.0})
-    assert floors(unweighed, depth=False) == (0.4, 0.0)
+    assert floors(s, depth=False) == Floors(0.25, 0.0, None)
+    assert floors(s, depth=True) == Floors(0.4, 0.2, 0.25)  # with depth: a ceiling on the colours, the fit
+    unweighed = s.model_copy(update={"detect_colour_weight": 0.0, "detect_colour_ceiling": 2.0})
+    assert floors(unweighed, depth=False) == Floors(0.4, 0.0, None)
+    assert floors(unweighed, depth=True).colour_distance is None
