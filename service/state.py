@@ -152,9 +152,9 @@ class AppState:
         model, the depth one for a model that reads depth) made on the fit thread, ahead of the first query
         that needs them; as many as the cache keeps. Nothing with the pose fit off. `meshes`: those of
         the objects at hand (just registered), so their drawing meshes are made from them, not read back
-        from the store (`DrawMesh.as_stored`). The detection's colour check's surface colours too (the rgb
-        model and `Settings.detect_colour_weight`), whether the pose fit is on or not."""
-        if "rgb" in self.embedders and self.settings.detect_colour_weight > 0:
+        from the store (`DrawMesh.as_stored`). The detection's colour check's surface colours too (a model that
+        reads colour), whether the pose fit is on or not."""
+        if {"rgb", "rgbd"} & set(self.embedders):  # the detection's colour check reads colour frames
             for oid in list(object_ids)[:CAPACITY]:
                 if meshes is not None and oid in meshes:
                     self.fitter.submit(
