@@ -9,8 +9,9 @@ The stages, in order (`stages`), each a module of this package with one call on 
   depth, the segments standing on the support (`depth_segments`);
 - `verify` (`verify.Verify`): each place screened around its centre and then recognised by the model's
   whole pipeline, which names the object, gives its pose, its box and the open-set verdict;
-- `agree` (`agree.Agree`): in a colour frame, each confidence weighed by how well the frame's colours agree
-  with the object's at its pose, which tells a registered object from one nobody registered;
+- `agree` (`agree.Agree`): how far the frame's colours are from the object's at its pose, which tells a
+  registered object from one nobody registered: a colour frame's confidences weighed by it, a frame with
+  depth held to a ceiling on it (`report.floors`);
 - `merge` (`merge.Merge`): one instance found twice (boxes overlapping) reported once, the more confident;
 - `report` (`report.Report`): the confidence a detection needs (`report.confidence`, `report.reported`) and
   at most `max_detections`;

@@ -68,4 +68,4 @@ class Agree:
         if distance is None:
             return x
         factor = float(np.exp(-self.weight * max(distance - self.allowance, 0.0)))
-        return replace(x, confidence=x.confidence * factor, colour_distance=distance)
+        return replace(x, confidence=x.confidence * factor)
