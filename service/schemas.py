@@ -201,6 +201,11 @@ class ObjectOut(BaseModel):
         description="'given' (asked for), 'shape' (found from a shape-only mesh) or 'colours' (a "
         "textured mesh: none)",
     )
+    viewpoints: str | None = Field(
+        None,
+        description="'upper' (its templates seen from above its mesh's xy plane) or 'sphere' (from every "
+        "side); None: registered before it was kept (upper)",
+    )
 
 
 class ObjectCreated(BaseModel):
@@ -218,6 +223,7 @@ class ObjectCreated(BaseModel):
                     "symmetry": "none",
                     "textured": True,
                     "symmetry_from": "colours",
+                    "viewpoints": "upper",
                     "warnings": [],
                 }
             ]
@@ -242,6 +248,9 @@ class ObjectCreated(BaseModel):
     textured: bool | None = Field(None, description="its mesh has colours; false: shape only")
     symmetry_from: str | None = Field(
         None, description="'given', 'shape' (found from a shape-only mesh) or 'colours' (textured: none)"
+    )
+    viewpoints: str | None = Field(
+        None, description="'upper' (templates seen from above its mesh's xy plane) or 'sphere' (every side)"
     )
     warnings: list[str] = Field(default_factory=list)
 

@@ -22,7 +22,7 @@ from index.refine.chroma import SurfaceColours
 from index.store import EMBEDDED, TemplateStore, open_store
 from index.store.shared_files import SharedFiles
 from index.templates.mesh import load_mesh
-from index.templates.register import Progress, Registration, TemplateConfig, register
+from index.templates.register import AUTO_VIEWPOINTS, Progress, Registration, TemplateConfig, register
 from index.templates.render import RenderWorker
 from service.jobs import Jobs
 from service.metrics import Metrics
@@ -129,9 +129,10 @@ class AppState:
         symmetry: str,
         extra: Mapping[str, object] | None = None,
         progress: Progress | None = None,
+        viewpoints: str = AUTO_VIEWPOINTS,
     ) -> Registration:
         """`mesh` registered into this state's store with its renderer, models and pools, as `POST /objects`
-        registers it (`index.templates.register.register`)."""
+        registers it (`index.templates.register.register`; `viewpoints`: its `VIEWPOINTS` or "auto")."""
         reg = register(
             mesh,
             name,
@@ -143,6 +144,7 @@ class AppState:
             pool=self.embed_pool,
             extra=extra,
             progress=progress,
+            viewpoints=viewpoints,
         )
         self.warm([reg.record.object_id], {reg.record.object_id: mesh})
         return reg

@@ -48,7 +48,7 @@ import trimesh
 from index.features.embed import Embedder
 from index.features.local import with_relief, with_silhouettes
 from index.geometry.pose import View
-from index.geometry.shape_symmetry import resolve
+from index.geometry.shape_symmetry import resolve, textured
 from index.geometry.symmetry import SYMMETRIES
 from index.store import ObjectRecord, TemplateSet, TemplateStore
 from index.templates.mesh import MeshError, diameter, load_mesh, simplify
@@ -84,6 +84,8 @@ class TemplateConfig:
     #: roll, +-45 for a legacy one
     inplane_max: float | None = None
     distance_mm: float = 400.0  # render distance (LineMOD's); patches are metric, so it barely matters
+    #: every side's viewpoints (`index.templates.viewpoints.viewpoints`), not the upper half's only
+    whole: bool = False
 
     def inplane(self, model_step: float = 0.0) -> np.ndarray:
         """In-plane angles of the templates of a model whose metadata says `model_step` (0: legacy)."""
@@ -107,6 +109,28 @@ class TemplateConfig:
 #: (`index.geometry.shape_symmetry.Resolved`)
 TEXTURED_KEY = "textured"
 SYMMETRY_FROM_KEY = "symmetry_from"
+#: an object record's `extra`: the viewpoints its templates were made from (`VIEWPOINTS`)
+VIEWPOINTS_KEY = "viewpoints"
+#: the viewpoints an object's templates are made from: "upper", the half-sphere above its mesh's xy plane
+#: (an object standing as its mesh's z axis points up, as LineMOD's scans stand), or "sphere", every side
+#: (an object that may lie on any face); "auto" at registration: "sphere" for a shape-only mesh (a CAD
+#: file's frame says nothing of how the object lies), "upper" for a textured one (a scan's, as LineMOD's)
+VIEWPOINTS = ("upper", "sphere")
+AUTO_VIEWPOINTS = "auto"
+
+
+def whole_sphere(viewpoints: str, textured: bool) -> bool:
+    """Whether an object's templates are made from every side: `viewpoints` one of `VIEWPOINTS` or "auto"."""
+    if viewpoints == AUTO_VIEWPOINTS:
+        return not textured
+    if viewpoints not in VIEWPOINTS:
+        raise MeshError(f"unknown viewpoints {viewpoints!r}; use one of auto, {', '.join(VIEWPOINTS)}")
+    return viewpoints == "sphere"
+
+
+def recorded_whole(extra: Mapping[str, object]) -> bool:
+    """Whether a stored object's templates were made from every side (a record before this: the upper half)."""
+    return extra.get(VIEWPOINTS_KEY) == "sphere"
 
 
 @dataclass
@@ -125,12 +149,25 @@ def template_views(
     (viewpoint-major: the in-plane variants of a viewpoint are adjacent)."""
     if symmetry not in SYMMETRIES:
         raise MeshError(f"unknown symmetry {symmetry!r}; use one of {', '.join(SYMMETRIES)}")
-    views = sphere_views(cfg.level, cfg.inplane(model_step), cfg.distance_mm)
+    views = sphere_views(cfg.level, cfg.inplane(model_step), cfg.distance_mm, cfg.whole)
     if symmetry == "none":
         return views
     wedge = {"180": 180.0, "full": 72.0}[symmetry]
     # +1e-6: a vertex on a wedge's edge may come out of arctan2 a hair below it (359.9999... for 0)
     return [v for v in views if (v.azimuth + 1e-6) % 360.0 < wedge]
+
+
+def registered_views(
+    symmetry: str,
+    cfg: TemplateConfig,
+    model_step: float,
+    mesh: trimesh.Trimesh,
+    viewpoints: str = AUTO_VIEWPOINTS,
+) -> list[View]:
+    """The template views a registration of `mesh` with this symmetry and `viewpoints` makes for a model whose
+    metadata says `model_step`: every side's for a shape-only mesh unless told otherwise (`whole_sphere`)."""
+    whole = whole_sphere(viewpoints, textured(mesh))
+    return template_views(symmetry, replace(cfg, whole=whole), model_step)
 
 
 def model_views(
@@ -416,19 +453,21 @@ def register(
     pool: ThreadPoolExecutor | None = None,
     extra: Mapping[str, object] | None = None,
     progress: Progress | None = None,
+    viewpoints: str = AUTO_VIEWPOINTS,
 ) -> Registration:
     """Adds `mesh` (mm) under `name` to every model's store, through the window its diameter asks for
     (`index.templates.windows`), with `symmetry` (or, "auto", the one `index.geometry.shape_symmetry.resolve`
-    finds); raises MeshError when it cannot be used. `progress`, when given, is told how far it is
-    (`Progress`)."""
+    finds), from `viewpoints` (`VIEWPOINTS`, or "auto": `whole_sphere`); raises MeshError when it cannot
+    be used. `progress`, when given, is told how far it is (`Progress`)."""
     t0 = time.perf_counter()
     light = decimated(worker, mesh)  # meanwhile, the diameter that decides the views
     size = diameter(mesh)
     chosen = resolve(mesh, symmetry, size)
     symmetry = chosen.symmetry
+    whole = whole_sphere(viewpoints, chosen.textured)
     model_window = min(e.info.window_mm for e in embedders.values())
     window = window_class(size, model_window)
-    views = model_views(symmetry, cfg.through(window, model_window), embedders)
+    views = model_views(symmetry, replace(cfg.through(window, model_window), whole=whole), embedders)
     sets, timings, offsets = make_templates(
         worker, embedders, light, views, pool, progress=progress, window_mm=window
     )
@@ -445,6 +484,7 @@ def register(
         DIAMETER_KEY: round(size, 1),
         TEXTURED_KEY: chosen.textured,
         SYMMETRY_FROM_KEY: chosen.source,
+        VIEWPOINTS_KEY: "sphere" if whole else "upper",
     }
     record = store.add_object(name, symmetry, sets, faces=len(mesh.faces), mesh=glb, extra=extra)
     t2 = time.perf_counter()
@@ -479,7 +519,8 @@ def reembed(
         subset = {m: embedders[m] for m in models}
         model_window = min(e.info.window_mm for e in subset.values())
         window = object_window(rec.extra, model_window) if WINDOW_KEY in rec.extra else None
-        views = model_views(rec.symmetry, cfg.through(window or model_window, model_window), subset)
+        through = replace(cfg.through(window or model_window, model_window), whole=recorded_whole(rec.extra))
+        views = model_views(rec.symmetry, through, subset)
         sets, _, _ = make_templates(worker, subset, mesh, views, pool, window_mm=window)
         try:
             for m, ts in sets.items():

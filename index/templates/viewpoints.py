@@ -2,6 +2,11 @@
 
 Level 3 (642 vertices) keeps 301 with z > 0: the template viewpoints. Level 4 (2562) keeps 1241: the
 training viewpoints. In-plane steps multiply either set without new renders (see `render.rotate_inplane`).
+
+The upper half holds every view of an object standing on the plane its mesh's z axis is the normal of, as
+LineMOD's scanned objects stand. A mesh whose frame says nothing of how it lies (a CAD file; YCB-Video's
+boxes lying on any face) is seen from below its xy plane as often: `viewpoints(level, whole=True)` adds the
+lower half (level 3: 642 viewpoints), upper first.
 """
 
 from __future__ import annotations
@@ -59,11 +64,18 @@ def _subdivide(v: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def hemisphere(level: int = 3) -> np.ndarray:
     """(azimuth, elevation) in degrees of the upper-half vertices (z > 0), pole first. Shape: (N, 2)."""
+    return viewpoints(level)
+
+
+def viewpoints(level: int = 3, whole: bool = False) -> np.ndarray:
+    """(azimuth, elevation) in degrees of the upper-half vertices (z > 0), pole first, then with `whole` the
+    rest (z <= 0: the equator's and the lower half's), in the icosphere's order. Shape: (N, 2)."""
     v = icosphere(level)
-    v = v[v[:, 2] > 1e-9]
+    upper = v[:, 2] > 1e-9
+    v = np.concatenate([v[upper], v[~upper]]) if whole else v[upper]
     az = np.degrees(np.arctan2(v[:, 1], v[:, 0])) % 360.0
     el = np.degrees(np.arcsin(np.clip(v[:, 2], -1, 1)))
-    az[el > 90 - 1e-6] = 0.0  # the pole's azimuth is a convention: 0
+    az[np.abs(el) > 90 - 1e-6] = 0.0  # a pole's azimuth is a convention: 0
     return np.stack([az, el], axis=1)
 
 
@@ -79,7 +91,12 @@ def inplane_steps(step_deg: float = 0.0, max_deg: float = 45.0) -> np.ndarray:
     return np.arange(-n, n + 1) * float(step_deg)
 
 
-def sphere_views(level: int = 3, inplane: np.ndarray | None = None, distance: float = 400.0) -> list[View]:
-    """All (viewpoint x in-plane) views, viewpoint-major: the in-plane variants of a viewpoint are adjacent."""
+def sphere_views(
+    level: int = 3, inplane: np.ndarray | None = None, distance: float = 400.0, whole: bool = False
+) -> list[View]:
+    """All (viewpoint x in-plane) views, viewpoint-major: the in-plane variants of a viewpoint are adjacent.
+    The upper half's viewpoints; with `whole`, every side's (`viewpoints`)."""
     steps = np.zeros(1) if inplane is None else np.asarray(inplane, dtype=float)
-    return [View(float(az), float(el), float(ip), distance) for az, el in hemisphere(level) for ip in steps]
+    return [
+        View(float(az), float(el), float(ip), distance) for az, el in viewpoints(level, whole) for ip in steps
+    ]

@@ -15,7 +15,7 @@ from fastapi.responses import JSONResponse
 from index.geometry.units import LARGEST_MM, ORDINARY_MM, SMALLEST_MM, Units
 from index.store import NameTaken, StoreError
 from index.templates.mesh import FORMATS_TEXT, MeshError, MeshTooLarge, load_mesh
-from index.templates.register import SYMMETRY_FROM_KEY, TEXTURED_KEY
+from index.templates.register import SYMMETRY_FROM_KEY, TEXTURED_KEY, VIEWPOINTS_KEY
 from index.templates.windows import DIAMETER_KEY, WINDOW_KEY, object_window
 from service.demo import DEMO_KEY
 from service.deps import ApiKeyDep, KnownFieldsDep, StateDep
@@ -53,6 +53,7 @@ def _out(state: AppState, object_id: int) -> ObjectOut:
         window_mm=object_window(rec.extra, min(e.info.window_mm for e in state.embedders.values())),
         textured=_flag(rec.extra.get(TEXTURED_KEY)),
         symmetry_from=_text(rec.extra.get(SYMMETRY_FROM_KEY)),
+        viewpoints=_text(rec.extra.get(VIEWPOINTS_KEY)),
     )
 
 
@@ -101,6 +102,16 @@ async def add_object(
             "the symmetry of its shape (a box's half-turn, a can's full turn)"
         ),
     ] = "auto",
+    viewpoints: Annotated[
+        Literal["auto", "upper", "sphere"],
+        Form(
+            description="where its templates are seen from: 'upper', the half above the mesh's xy plane (an "
+            "object that stands as its z axis points up, as a scan usually does); 'sphere', every side (an "
+            "object that may lie on any face: twice the templates and the registration's time); 'auto': "
+            "'sphere' for a shape-only mesh (a CAD file's axes say nothing of how it lies), 'upper' for "
+            "one with colours"
+        ),
+    ] = "auto",
 ) -> Response | ObjectCreated:
     file_type = Path(mesh.filename or "").suffix.lstrip(".").lower()
     if not file_type:
@@ -113,7 +124,7 @@ async def add_object(
         raise ApiError(503, "too many registrations queued; try again in a minute") from None
     try:
         loaded = await _load_upload(state, mesh, units, file_type)
-        fut = state.registrar.submit(_run, state, job, loaded, name, symmetry)
+        fut = state.registrar.submit(_run, state, job, loaded, name, symmetry, viewpoints)
     except BaseException:  # refused, cancelled (the client left) or shutting down: it frees its place
         state.jobs.discard(job)
         raise
@@ -172,22 +183,22 @@ def _load(data: bytes, units: str | None, file_type: str, max_faces: int, max_up
         gc.collect(1 if young else 2)
 
 
-def _run(state: AppState, job: Job, mesh, name: str, symmetry: str) -> None:
+def _run(state: AppState, job: Job, mesh, name: str, symmetry: str, viewpoints: str = "auto") -> None:
     """The registration, on the registration thread; its outcome goes into the job (shared with the other
     replicas when the store is)."""
     try:
-        _register(state, job, mesh, name, symmetry)
+        _register(state, job, mesh, name, symmetry, viewpoints)
     finally:
         state.jobs.save(job)
 
 
-def _register(state: AppState, job: Job, mesh, name: str, symmetry: str) -> None:
+def _register(state: AppState, job: Job, mesh, name: str, symmetry: str, viewpoints: str) -> None:
     def progress(stage: str, done: int, total: int) -> None:
         job.advance(stage, done, total)
         state.jobs.save(job)  # where the other replicas read it, with a shared store
 
     try:
-        reg = state.register_mesh(mesh, name, symmetry, progress=progress)
+        reg = state.register_mesh(mesh, name, symmetry, progress=progress, viewpoints=viewpoints)
     except MeshError as e:
         job.fail(422, f"mesh: {e}")
         return
@@ -217,6 +228,7 @@ def _register(state: AppState, job: Job, mesh, name: str, symmetry: str) -> None
         symmetry=reg.record.symmetry,
         textured=_flag(reg.record.extra.get(TEXTURED_KEY)),
         symmetry_from=_text(reg.record.extra.get(SYMMETRY_FROM_KEY)),
+        viewpoints=_text(reg.record.extra.get(VIEWPOINTS_KEY)),
         warnings=[] if reg.record.extra.get(TEXTURED_KEY) is not False else [SHAPE_ONLY],
     ).model_dump()
     job.status = "done"

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from concurrent.futures import ThreadPoolExecutor
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -18,9 +19,11 @@ from index.templates.register import (
     embed_templates,
     make_templates,
     model_views,
+    recorded_whole,
     reembed,
     register,
     template_views,
+    whole_sphere,
 )
 from index.templates.viewpoints import hemisphere
 
@@ -105,6 +108,42 @@ def test_reembed_after_a_model_changed(tmp_path, l_shape, render_worker, embedde
     assert store.missing() == {"rgb": [], "depth": [], "rgbd": []}
     n = len(template_views("180", CFG))
     assert store.snapshot.objects[reg.record.object_id].templates == {"rgb": n, "depth": n, "rgbd": n}
+
+
+def test_an_object_seen_from_every_side_keeps_its_viewpoints_when_made_again(
+    tmp_path, l_shape, render_worker, embedders
+):
+    """`viewpoints="sphere"`: templates from below the mesh's xy plane too, stored with their elevations and
+    recorded, so that a new model's templates are made from the same sides; "auto" keeps a coloured mesh's
+    upper half; an unknown word is refused before anything is stored."""
+    only_rgb = {"rgb": embedders["rgb"]}
+    store = Store(tmp_path, store_keys(only_rgb))
+    reg = register(
+        l_shape,
+        "L",
+        "none",
+        worker=render_worker,
+        embedders=only_rgb,
+        store=store,
+        cfg=CFG,
+        viewpoints="sphere",
+    )
+    n = len(template_views("none", replace(CFG, whole=True)))
+    assert n > 1.9 * len(template_views("none", CFG)) and reg.record.templates == {"rgb": n}
+    assert reg.record.extra["viewpoints"] == "sphere" and recorded_whole(reg.record.extra)
+    upper = register(l_shape, "L-up", "none", worker=render_worker, embedders=only_rgb, store=store, cfg=CFG)
+    assert upper.record.extra["viewpoints"] == "upper"
+    with pytest.raises(MeshError, match="viewpoints"):
+        register(l_shape, "L?", "none", worker=render_worker, embedders=only_rgb, store=store, cfg=CFG,
+                 viewpoints="below")  # fmt: skip
+    assert store.snapshot.named("L?") is None
+    store.close()
+    store = Store(tmp_path, store_keys(embedders))  # depth and rgbd are new: made again from every side
+    assert reembed(store, render_worker, embedders, CFG) == 4
+    rec = store.snapshot.objects[reg.record.object_id]
+    assert rec.templates == {"rgb": n, "depth": n, "rgbd": n}
+    # "auto": every side for a shape-only mesh, the upper half for a coloured one
+    assert whole_sphere("auto", textured=False) and not whole_sphere("auto", textured=True)
 
 
 def test_template_in_plane_angles_follow_the_model_unless_overridden():

@@ -3,7 +3,8 @@ and the in-plane steps."""
 
 import numpy as np
 
-from index.templates.viewpoints import hemisphere, icosphere, inplane_steps, sphere_views
+from index.geometry.pose import camera_centre
+from index.templates.viewpoints import hemisphere, icosphere, inplane_steps, sphere_views, viewpoints
 
 
 def test_paper_template_and_training_sets():
@@ -29,3 +30,17 @@ def test_inplane_steps_and_views():
     assert [v.inplane for v in views[:5]] == [-40, -20, 0, 20, 40]  # viewpoint-major
     assert views[5].azimuth != views[0].azimuth or views[5].elevation != views[0].elevation
     assert {v.distance for v in views} == {500}
+
+
+def test_the_whole_sphere_is_the_upper_half_then_the_rest():
+    """An object that may lie on any face is seen from below its xy plane too: every icosphere vertex, the
+    upper half's first and unchanged, each camera direction once."""
+    whole, upper = viewpoints(3, whole=True), hemisphere(3)
+    assert len(whole) == 642 and np.array_equal(whole[:301], upper)
+    assert (whole[301:, 1] <= 1e-6).all() and (whole[:, 1] < -89.999).sum() == 1  # the lower pole, once
+    directions = [camera_centre(az, el) for az, el in whole]
+    assert len({tuple(np.round(d, 6)) for d in directions}) == 642
+    # the lower half mirrors the upper: every viewpoint below has its twin above
+    assert sorted(np.round(-whole[whole[:, 1] < -1e-6, 1], 4)) == sorted(np.round(upper[:, 1], 4))
+    views = sphere_views(3, inplane_steps(30, 360), whole=True)
+    assert len(views) == 642 * 12

@@ -72,6 +72,15 @@ def test_a_shape_only_mesh_is_registered_as_such_with_its_shapes_symmetry(tmp_pa
             "colours",
         )
         assert coloured["warnings"] == [] and made["templates"] < coloured["templates"]
-        asked = register(c, can, "can-as-asked", symmetry="none")
-        assert (asked["symmetry"], asked["symmetry_from"]) == ("none", "given")
+        # a shape-only mesh's axes say nothing of how it lies: seen from every side unless told otherwise
+        assert (made["viewpoints"], coloured["viewpoints"]) == ("sphere", "upper")
+        assert listed["viewpoints"] == "sphere"
+        asked = register(c, can, "can-as-asked", symmetry="none", viewpoints="upper")
+        assert (asked["symmetry"], asked["symmetry_from"], asked["viewpoints"]) == ("none", "given", "upper")
         assert asked["templates"] == coloured["templates"]
+        whole = register(c, l_shape, "L-every-side", viewpoints="sphere")
+        assert whole["viewpoints"] == "sphere" and whole["templates"] > 1.9 * coloured["templates"]
+        r = c.post(
+            "/objects", files={"mesh": ("x.ply", ply_bytes(can))}, data={"name": "x", "viewpoints": "below"}
+        )
+        assert r.status_code == 422 and "viewpoints" in r.text
