@@ -25,6 +25,9 @@ from index.templates.mesh import diameter, load_mesh, simplify
 #: faces projected per object: a 20k-face silhouette is filled in ~0.1 s on one core and shows the outline
 #: of a 640 x 480 frame's object as the full mesh does (LM-O's meshes hold 5k-40k faces)
 MAX_DRAW_FACES = 20_000
+#: faces of the mesh a whole-frame detection's mask is the silhouette of (`service.detection.mask`): LM-O's
+#: meshes cut to 3,000 give 0.99 IoU or more with their drawing meshes' silhouettes, 4-6 times sooner
+MASK_FACES = 3_000
 #: vertices nearer than this (mm, in front of the camera) are not projected: a face reaching behind the
 #: camera has no image, and near 0 its projection leaves any integer range
 NEAR_MM = 1.0
@@ -53,6 +56,12 @@ class DrawMesh:
         if len(mesh.faces) > max_faces:
             mesh = simplify(mesh, max_faces)
         return cls(np.asarray(mesh.vertices, float), np.asarray(mesh.faces, np.int64), diameter(mesh))
+
+    def coarse(self, max_faces: int) -> DrawMesh:
+        """This mesh cut to at most `max_faces` faces (itself when it has no more)."""
+        if len(self.faces) <= max_faces:
+            return self
+        return DrawMesh.of(trimesh.Trimesh(self.vertices, self.faces, process=False), max_faces)
 
     @classmethod
     def from_glb(cls, glb: bytes | None) -> DrawMesh | None:

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import trimesh
 
-from index.draw import DrawMesh, MeshCache
+from index.draw import MASK_FACES, DrawMesh, MeshCache
 from index.features.embed import Embedder, load_models, store_keys
 from index.features.objectness import OBJECTNESS_FILE, Colour, ObjectnessNet
 from index.features.objectness import propose as propose_objects
@@ -63,6 +63,8 @@ class AppState:
     shapes: Shapes = field(init=False)
     #: each coloured object's surface colours, for the detection's colour check (`service.detection.agree`)
     surfaces: MeshCache[SurfaceColours] = field(init=False)
+    #: each object's drawing mesh cut to `MASK_FACES`, for the detections' masks (`service.detection.mask`)
+    mask_meshes: MeshCache[DrawMesh] = field(init=False)
     #: colour proposals for finding objects in a whole frame (`service.detection.proposals`): the objectness model
     #: of the models dir, or None without one
     colour_proposals: Colour | None = None
@@ -90,6 +92,11 @@ class AppState:
         self.draw_meshes = MeshCache(lambda oid: DrawMesh.from_glb(self.store.mesh_bytes(oid)))
         self.shapes = Shapes(self.draw_meshes)
         self.surfaces = MeshCache(self._surface, CAPACITY)
+        self.mask_meshes = MeshCache(self._mask_mesh, CAPACITY)
+
+    def _mask_mesh(self, object_id: int) -> DrawMesh | None:
+        mesh = self.draw_meshes.get(object_id)
+        return None if mesh is None else mesh.coarse(MASK_FACES)
 
     def _surface(self, object_id: int) -> SurfaceColours | None:
         """An object's surface colours from its stored mesh (GLB, with its colours); None: no mesh, or none."""

@@ -358,6 +358,7 @@ def picture(state: AppState, q: Query, d: Decoded, answers: list[tuple[Result, i
         image, K = patch_view(image, d.embedder.info.spec, answers[0][0].distance_mm)
     state.shapes.prune(set(state.store.snapshot.objects))
     state.surfaces.prune(set(state.store.snapshot.objects))
+    state.mask_meshes.prune(set(state.store.snapshot.objects))
     drawn = []
     for result, n in answers:
         for i, (m, c) in enumerate(zip(result.matches[:n], result.confidences[:n], strict=True)):
