@@ -53,7 +53,7 @@ from index.features.embed import Embedder
 from index.geometry.pose import View, pose_to_view, view_to_pose
 from index.geometry.pose_error import rotation_errors, view_errors
 from index.geometry.symmetry import Symmetry
-from index.templates.register import registered_views
+from index.templates.register import template_views
 from index.templates.render import Renderer
 from service.errors import ApiError
 from service.pipeline.answer import Result
@@ -178,9 +178,8 @@ def evaluate_served(cfg: Config) -> Evaluation:
     baselines = [m for m in cfg.methods if m != "ours"]
     if baselines:
         t0 = time.perf_counter()
-        views_of = {  # as the service registered them (a shape-only mesh: from every side)
-            o: registered_views(service_symmetry(symmetries[o]), state.templates, step, meshes[o])
-            for o in obj_ids
+        views_of = {
+            o: template_views(service_symmetry(symmetries[o]), state.templates, step) for o in obj_ids
         }
         with bar(sum(map(len, views_of.values())), "render templates", "template") as b:
             ev.templates = render_template_set(

@@ -22,7 +22,7 @@ from index.refine.chroma import SurfaceColours
 from index.store import EMBEDDED, TemplateStore, open_store
 from index.store.shared_files import SharedFiles
 from index.templates.mesh import load_mesh
-from index.templates.register import AUTO_VIEWPOINTS, Progress, Registration, TemplateConfig, register
+from index.templates.register import Progress, Registration, TemplateConfig, register
 from index.templates.render import RenderWorker
 from service.jobs import Jobs
 from service.metrics import Metrics
@@ -136,10 +136,11 @@ class AppState:
         symmetry: str,
         extra: Mapping[str, object] | None = None,
         progress: Progress | None = None,
-        viewpoints: str = AUTO_VIEWPOINTS,
+        viewpoints: str | None = None,
     ) -> Registration:
         """`mesh` registered into this state's store with its renderer, models and pools, as `POST /objects`
-        registers it (`index.templates.register.register`; `viewpoints`: its `VIEWPOINTS` or "auto")."""
+        registers it (`index.templates.register.register`; `viewpoints`: one of its `VIEWPOINTS`, None: the
+        settings')."""
         reg = register(
             mesh,
             name,
@@ -206,7 +207,9 @@ def load_state(settings: Settings, embedders: dict[str, Embedder] | None = None)
         ivf_min=settings.ivf_min_templates,
     )
     worker = RenderWorker(size=sizes.pop(), window_mm=min(windows))
-    cfg = TemplateConfig(settings.level, settings.inplane_step, settings.inplane_max)
+    cfg = TemplateConfig(
+        settings.level, settings.inplane_step, settings.inplane_max, whole=settings.viewpoints == "sphere"
+    )
     where = (
         settings.data_dir
         if settings.store == EMBEDDED

@@ -55,7 +55,7 @@ from evaluation.queries import frame_files
 from evaluation.served import register_objects, served_models
 from index.data.bop import BopDataset, Instance
 from index.features.embed import Embedder, fingerprint
-from index.templates.register import registered_views
+from index.templates.register import template_views
 from index.templates.render import Renderer
 from index.templates.shapes import demo_shapes, random_shape
 from service.detection import Detection, detect, floors, reported
@@ -137,7 +137,7 @@ def evaluate_detect(cfg: DetectConfig) -> tuple[dict, list[Estimate]]:
             t0 = time.perf_counter()
             ours = ask_service(state, frames, dataset_ids, cfg)
             seconds["posedesc"] = time.perf_counter() - t0
-            views = _views(state, embedder, {o: service_symmetry(symmetries[o]) for o in obj_ids}, meshes)
+            views = _views(state, embedder, {o: service_symmetry(symmetries[o]) for o in obj_ids})
         finally:
             close_state(state)
         out: dict = {"posedesc": _figures(ours, truths, symmetries, len(frames))}
@@ -320,13 +320,10 @@ def _hit(frame: tuple[int, int], d: Detection, dataset_ids: Mapping[int, int]) -
     return Hit(frame, dataset_ids.get(best.object_id, -1), float(d.confidence), d.box, R, t)
 
 
-def _views(
-    state: AppState, embedder: Embedder, symmetries: Mapping[int, str], meshes: Mapping[int, trimesh.Trimesh]
-) -> dict:
-    """Each object's template views as the service registers them for the model (a shape-only mesh's from
-    every side)."""
+def _views(state: AppState, embedder: Embedder, symmetries: Mapping[int, str]) -> dict:
+    """Each object's template views as the service registers them for the model."""
     step = embedder.info.inplane_step
-    return {o: registered_views(s, state.templates, step, meshes[o]) for o, s in symmetries.items()}
+    return {o: template_views(s, state.templates, step) for o, s in symmetries.items()}
 
 
 def linemod_detector(
@@ -418,12 +415,12 @@ def false_alarms(cfg: DetectConfig, folder: Path, embedder: Embedder, frames: Se
                 ids[reg.record.object_id] = -1 - len(ids)  # no dataset object
                 b.update()
         ours = ask_service(state, frames, ids, cfg)
-        meshes = dict(zip(ids.values(), shapes.values(), strict=True))
-        views = _views(state, embedder, dict.fromkeys(meshes, "none"), meshes)
+        views = _views(state, embedder, dict.fromkeys(ids.values(), "none"))
     finally:
         close_state(state)
     out = {"objects": list(shapes), "frames": len(frames), "posedesc": _per_frame(ours.floor, len(frames))}
     if cfg.linemod:
+        meshes = dict(zip(ids.values(), shapes.values(), strict=True))
         lm = linemod_detector(meshes, views, embedder)
         out["linemod"] = _per_frame(ask_linemod(lm, frames, cfg).floor, len(frames))
     return out

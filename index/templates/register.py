@@ -48,7 +48,7 @@ import trimesh
 from index.features.embed import Embedder
 from index.features.local import with_relief, with_silhouettes
 from index.geometry.pose import View
-from index.geometry.shape_symmetry import resolve, textured
+from index.geometry.shape_symmetry import resolve
 from index.geometry.symmetry import SYMMETRIES
 from index.store import ObjectRecord, TemplateSet, TemplateStore
 from index.templates.mesh import MeshError, diameter, load_mesh, simplify
@@ -112,19 +112,18 @@ SYMMETRY_FROM_KEY = "symmetry_from"
 #: an object record's `extra`: the viewpoints its templates were made from (`VIEWPOINTS`)
 VIEWPOINTS_KEY = "viewpoints"
 #: the viewpoints an object's templates are made from: "upper", the half-sphere above its mesh's xy plane
-#: (an object standing as its mesh's z axis points up, as LineMOD's scans stand), or "sphere", every side
-#: (an object that may lie on any face); "auto" at registration: "sphere" for a shape-only mesh (a CAD
-#: file's frame says nothing of how the object lies), "upper" for a textured one (a scan's, as LineMOD's)
+#: (an object standing as its mesh's z axis points up, as LineMOD's scans stand: the paper's), or "sphere",
+#: every side (an object that may lie on any face, as a CAD file's frame says nothing of how it lies)
 VIEWPOINTS = ("upper", "sphere")
-AUTO_VIEWPOINTS = "auto"
 
 
-def whole_sphere(viewpoints: str, textured: bool) -> bool:
-    """Whether an object's templates are made from every side: `viewpoints` one of `VIEWPOINTS` or "auto"."""
-    if viewpoints == AUTO_VIEWPOINTS:
-        return not textured
+def whole_sphere(viewpoints: str | None, cfg: TemplateConfig) -> bool:
+    """Whether a registration makes its templates from every side: `viewpoints` one of `VIEWPOINTS`, or
+    None: as `cfg` says (`TemplateConfig.whole`, the service's `viewpoints` setting)."""
+    if viewpoints is None:
+        return cfg.whole
     if viewpoints not in VIEWPOINTS:
-        raise MeshError(f"unknown viewpoints {viewpoints!r}; use one of auto, {', '.join(VIEWPOINTS)}")
+        raise MeshError(f"unknown viewpoints {viewpoints!r}; use one of {', '.join(VIEWPOINTS)}")
     return viewpoints == "sphere"
 
 
@@ -155,19 +154,6 @@ def template_views(
     wedge = {"180": 180.0, "full": 72.0}[symmetry]
     # +1e-6: a vertex on a wedge's edge may come out of arctan2 a hair below it (359.9999... for 0)
     return [v for v in views if (v.azimuth + 1e-6) % 360.0 < wedge]
-
-
-def registered_views(
-    symmetry: str,
-    cfg: TemplateConfig,
-    model_step: float,
-    mesh: trimesh.Trimesh,
-    viewpoints: str = AUTO_VIEWPOINTS,
-) -> list[View]:
-    """The template views a registration of `mesh` with this symmetry and `viewpoints` makes for a model whose
-    metadata says `model_step`: every side's for a shape-only mesh unless told otherwise (`whole_sphere`)."""
-    whole = whole_sphere(viewpoints, textured(mesh))
-    return template_views(symmetry, replace(cfg, whole=whole), model_step)
 
 
 def model_views(
@@ -453,18 +439,17 @@ def register(
     pool: ThreadPoolExecutor | None = None,
     extra: Mapping[str, object] | None = None,
     progress: Progress | None = None,
-    viewpoints: str = AUTO_VIEWPOINTS,
+    viewpoints: str | None = None,
 ) -> Registration:
     """Adds `mesh` (mm) under `name` to every model's store, through the window its diameter asks for
     (`index.templates.windows`), with `symmetry` (or, "auto", the one `index.geometry.shape_symmetry.resolve`
-    finds), from `viewpoints` (`VIEWPOINTS`, or "auto": `whole_sphere`); raises MeshError when it cannot
-    be used. `progress`, when given, is told how far it is (`Progress`)."""
+    finds), from `viewpoints` (`VIEWPOINTS`; None: `cfg.whole`); raises MeshError when it cannot be used. `progress`, when given, is told how far it is (`Progress`)."""
     t0 = time.perf_counter()
     light = decimated(worker, mesh)  # meanwhile, the diameter that decides the views
     size = diameter(mesh)
     chosen = resolve(mesh, symmetry, size)
     symmetry = chosen.symmetry
-    whole = whole_sphere(viewpoints, chosen.textured)
+    whole = whole_sphere(viewpoints, cfg)
     model_window = min(e.info.window_mm for e in embedders.values())
     window = window_class(size, model_window)
     views = model_views(symmetry, replace(cfg.through(window, model_window), whole=whole), embedders)

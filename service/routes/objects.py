@@ -103,15 +103,14 @@ async def add_object(
         ),
     ] = "auto",
     viewpoints: Annotated[
-        Literal["auto", "upper", "sphere"],
+        Literal["upper", "sphere"] | None,
         Form(
             description="where its templates are seen from: 'upper', the half above the mesh's xy plane (an "
             "object that stands as its z axis points up, as a scan usually does); 'sphere', every side (an "
-            "object that may lie on any face: twice the templates and the registration's time); 'auto': "
-            "'sphere' for a shape-only mesh (a CAD file's axes say nothing of how it lies), 'upper' for "
-            "one with colours"
+            "object that may lie on any face, as a CAD file's axes say nothing of how it lies: twice the "
+            "templates and the registration's time). Not given: the service's POSEDESC_VIEWPOINTS (upper)"
         ),
-    ] = "auto",
+    ] = None,
 ) -> Response | ObjectCreated:
     file_type = Path(mesh.filename or "").suffix.lstrip(".").lower()
     if not file_type:
@@ -183,7 +182,7 @@ def _load(data: bytes, units: str | None, file_type: str, max_faces: int, max_up
         gc.collect(1 if young else 2)
 
 
-def _run(state: AppState, job: Job, mesh, name: str, symmetry: str, viewpoints: str = "auto") -> None:
+def _run(state: AppState, job: Job, mesh, name: str, symmetry: str, viewpoints: str | None = None) -> None:
     """The registration, on the registration thread; its outcome goes into the job (shared with the other
     replicas when the store is)."""
     try:
@@ -192,7 +191,7 @@ def _run(state: AppState, job: Job, mesh, name: str, symmetry: str, viewpoints: 
         state.jobs.save(job)
 
 
-def _register(state: AppState, job: Job, mesh, name: str, symmetry: str, viewpoints: str) -> None:
+def _register(state: AppState, job: Job, mesh, name: str, symmetry: str, viewpoints: str | None) -> None:
     def progress(stage: str, done: int, total: int) -> None:
         job.advance(stage, done, total)
         state.jobs.save(job)  # where the other replicas read it, with a shared store

@@ -114,8 +114,8 @@ def test_an_object_seen_from_every_side_keeps_its_viewpoints_when_made_again(
     tmp_path, l_shape, render_worker, embedders
 ):
     """`viewpoints="sphere"`: templates from below the mesh's xy plane too, stored with their elevations and
-    recorded, so that a new model's templates are made from the same sides; "auto" keeps a coloured mesh's
-    upper half; an unknown word is refused before anything is stored."""
+    recorded, so that a new model's templates are made from the same sides; not said, the config's (the upper
+    half by default); an unknown word is refused before anything is stored."""
     only_rgb = {"rgb": embedders["rgb"]}
     store = Store(tmp_path, store_keys(only_rgb))
     reg = register(
@@ -142,8 +142,9 @@ def test_an_object_seen_from_every_side_keeps_its_viewpoints_when_made_again(
     assert reembed(store, render_worker, embedders, CFG) == 4
     rec = store.snapshot.objects[reg.record.object_id]
     assert rec.templates == {"rgb": n, "depth": n, "rgbd": n}
-    # "auto": every side for a shape-only mesh, the upper half for a coloured one
-    assert whole_sphere("auto", textured=False) and not whole_sphere("auto", textured=True)
+    assert whole_sphere(None, replace(CFG, whole=True)) and not whole_sphere(
+        "upper", replace(CFG, whole=True)
+    )
 
 
 def test_template_in_plane_angles_follow_the_model_unless_overridden():

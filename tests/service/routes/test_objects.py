@@ -72,15 +72,30 @@ def test_a_shape_only_mesh_is_registered_as_such_with_its_shapes_symmetry(tmp_pa
             "colours",
         )
         assert coloured["warnings"] == [] and made["templates"] < coloured["templates"]
-        # a shape-only mesh's axes say nothing of how it lies: seen from every side unless told otherwise
-        assert (made["viewpoints"], coloured["viewpoints"]) == ("sphere", "upper")
-        assert listed["viewpoints"] == "sphere"
-        asked = register(c, can, "can-as-asked", symmetry="none", viewpoints="upper")
-        assert (asked["symmetry"], asked["symmetry_from"], asked["viewpoints"]) == ("none", "given", "upper")
+        # the upper half of the views unless asked: every side costs twice the templates
+        assert (made["viewpoints"], coloured["viewpoints"], listed["viewpoints"]) == ("upper",) * 3
+        asked = register(c, can, "can-as-asked", symmetry="none")
+        assert (asked["symmetry"], asked["symmetry_from"]) == ("none", "given")
         assert asked["templates"] == coloured["templates"]
-        whole = register(c, l_shape, "L-every-side", viewpoints="sphere")
+        whole = register(c, can, "can-every-side", symmetry="none", viewpoints="sphere")
         assert whole["viewpoints"] == "sphere" and whole["templates"] > 1.9 * coloured["templates"]
+        assert c.get(f"/objects/{whole['object_id']}").json()["viewpoints"] == "sphere"
         r = c.post(
             "/objects", files={"mesh": ("x.ply", ply_bytes(can))}, data={"name": "x", "viewpoints": "below"}
         )
         assert r.status_code == 422 and "viewpoints" in r.text
+
+
+def test_the_services_viewpoints_setting_is_what_a_registration_gets_unless_it_asks(
+    tmp_path, posedesc_models, l_shape
+):
+    """POSEDESC_VIEWPOINTS=sphere: a registration that does not say is seen from every side; one that asks for
+    the upper half gets it."""
+    with TestClient(
+        create_app(service_settings(tmp_path, posedesc_models, level=1, viewpoints="sphere"))
+    ) as c:
+        wait_ready(c)
+        every = register(c, l_shape, "L")
+        upper = register(c, l_shape, "L-upper", viewpoints="upper")
+        assert (every["viewpoints"], upper["viewpoints"]) == ("sphere", "upper")
+        assert every["templates"] > 1.9 * upper["templates"]
