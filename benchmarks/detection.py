@@ -50,6 +50,7 @@ KINECT_FRAME = 3  # the one frame of lmo-depth
 DETECT_SETTINGS = (
     "detect_proposals",
     "detect_shift",
+    "detect_depth_shift",
     "detect_grids",
     "detect_scale",
     "detect_screens",

@@ -23,9 +23,9 @@ from service.state import AppState
 
 @dataclass(frozen=True)
 class Verify:
-    """Every proposal of the frame verified (`Settings.detect_shift`, `detect_grids`, `detect_scale`,
-    `detect_screens`: the screening's grid step as a share of the proposal's side, its grids, its scale
-    factor and how many screenings one proposal may take)."""
+    """Every proposal of the frame verified (`Settings.detect_shift` and `detect_depth_shift`, `detect_grids`,
+    `detect_scale`, `detect_screens`: the screening's grid step as a share of a colour proposal's side and of
+    a depth segment's, its grids, its scale factor and how many screenings one proposal may take)."""
 
     state: AppState
     shift: float
@@ -33,13 +33,15 @@ class Verify:
     scale: float
     screens: int
     keep: int = 0  # colour proposals kept after one look each (`looked`); 0: all are verified
+    depth_shift: float = 0.0
     name: str = "verify"
 
     @classmethod
     def build(cls, state: AppState) -> Verify:
         s = state.settings
         keep = s.detect_proposals if s.detect_looked > s.detect_proposals else 0
-        return cls(state, s.detect_shift, s.detect_grids, s.detect_scale, s.detect_screens, keep)
+        grid = (s.detect_shift, s.detect_grids, s.detect_scale, s.detect_screens)
+        return cls(state, *grid, keep=keep, depth_shift=s.detect_depth_shift)
 
     def __call__(self, frame: Frame) -> Frame:
         screened: dict[Proposal, dict] = {p: {} for p in frame.proposals}
@@ -117,13 +119,20 @@ class Verify:
 
     def centred(self, frame: Frame, snapshot: Snapshot, p: Proposal, seen: dict) -> Query | None:
         """Where around the proposal the screening pipeline is most confident: a 3 x 3 grid of centres
-        `shift` of its window's side apart around the proposal's (and, for `grids` > 1, grids of half the
-        step around the best), then (a colour proposal) its distance nearer and farther by `scale`; at most
-        `screens` screenings (`seen`: those made already). None when nothing there can be answered (outside
-        the frame, no depth there)."""
+        `shift` (a depth segment: `depth_shift`) of its side apart around the proposal's (and, for `grids` >
+        1, grids of half the step around the best), then (a colour proposal) its distance nearer and farther
+        by `scale`; at most `screens` screenings (`seen`: those made already). With nothing to screen (no
+        step, no scale, not looked at), the proposal's own centre, unscreened: the whole pipeline decides.
+        None when nothing there can be answered (outside the frame, no depth there)."""
         q, d = frame.q, frame.d
         w, h = d.size
         side = p.box[2] - p.box[0]  # the proposal's window (colour) or the segment's extent (depth), px
+        step = (self.depth_shift if p.source == "depth" else self.shift) * side
+        log_d = None if p.distance_mm is None else float(np.log(p.distance_mm))
+        if step <= 0 and (log_d is None or self.scale <= 1) and not seen:  # nothing to screen: its centre
+            if not (0 <= p.u < w and 0 <= p.v < h):
+                return None
+            return replace(q, u=p.u, v=p.v, distance_mm=p.distance_mm, estimated=True)
 
         def score(u: float, v: float, log_d: float | None) -> tuple[float, float] | None:
             key = (round(u, 1), round(v, 1), round(log_d, 4) if log_d is not None else 0.0)
@@ -132,11 +141,9 @@ class Verify:
             return self.screen(frame, snapshot, u, v, p, seen, log_d)
 
         u, v = p.u, p.v
-        log_d = None if p.distance_mm is None else float(np.log(p.distance_mm))
         best = score(u, v, log_d)
         if best is None:
             return None
-        step = self.shift * side
         for _ in range(self.grids if step > 0 else 0):  # 3 x 3 around the best so far, each step halved
             grid = [(u + i * step, v + j * step) for i in (-1, 0, 1) for j in (-1, 0, 1) if i or j]
             for gu, gv in grid:
