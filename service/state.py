@@ -139,7 +139,7 @@ class AppState:
         viewpoints: str | None = None,
     ) -> Registration:
         """`mesh` registered into this state's store with its renderer, models and pools, as `POST /objects`
-        registers it (`index.templates.register.register`; `viewpoints`: one of its `VIEWPOINTS`, None: the
+        registers it (`index.templates.register.register`; `viewpoints`: one of `index.templates.viewpoints.VIEWPOINTS`, None: the
         settings')."""
         reg = register(
             mesh,

@@ -2,18 +2,16 @@
 benchmarks: mesh -> renders of every template view (on the render thread) -> patches -> descriptors of
 every model -> the store, in one transaction for all models.
 
-Template views: the paper's level-3 half-sphere (301 viewpoints) at 400 mm, times each model's in-plane
-angles. A model trained with the whole turn of roll says so in its metadata (`inplane_step`, see
-`index.features.embed.ModelInfo`): its templates are the views at every multiple of that step over the whole turn
+Template views: the paper's level-3 half-sphere (301 viewpoints; every side's 642 when a registration asks,
+`index.templates.viewpoints.VIEWPOINTS`) at 400 mm, times each model's in-plane angles. A model trained
+with the whole turn of roll says so in its metadata (`inplane_step`, see `index.features.embed.ModelInfo`): its templates are the views at every multiple of that step over the whole turn
 (12 per viewpoint for 30°). A model without it (a legacy model) has upright templates only. Settings may
 override both (`TemplateConfig`). The models of a service may differ, so the union of their views is
 rendered once (a render per viewpoint; in-plane variants are turns of it, `index.templates.render`) and each model
 embeds its own subset.
 
-Costs, measured with `.venv/bin/python benchmarks/serving/costs.py` (2 cores shared with other work, three
-models, a 21.8k-face mesh): 301 templates per model take render 2.5 s and embed 1.0 s, overlapping, 2.8 s
-in all (since then, on an idle machine: render 1.2 s, all 1.35 s; `posedesc bench`); in-plane variants
-cost no render but multiply embedding: +-45 in 45 steps (903) 4.4 s, 15 steps (2107) 7.6 s.
+Costs (`benchmarks/serving/costs.py`, `posedesc bench`; a 21.8k-face mesh, an idle machine): 301 templates a
+model render in 1.2 s, embedded alongside, 1.35 s in all; in-plane variants cost no render but embedding.
 The shipped models (rgb with 12 rolls a viewpoint, its RGB-D twin, upright depth) on a 100-object store,
 2 cores shared with other work (load 2-3): a registration's CPU is about 1.3 s the render thread, 1.1 s
 Mesa's rasterising threads, 2.5-3 s embedding (turning the variants included), 0.4 s the rest, so once
@@ -51,10 +49,10 @@ from index.geometry.pose import View
 from index.geometry.shape_symmetry import resolve
 from index.geometry.symmetry import SYMMETRIES
 from index.store import ObjectRecord, TemplateSet, TemplateStore
+from index.templates import viewpoints as vp
 from index.templates.mesh import MeshError, diameter, load_mesh, simplify
 from index.templates.render import INVISIBLE, Renderer, RenderWorker, Templates, Uprights
 from index.templates.surface import SURFACE_KEY, template_offsets
-from index.templates.viewpoints import inplane_steps, sphere_views
 from index.templates.windows import DIAMETER_KEY, WINDOW_KEY, object_window, window_class
 
 log = logging.getLogger(__name__)
@@ -91,7 +89,7 @@ class TemplateConfig:
         """In-plane angles of the templates of a model whose metadata says `model_step` (0: legacy)."""
         step = model_step if self.inplane_step is None else self.inplane_step
         span = self.inplane_max if self.inplane_max is not None else (360.0 if model_step > 0 else 45.0)
-        return inplane_steps(step, span)
+        return vp.inplane_steps(step, span)
 
     def inplane_spacing(self, model_step: float = 0.0) -> float:
         """Degrees between neighbouring in-plane templates of such a model; 0 when upright only."""
@@ -109,27 +107,6 @@ class TemplateConfig:
 #: (`index.geometry.shape_symmetry.Resolved`)
 TEXTURED_KEY = "textured"
 SYMMETRY_FROM_KEY = "symmetry_from"
-#: an object record's `extra`: the viewpoints its templates were made from (`VIEWPOINTS`)
-VIEWPOINTS_KEY = "viewpoints"
-#: the viewpoints an object's templates are made from: "upper", the half-sphere above its mesh's xy plane
-#: (an object standing as its mesh's z axis points up, as LineMOD's scans stand: the paper's), or "sphere",
-#: every side (an object that may lie on any face, as a CAD file's frame says nothing of how it lies)
-VIEWPOINTS = ("upper", "sphere")
-
-
-def whole_sphere(viewpoints: str | None, cfg: TemplateConfig) -> bool:
-    """Whether a registration makes its templates from every side: `viewpoints` one of `VIEWPOINTS`, or
-    None: as `cfg` says (`TemplateConfig.whole`, the service's `viewpoints` setting)."""
-    if viewpoints is None:
-        return cfg.whole
-    if viewpoints not in VIEWPOINTS:
-        raise MeshError(f"unknown viewpoints {viewpoints!r}; use one of {', '.join(VIEWPOINTS)}")
-    return viewpoints == "sphere"
-
-
-def recorded_whole(extra: Mapping[str, object]) -> bool:
-    """Whether a stored object's templates were made from every side (a record before this: the upper half)."""
-    return extra.get(VIEWPOINTS_KEY) == "sphere"
 
 
 @dataclass
@@ -148,7 +125,7 @@ def template_views(
     (viewpoint-major: the in-plane variants of a viewpoint are adjacent)."""
     if symmetry not in SYMMETRIES:
         raise MeshError(f"unknown symmetry {symmetry!r}; use one of {', '.join(SYMMETRIES)}")
-    views = sphere_views(cfg.level, cfg.inplane(model_step), cfg.distance_mm, cfg.whole)
+    views = vp.sphere_views(cfg.level, cfg.inplane(model_step), cfg.distance_mm, cfg.whole)
     if symmetry == "none":
         return views
     wedge = {"180": 180.0, "full": 72.0}[symmetry]
@@ -443,13 +420,16 @@ def register(
 ) -> Registration:
     """Adds `mesh` (mm) under `name` to every model's store, through the window its diameter asks for
     (`index.templates.windows`), with `symmetry` (or, "auto", the one `index.geometry.shape_symmetry.resolve`
-    finds), from `viewpoints` (`VIEWPOINTS`; None: `cfg.whole`); raises MeshError when it cannot be used. `progress`, when given, is told how far it is (`Progress`)."""
+    finds), from `viewpoints` (`index.templates.viewpoints.VIEWPOINTS`; None: `cfg.whole`); raises MeshError when it cannot be used. `progress`, when given, is told how far it is (`Progress`)."""
     t0 = time.perf_counter()
     light = decimated(worker, mesh)  # meanwhile, the diameter that decides the views
     size = diameter(mesh)
     chosen = resolve(mesh, symmetry, size)
     symmetry = chosen.symmetry
-    whole = whole_sphere(viewpoints, cfg)
+    try:
+        whole = vp.whole_sphere(viewpoints, cfg.whole)
+    except ValueError as e:
+        raise MeshError(str(e)) from None
     model_window = min(e.info.window_mm for e in embedders.values())
     window = window_class(size, model_window)
     views = model_views(symmetry, replace(cfg.through(window, model_window), whole=whole), embedders)
@@ -469,7 +449,7 @@ def register(
         DIAMETER_KEY: round(size, 1),
         TEXTURED_KEY: chosen.textured,
         SYMMETRY_FROM_KEY: chosen.source,
-        VIEWPOINTS_KEY: "sphere" if whole else "upper",
+        vp.VIEWPOINTS_KEY: "sphere" if whole else "upper",
     }
     record = store.add_object(name, symmetry, sets, faces=len(mesh.faces), mesh=glb, extra=extra)
     t2 = time.perf_counter()
@@ -504,7 +484,9 @@ def reembed(
         subset = {m: embedders[m] for m in models}
         model_window = min(e.info.window_mm for e in subset.values())
         window = object_window(rec.extra, model_window) if WINDOW_KEY in rec.extra else None
-        through = replace(cfg.through(window or model_window, model_window), whole=recorded_whole(rec.extra))
+        through = replace(
+            cfg.through(window or model_window, model_window), whole=vp.recorded_whole(rec.extra)
+        )
         views = model_views(rec.symmetry, through, subset)
         sets, _, _ = make_templates(worker, subset, mesh, views, pool, window_mm=window)
         try:

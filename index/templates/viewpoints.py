@@ -11,6 +11,7 @@ lower half (level 3: 642 viewpoints), upper first.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from functools import cache
 
 import numpy as np
@@ -100,3 +101,26 @@ def sphere_views(
     return [
         View(float(az), float(el), float(ip), distance) for az, el in viewpoints(level, whole) for ip in steps
     ]
+
+
+#: an object record's `extra`: the viewpoints its templates were made from (`VIEWPOINTS`)
+VIEWPOINTS_KEY = "viewpoints"
+#: the viewpoints an object's templates are made from: "upper", the half-sphere above its mesh's xy plane
+#: (an object standing as its mesh's z axis points up, as LineMOD's scans stand: the paper's), or "sphere",
+#: every side (an object that may lie on any face, as a CAD file's frame says nothing of how it lies)
+VIEWPOINTS = ("upper", "sphere")
+
+
+def whole_sphere(viewpoints: str | None, default: bool) -> bool:
+    """Whether a registration makes its templates from every side: `viewpoints` one of `VIEWPOINTS`, or
+    None: `default` (`index.templates.register.TemplateConfig.whole`, the service's `viewpoints` setting)."""
+    if viewpoints is None:
+        return default
+    if viewpoints not in VIEWPOINTS:
+        raise ValueError(f"unknown viewpoints {viewpoints!r}; use one of {', '.join(VIEWPOINTS)}")
+    return viewpoints == "sphere"
+
+
+def recorded_whole(extra: Mapping[str, object]) -> bool:
+    """Whether a stored object's templates were made from every side (a record before this: the upper half)."""
+    return extra.get(VIEWPOINTS_KEY) == "sphere"

@@ -15,7 +15,8 @@ from fastapi.responses import JSONResponse
 from index.geometry.units import LARGEST_MM, ORDINARY_MM, SMALLEST_MM, Units
 from index.store import NameTaken, StoreError
 from index.templates.mesh import FORMATS_TEXT, MeshError, MeshTooLarge, load_mesh
-from index.templates.register import SYMMETRY_FROM_KEY, TEXTURED_KEY, VIEWPOINTS_KEY
+from index.templates.register import SYMMETRY_FROM_KEY, TEXTURED_KEY
+from index.templates.viewpoints import VIEWPOINTS_KEY
 from index.templates.windows import DIAMETER_KEY, WINDOW_KEY, object_window
 from service.demo import DEMO_KEY
 from service.deps import ApiKeyDep, KnownFieldsDep, StateDep

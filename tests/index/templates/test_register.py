@@ -19,13 +19,11 @@ from index.templates.register import (
     embed_templates,
     make_templates,
     model_views,
-    recorded_whole,
     reembed,
     register,
     template_views,
-    whole_sphere,
 )
-from index.templates.viewpoints import hemisphere
+from index.templates.viewpoints import hemisphere, recorded_whole, whole_sphere
 
 CFG = TemplateConfig(level=2)  # 71 viewpoints: the same code path as level 3, four times faster
 
@@ -142,9 +140,7 @@ def test_an_object_seen_from_every_side_keeps_its_viewpoints_when_made_again(
     assert reembed(store, render_worker, embedders, CFG) == 4
     rec = store.snapshot.objects[reg.record.object_id]
     assert rec.templates == {"rgb": n, "depth": n, "rgbd": n}
-    assert whole_sphere(None, replace(CFG, whole=True)) and not whole_sphere(
-        "upper", replace(CFG, whole=True)
-    )
+    assert whole_sphere(None, True) and not whole_sphere("upper", replace(CFG, whole=True))
 
 
 def test_template_in_plane_angles_follow_the_model_unless_overridden():
