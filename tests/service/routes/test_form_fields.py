@@ -36,7 +36,8 @@ def test_a_misnamed_mesh_field_is_named(client, l_shape):
     r = client.post("/objects", files={"file": ("l.ply", ply_bytes(l_shape))}, data={"name": "L"})
     assert r.status_code == 422
     assert (
-        r.json()["detail"] == "unexpected form field `file`; this endpoint takes mesh, name, units, symmetry"
+        r.json()["detail"]
+        == "unexpected form field `file`; this endpoint takes mesh, name, units, symmetry, viewpoints"
     )
     assert client.get("/objects").json() == []  # nothing registered
 
