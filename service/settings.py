@@ -182,12 +182,13 @@ class Settings(BaseSettings):
         50_000, ge=1, description="embedded store, index_kind auto: an IVF index from this many templates"
     )
 
-    # Each proposal costs its screening and a run of the pipeline (~80 ms at 8 objects, 2 cores). The
-    # objectness network's top 10 held 83 % of the validation instances within w/8 and 12 %, its top 20
-    # 83 % too (docs/results/objectness-val.json); of the detections of 20 proposals on the validation
-    # frames, those of the best 10 ranked with the same AP50 (0.70) at half the time
+    # Each proposal costs a run of the pipeline (~30 ms at 8 objects, 2 cores). The objectness network's
+    # top 10 held 83 % of the validation instances within w/8 and 12 %, its top 20 83 % too
+    # (docs/results/objectness-val.json). Verified at their centres, on the validation frames (recall /
+    # precision / AP50 / frame): 6 75.7 / 96.7 / 81.3 / 434 ms; 8 79.1 / 95.8 / 84.8 / 451 ms; 10 79.1 /
+    # 93.8 / 84.4 / 521 ms; 15 and 20 79.1 / 88.3 and 85.8 / 83.0 and 82.0 / 731 and 917 ms
     detect_proposals: int = Field(
-        10,
+        8,
         ge=1,
         le=500,
         description="a frame without u and v: how many colour proposals are verified",
