@@ -7,8 +7,8 @@ The stages, in order (`stages`), each a module of this package with one call on 
 
 - `propose` (`proposals.Propose`): where an object may be: from the colour, the objectness network; from
   depth, the segments standing on the support (`depth_segments`);
-- `verify` (`verify.Verify`): each place screened around its centre and then recognised by the model's
-  whole pipeline, which names the object, gives its pose, its box and the open-set verdict;
+- `verify` (`verify.Verify`): each place recognised by the model's whole pipeline (a depth segment's after
+  a screening around its centre), which names the object, gives its pose, its box and the open-set verdict;
 - `agree` (`agree.Agree`): how far the frame's colours are from the object's at its pose, which tells a
   registered object from one nobody registered: a colour frame's confidences weighed by it, a frame with
   depth held to a ceiling on it (`report.floors`);

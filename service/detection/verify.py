@@ -1,10 +1,12 @@
 """The detection's verification: each proposal checked by the recognition itself.
 
-A proposal's centre and distance are a few px and per cent off, and the re-ranking's cells are 4 px of a
-64 px patch, so each proposal is first screened around its centre (`AppState.screens`: the pipeline with a
-light re-ranking, no sweep, no fit) on a grid of centres and, in colour, nearer and farther; the model's
-whole pipeline (`AppState.pipelines`) then names the object where the screening was most confident, gives
-its pose and the open-set verdict. A verified answer's box is its mesh projected at its pose."""
+A depth segment's centre is its visible surface's, not where the object's origin projects, and the
+re-ranking's cells are 4 px of a 64 px patch, so each segment is first screened around its centre
+(`AppState.screens`: the pipeline with a light re-ranking, no sweep, no fit) on a grid of centres; the
+model's whole pipeline (`AppState.pipelines`) then names the object where the screening was most confident,
+gives its pose and the open-set verdict. A colour proposal (the objectness network's: the origin's
+projection) goes to the whole pipeline at its own centre, whose pose fit moves it (screened too, it lost on
+the validation frames: `Settings.detect_shift`). A verified answer's box is its mesh projected at its pose."""
 
 from __future__ import annotations
 
