@@ -139,8 +139,8 @@ class AppState:
         viewpoints: str | None = None,
     ) -> Registration:
         """`mesh` registered into this state's store with its renderer, models and pools, as `POST /objects`
-        registers it (`index.templates.register.register`; `viewpoints`: one of `index.templates.viewpoints.VIEWPOINTS`, None: the
-        settings')."""
+        registers it (`index.templates.register.register`; `viewpoints`: one of
+        `index.templates.viewpoints.VIEWPOINTS`, None: the settings')."""
         reg = register(
             mesh,
             name,

@@ -61,6 +61,12 @@ def object_window(extra: Mapping[str, object], model_window_mm: float) -> float:
     return float(w) if isinstance(w, (int, float)) and w > 0 else float(model_window_mm)
 
 
+def object_diameter(extra: Mapping[str, object]) -> float | None:
+    """An object's diameter (mm) as stored at its registration; None for an object registered without."""
+    d = extra.get(DIAMETER_KEY)
+    return float(d) if isinstance(d, (int, float)) and d > 0 else None
+
+
 def window_classes(
     objects: Mapping[int, ObjectRecord], model_window_mm: float
 ) -> dict[float, frozenset[int]]:
@@ -75,11 +81,7 @@ def window_classes(
 def size_classes(objects: Mapping[int, ObjectRecord], ratio: float = 1.25) -> dict[float, frozenset[int]]:
     """The objects with a stored diameter grouped so that each group's largest is at most `ratio` times its
     smallest, keyed by the group's geometric mean diameter (mm), smallest first."""
-    sized = sorted(
-        (float(d), oid)
-        for oid, rec in objects.items()
-        if isinstance(d := rec.extra.get(DIAMETER_KEY), (int, float)) and d > 0
-    )
+    sized = sorted((d, oid) for oid, rec in objects.items() if (d := object_diameter(rec.extra)) is not None)
     groups: list[list[tuple[float, int]]] = []
     for d, oid in sized:
         if groups and d <= groups[-1][0][0] * ratio:

@@ -26,9 +26,9 @@ from service.state import AppState
 
 @dataclass(frozen=True)
 class Agree:
-    """Each detection's colour distance; in a colour frame, its confidence times `exp(-weight * max(its colour distance - allowance, 0))`
-    (`Settings.detect_colour_weight`, 0: not weighed; `Settings.detect_colour_allowance`), most confident
-    first. Reported at their own floor (`report.floors`)."""
+    """Each detection's colour distance; in a colour frame, its confidence times
+    `exp(-weight * max(its colour distance - allowance, 0))` (`Settings.detect_colour_weight`, 0: not
+    weighed; `Settings.detect_colour_allowance`), most confident first. Reported at their own floor (`report.floors`)."""
 
     state: AppState
     weight: float

@@ -1,9 +1,9 @@
 """The detection's last stage: each reported object's mask, its mesh's silhouette at the answered pose in the
 frame, as COCO writes a segmentation (compressed RLE: `{"size": [h, w], "counts": "..."}`, the string of
 pycocotools' `mask.encode`). It is the whole object's outline at its pose (what hides part of it is not
-known), as the box is. The silhouette is of the mesh cut to `index.draw.MASK_FACES` faces (`AppState.mask_meshes`): on
-LM-O's seven meshes (12-20k faces) at three poses 0.99 IoU or more with the drawing mesh's, in a quarter
-to a sixth of the time (a face filled at a time, ~15 ms against 45-100 for a 20k-face mesh)."""
+known), as the box is. The silhouette is of the mesh cut to `index.draw.MASK_FACES` faces
+(`AppState.mask_meshes`): on LM-O's seven meshes (12-20k faces) at three poses 0.99 IoU or more with the
+drawing mesh's, in a quarter to a sixth of the time (a face filled at a time, ~15 ms against 45-100)."""
 
 from __future__ import annotations
 

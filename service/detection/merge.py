@@ -13,7 +13,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from index.templates.windows import DIAMETER_KEY
+from index.templates.windows import object_diameter
 from service.detection.found import Detection, Frame
 from service.settings import Settings
 
@@ -41,11 +41,7 @@ class Merge:
     def __call__(self, frame: Frame) -> Frame:
         ordered = sorted(frame.detections, key=lambda x: -x.confidence)
         objects = frame.snapshot.objects
-        diameters = {
-            o: float(d)
-            for o, rec in objects.items()
-            if isinstance(d := rec.extra.get(DIAMETER_KEY), (int, float)) and d > 0
-        }
+        diameters = {o: d for o, rec in objects.items() if (d := object_diameter(rec.extra)) is not None}
         return replace(frame, detections=tuple(suppress(ordered, self.iou, diameters)))
 
 
