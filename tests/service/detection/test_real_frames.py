@@ -106,6 +106,25 @@ def test_a_real_colour_frame_without_a_centre(client):
         assert d["confidence"] >= Settings.model_fields["detect_rgb_floor"].default
 
 
+def test_a_floor_gives_what_floor_0_gives_above_it(client):
+    """A colour proposal scored under the floor is dropped before it is verified (`proposals.Propose`): its
+    detection could not be reported. The answer must be the one of floor 0 cut at the floor, detection for
+    detection."""
+    root = SHARED / "lmo"
+    rgb = (root / "test" / "000002" / "rgb" / "000243.png").read_bytes()
+
+    def asked(floor: float) -> list[tuple]:
+        data = {**camera(root, 243), "min_confidence": str(floor), "max_detections": "50"}
+        r = client.post("/recognize", files={"rgb": ("f.png", rgb)}, data=data)
+        assert r.status_code == 200, r.text
+        return [(d["best"]["object_id"], round(d["confidence"], 6), d["box"]) for d in r.json()["detections"]]
+
+    every, above = asked(0.0), asked(0.5)
+    print("floor 0:", len(every), "detections; floor 0.5:", len(above))
+    assert len(every) > len(above) > 0  # the frame has detections on both sides of the floor
+    assert above == [x for x in every if x[1] >= 0.5]
+
+
 @pytest.fixture(scope="module")
 def demo_only(tmp_path_factory):
     """The service as it starts by default: its four demo shapes registered, none of them in LM-O's frames."""
