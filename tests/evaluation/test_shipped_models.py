@@ -106,9 +106,8 @@ def test_the_service_protocol_runs_with_the_shipped_models(service_runs, modalit
     s = service_runs[modality]
     check_run(s, modality, "service")
     variants = s["service"]["templates_per_viewpoint"]
-    # the depth model was trained upright (no inplane_step in its metadata): the service's +-45 deg span
-    # holds no multiple of 90 but 0
-    assert variants == (1 if modality == "depth" else 4) and s["n_templates"] == 2 * 301 * variants
+    # every shipped model is trained with roll (its metadata's inplane_step): the whole turn, every 90 deg
+    assert variants == 4 and s["n_templates"] == 2 * 301 * variants
     check_table(s["view_direction"]["ours"])
     off, on = s["open_set_off"]["methods"]["ours"], s["methods"]["ours"]
     check_table(off)
