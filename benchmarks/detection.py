@@ -56,6 +56,7 @@ DETECT_SETTINGS = (
     "detect_screens",
     "detect_screen_rerank",
     "threads",
+    "detect_threads",
 )
 
 

@@ -391,7 +391,7 @@ DETECTION = Table(
     "[docs/detection.md](docs/detection.md)); with depth (RGB-D, real colour and rendered depth, which "
     "flatters: [`detect-test-rgbd.json`](docs/results/detect-test-rgbd.json)), recall 86.9, precision 91.2, "
     "0 false detections a frame. YCB-V: the three videos' runs pooled "
-    "(AP50 and times are per run: frame median 0.26-0.54 s), BOP AR 23.4; in colour nothing is found there "
+    "(AP50 and times are per run: frame median 0.28-0.60 s), BOP AR 29.2; in colour nothing is found there "
     "(shape-only meshes; `ycbv-detect-rgb-*.json`). **Objects the objectness network "
     "never saw are not found**: left out of its training, the ape and the driller are found 0 % of the "
     "time (83 % and 70 % trained on) "

@@ -193,6 +193,14 @@ class Settings(BaseSettings):
         le=500,
         description="a frame without u and v: how many colour proposals are verified",
     )
+    # A frame asked alone would use one of the two cores: its objectness network runs on two threads (153 ->
+    # 88 ms a frame) and its places are verified two at a time (verify 237 -> 189 ms: the pipeline holds the
+    # GIL in parts); answers unchanged (docs/experiments.md). Two frames asked at once already use both
+    # cores, and the extra threads share them
+    detect_threads: int = Field(
+        2, ge=1, le=16, description="a frame without u and v: the objectness network's threads and the "
+        "places verified at once (1: one core)",
+    )  # fmt: skip
     # The objectness network proposes any object, registered or not: with this above `detect_proposals`,
     # this many are each screened once at their centre and the best `detect_proposals` of them by that
     # screening's confidence times their score are verified (docs/experiments.md)

@@ -54,6 +54,9 @@ class AppState:
     recognition_gate: asyncio.Semaphore = field(default_factory=lambda: asyncio.Semaphore(2))
     #: where recognitions run (as many threads as the gate lets in)
     recognizer: ThreadPoolExecutor = field(init=False)
+    #: where a frame's places are verified side by side (`service.detection.verify`), apart from
+    #: `recognizer`, whose thread waits for them
+    verifier: ThreadPoolExecutor = field(init=False)
     #: where the pose fit's models of new and stored objects are made ahead of the queries that need
     #: them (`warm`): a colour one takes seconds
     fitter: ThreadPoolExecutor = field(init=False)
@@ -88,6 +91,7 @@ class AppState:
         self.embed_pool = worker_pool(2, "embed", n)
         self.mesh_loader = worker_pool(1, "mesh", n)
         self.recognizer = worker_pool(2, "recognise", n)
+        self.verifier = worker_pool(self.settings.detect_threads, "verify", n)
         self.fitter = worker_pool(1, "fit", n)
         self.draw_meshes = MeshCache(lambda oid: DrawMesh.from_glb(self.store.mesh_bytes(oid)))
         self.shapes = Shapes(self.draw_meshes)
@@ -218,7 +222,7 @@ def load_state(settings: Settings, embedders: dict[str, Embedder] | None = None)
     log.info("models %s, %d objects in %s", sorted(embedders), len(store.snapshot.objects), where)
     # behind a load balancer a job is polled on any replica: with a shared store, job states are shared files
     jobs = Jobs() if settings.store == EMBEDDED else Jobs(files=SharedFiles(settings.data_dir))
-    colour = colour_proposals(objectness_path(settings), settings.threads)
+    colour = colour_proposals(objectness_path(settings), settings.detect_threads)
     return AppState(settings, embedders, store, worker, cfg, jobs=jobs, colour_proposals=colour)
 
 
@@ -243,6 +247,7 @@ def close_state(state: AppState) -> None:
     state.mesh_loader.shutdown(wait=True, cancel_futures=True)
     state.embed_pool.shutdown(wait=True)
     state.recognizer.shutdown(wait=True)
+    state.verifier.shutdown(wait=True)
     state.fitter.shutdown(wait=True, cancel_futures=True)
     state.worker.close()
     state.jobs.close()

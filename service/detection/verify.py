@@ -48,7 +48,8 @@ class Verify:
     def __call__(self, frame: Frame) -> Frame:
         screened: dict[Proposal, dict] = {p: {} for p in frame.proposals}
         proposals = self.looked(frame, screened) if self.keep else frame.proposals
-        found = (self.verify(frame, p, screened[p]) for p in proposals)
+        # each place on its own (`Settings.detect_threads` at once), answered in the proposals' order
+        found = self.state.verifier.map(lambda p: self.verify(frame, p, screened[p]), proposals)
         return replace(frame, detections=tuple(x for x in found if x is not None))
 
     def looked(self, frame: Frame, screened: dict[Proposal, dict]) -> tuple[Proposal, ...]:

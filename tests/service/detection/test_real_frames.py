@@ -19,6 +19,7 @@ from index.geometry.pose_error import ADD_FRACTION, add, adi
 from service.detection.merge import iou
 from service.main import create_app
 from service.settings import Settings
+from service.threads import worker_pool
 
 # registers the real LM-O objects and searches real frames whole: `make test`, not `make check`
 pytestmark = pytest.mark.slow
@@ -123,6 +124,34 @@ def test_a_floor_gives_what_floor_0_gives_above_it(client):
     print("floor 0:", len(every), "detections; floor 0.5:", len(above))
     assert len(every) > len(above) > 0  # the frame has detections on both sides of the floor
     assert above == [x for x in every if x[1] >= 0.5]
+
+
+def test_places_verified_side_by_side_answer_as_one_at_a_time(client):
+    """`DETECT_THREADS` 2 (the default) verifies a frame's places two at a time: each place's answer must be
+    the one it gets alone, in the same order, whatever finishes first."""
+    root = SHARED / "lmo"
+    rgb = (root / "test" / "000002" / "rgb" / "000248.png").read_bytes()
+    state = client.app.state.posedesc
+    assert state.settings.detect_threads == 2
+
+    def asked() -> list[tuple]:
+        data = {**camera(root, 248), "min_confidence": "0", "max_detections": "50"}
+        r = client.post("/recognize", files={"rgb": ("f.png", rgb)}, data=data)
+        assert r.status_code == 200, r.text
+        return [
+            (d["best"]["object_id"], d["confidence"], d["box"], d["best"]["R"])
+            for d in r.json()["detections"]
+        ]
+
+    side_by_side = asked()
+    two = state.verifier
+    state.verifier = worker_pool(1, "verify-alone", 1)
+    try:
+        alone = asked()
+    finally:
+        state.verifier.shutdown(wait=True)
+        state.verifier = two
+    assert len(alone) >= 3 and side_by_side == alone
 
 
 @pytest.fixture(scope="module")
