@@ -121,8 +121,8 @@ class BopDataset:
             if not self.declares_symmetries:
                 mesh = self.mesh(obj_id)
                 if not textured(mesh):
-                    found = shape_symmetry(mesh, float(info.get("diameter") or diameter(mesh))).symmetry
-                    info |= bop_form(found) | {"symmetry_from": "shape"}
+                    found = shape_symmetry(mesh, float(info.get("diameter") or diameter(mesh)))
+                    info |= bop_form(found.symmetry, found.centre) | {"symmetry_from": "shape"}
             self._symmetry_info[obj_id] = info
         return self._symmetry_info[obj_id]
 

@@ -30,7 +30,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from index.geometry.pose import lookat_rotation
-from index.geometry.symmetry import Symmetry, symmetry_rotations
+from index.geometry.symmetry import Symmetry, continuous, symmetry_rotations
 
 if TYPE_CHECKING:
     import trimesh
@@ -61,19 +61,19 @@ def _degrees(cos: np.ndarray) -> np.ndarray:
     return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
 
 
-def _is_full(symmetry: Symmetry) -> bool:
-    return isinstance(symmetry, str) and symmetry == "full"
-
-
 def rotation_errors(R_est: np.ndarray, R_gt: np.ndarray, symmetry: Symmetry = "none") -> np.ndarray:
     """3-D rotation error, in-plane included: the smallest angle (degrees) between each R_est and any
     pose R_gt @ S that looks the same (S a symmetry of the object). Under "full" only where the two
-    poses put the object's z axis is observable. Shape: (N, 3, 3), (M, 3, 3) -> (N, M)."""
+    poses put the object's z axis is observable (with "+flip", that axis either way round).
+    Shape: (N, 3, 3), (M, 3, 3) -> (N, M)."""
     R_est, R_gt = _stack(R_est), _stack(R_gt)
-    if _is_full(symmetry):
-        return _degrees(R_est[:, :, 2] @ R_gt[:, :, 2].T)
+    if (named := continuous(symmetry)) is not None:
+        cos = R_est[:, :, 2] @ R_gt[:, :, 2].T
+        return _degrees(np.abs(cos) if named.flip_deg is not None else cos)
     # trace(R_est^T R_gt S) is the sum of the element-wise product of R_est and R_gt S.
-    trace = np.max([np.einsum("nij,mij->nm", R_est, R_gt @ S) for S in symmetry_rotations(symmetry)], axis=0)
+    trace = np.full((len(R_est), len(R_gt)), -np.inf)
+    for S in symmetry_rotations(symmetry):
+        trace = np.maximum(trace, np.einsum("nij,mij->nm", R_est, R_gt @ S))
     return _degrees((trace - 1.0) / 2.0)
 
 
@@ -91,12 +91,14 @@ def view_errors(
     """Viewing-direction error (the paper's pose error): the angle (degrees) between where the two poses
     put the camera as seen from the object, -R^T ray for an object on `ray` (camera frame; both poses on
     it), the smallest over the symmetries; in-plane does not count. Under "full" only elevation is
-    observable. Shape: (N, 3, 3), (M, 3, 3) -> (N, M)."""
+    observable (with "+flip", its size only). Shape: (N, 3, 3), (M, 3, 3) -> (N, M)."""
     R_est, R_gt = _stack(R_est), _stack(R_gt)
     r = np.asarray(ray, dtype=float) / np.linalg.norm(ray)
     c_est, c_gt = -np.einsum("k,nkj->nj", r, R_est), -np.einsum("k,nkj->nj", r, R_gt)
-    if _is_full(symmetry):
+    if (named := continuous(symmetry)) is not None:
         el_est, el_gt = np.arcsin(np.clip(c_est[:, 2], -1, 1)), np.arcsin(np.clip(c_gt[:, 2], -1, 1))
+        if named.flip_deg is not None:
+            el_est, el_gt = np.abs(el_est), np.abs(el_gt)
         return np.degrees(np.abs(el_est[:, None] - el_gt[None, :]))
     # The pose R_gt @ S puts the camera at S^T c_gt in the object frame.
     return _degrees(np.max([c_est @ (c_gt @ S).T for S in symmetry_rotations(symmetry)], axis=0))

@@ -1,31 +1,36 @@
 """An object's symmetry found from its shape: what a mesh without colour looks like after a turn.
 
 A shape-only mesh (a CAD file, YCB-Video's meshes) looks the same after any turn that maps its surface onto
-itself: a box after a half-turn, a can after any turn about its axis. Nothing tells those poses apart in
-depth, and in colour only the silhouette and shading, so the templates need only one of them and a pose
-error must forgive them (`symmetry`). A textured object's colours break the symmetry of its shape: its
-symmetry is "none" unless its owner says otherwise.
+itself: a box after a half-turn about each of its axes, a can after any turn about its axis and end over
+end. Nothing tells those poses apart in depth, and in colour only the silhouette and shading, so the
+templates need only one of them and a pose error must forgive them (`symmetry`). A textured object's
+colours break the symmetry of its shape: its symmetry is "none" unless its owner says otherwise.
 
-The test: points sampled on the surface, turned about the object's z axis (the axis the project's
-symmetries are about, `symmetry.SYMMETRIES`), and the 99th percentile of their distances to the surface
+The test: points sampled on the surface, turned, and the 99th percentile of their distances to the surface
 (another sample of it) compared with the object's diameter: a high percentile, so that a small part that
 breaks the symmetry (a mug's handle, a nozzle) counts. A turn is a symmetry when that stays within
 `TOLERANCE` of the diameter: a scanned box's half-turn comes out at 2-6 % (its faces are not flat), an
-object that is not symmetric at 10 % and more (LM-O's five, a mug, a banana); "full" when every one
-of a set of turns (`CONTINUOUS_TURNS`, one of them not a fraction of the turn that a 2-, 3-, 4-, 5- or 6-fold
-symmetry repeats on) is. Measured on LM-O's and YCB-Video's meshes: docs/experiments.md, "Shape-only meshes".
-Deterministic (seeded sampling), under a second for YCB-Video's meshes. The tolerance is a share of the whole
-diameter: a long thin bar of square section (turned, its corners move little against its length) is taken
-as round ("full").
+object that is not symmetric at 10 % and more (LM-O's five, a mug, a banana). Turns about the z axis
+first: "full" when every one of a set of turns (`CONTINUOUS_TURNS`, one of them not a fraction of the turn
+that a 2-, 3-, 4-, 5- or 6-fold symmetry repeats on) is, else "180" or "none"; then the flip, a half-turn
+end over end about an axis across z through the middle of the object's height (`centre`): every
+`FLIP_STEP` degrees on a tenth of the points, then to the degree about the best (a box whose sides are not
+along its mesh's x and y axes has its flip at some angle; x or y when it fits as well). Measured on LM-O's and YCB-Video's meshes:
+docs/experiments.md, "Shape-only meshes" and "A box's half-turns". Deterministic (seeded sampling), under
+a second and a half for YCB-Video's meshes. The tolerance is a share of the whole diameter: a long thin
+bar of square section (turned, its corners move little against its length) is taken as round ("full").
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 import trimesh
 from scipy.spatial import cKDTree
+
+from index.geometry.symmetry import Named, canonical, flip_rotation
 
 #: a turn is a symmetry when the `QUANTILE` of the turned surface's distances to it is at most this share
 #: of the diameter
@@ -35,15 +40,23 @@ CONTINUOUS_TURNS = (37.0, 90.0, 143.0, 180.0)
 #: points sampled on the surface (each of two samples)
 POINTS = 20_000
 QUANTILE = 0.99
+#: the flip's axis is first looked for every this many degrees, on every `FLIP_SUBSAMPLE`-th point
+FLIP_STEP = 5
+FLIP_SUBSAMPLE = 10
+#: the mesh's own axis is taken for the flip when its misfit is within this of the best axis's
+AXIS_PREFERENCE = 0.005
 
 
 @dataclass(frozen=True)
 class ShapeSymmetry:
-    """The symmetry found ("none", "180" or "full", about z) and, per turn tried (degrees), the `QUANTILE`
-    of the turned surface's distances to the surface, as a share of the diameter."""
+    """The symmetry found (a name of `index.geometry.symmetry`), per turn about z tried (degrees) the
+    `QUANTILE` of the turned surface's distances to the surface as a share of the diameter, the same of the
+    best flip (None: not tried), and the centre its turns are about (mm: on z, mid-height)."""
 
     symmetry: str
     misfit: dict[float, float]
+    flip_misfit: float | None = None
+    centre: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
 
 def _turn_z(deg: float) -> np.ndarray:
@@ -52,21 +65,46 @@ def _turn_z(deg: float) -> np.ndarray:
 
 
 def shape_symmetry(mesh: trimesh.Trimesh, diameter_mm: float, seed: int = 0) -> ShapeSymmetry:
-    """The symmetry of `mesh`'s shape about its z axis (see the module's docstring)."""
+    """The symmetry of `mesh`'s shape (see the module's docstring)."""
     if diameter_mm <= 0 or len(mesh.faces) == 0:
         return ShapeSymmetry("none", {})
     a = np.asarray(trimesh.sample.sample_surface(mesh, POINTS, seed=seed)[0], float)
     b = np.asarray(trimesh.sample.sample_surface(mesh, POINTS, seed=seed + 1)[0], float)
     surface = cKDTree(a)
+    centre = np.array([0.0, 0.0, float(np.mean(mesh.bounds[:, 2]))])
 
-    def misfit(deg: float) -> float:
-        d = surface.query(b @ _turn_z(deg).T)[0]
+    def misfit(R: np.ndarray, every: int = 1) -> float:
+        d = surface.query((b[::every] - centre) @ R.T + centre)[0]
         return float(np.quantile(d, QUANTILE) / diameter_mm)
 
-    misfits = {deg: misfit(deg) for deg in sorted({180.0, *CONTINUOUS_TURNS})}
+    misfits = {deg: misfit(_turn_z(deg)) for deg in sorted({180.0, *CONTINUOUS_TURNS})}
     if all(misfits[deg] <= TOLERANCE for deg in CONTINUOUS_TURNS):
-        return ShapeSymmetry("full", misfits)
-    return ShapeSymmetry("180" if misfits[180.0] <= TOLERANCE else "none", misfits)
+        about_z = "full"
+    else:
+        about_z = "180" if misfits[180.0] <= TOLERANCE else "none"
+    flip_deg, flip_misfit = _best_flip(about_z, misfit)
+    named = Named(about_z, flip_deg if flip_misfit <= TOLERANCE else None)
+    return ShapeSymmetry(named.name, misfits, flip_misfit, (0.0, 0.0, float(centre[2])))
+
+
+def _best_flip(about_z: str, misfit: Callable[..., float]) -> tuple[float, float]:
+    """The flip's axis (degrees from x) that fits best, and its misfit; the mesh's x (or y) axis when it
+    fits as well, within `AXIS_PREFERENCE` (a square's diagonals are flips as good as its sides). With "full"
+    any axis is as good; with "180" the axes repeat every 90°, else every 180°."""
+    if about_z == "full":
+        return 0.0, misfit(flip_rotation(0.0))
+    span = 90 if about_z == "180" else 180
+    coarse = {deg: misfit(flip_rotation(deg), FLIP_SUBSAMPLE) for deg in range(0, span, FLIP_STEP)}
+    best = min(coarse, key=coarse.__getitem__)
+    half = FLIP_STEP // 2
+    fine = {deg % span: misfit(flip_rotation(deg)) for deg in range(best - half, best + half + 1)}
+    for axis in (0, 90)[: span // 90]:
+        fine.setdefault(axis, misfit(flip_rotation(axis)))
+    deg = min(fine, key=fine.__getitem__)
+    axis = min((0, 90)[: span // 90], key=fine.__getitem__)
+    if fine[axis] <= fine[deg] + AXIS_PREFERENCE:
+        deg = axis
+    return float(deg), fine[deg]
 
 
 def textured(mesh: trimesh.Trimesh, spread: float = 8.0) -> bool:
@@ -100,11 +138,12 @@ class Resolved:
 
 
 def resolve(mesh: trimesh.Trimesh, asked: str, diameter_mm: float) -> Resolved:
-    """The symmetry to register `mesh` with: `asked` unless it is `AUTO`; then "none" for a textured mesh
+    """The symmetry to register `mesh` with: `asked` (a name of `index.geometry.symmetry`, ValueError if it
+    is not one) unless it is `AUTO`; then "none" for a textured mesh
     (its colours tell the turns apart) and the shape's symmetry (`shape_symmetry`) for a shape-only one."""
-    coloured = textured(mesh)
     if asked != AUTO:
-        return Resolved(asked, "given", coloured)
+        return Resolved(canonical(asked), "given", textured(mesh))
+    coloured = textured(mesh)
     if coloured:
         return Resolved("none", "colours", True)
     found = shape_symmetry(mesh, diameter_mm)

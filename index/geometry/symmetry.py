@@ -1,29 +1,111 @@
 """Object symmetries: the turns of an object that leave it looking the same (the pose errors that forgive
 them are `index.geometry.pose_error`'s).
 
-A symmetry is one of:
-- "none";
-- "180": a half-turn about the object's z axis (LineMOD's eggbox and glue, BOP `symmetries_discrete`);
-- "full": any turn about the object's z axis (bowls, cans; BOP `symmetries_continuous` about z).
-BOP's `symmetries_discrete` 4x4 matrices are read into a list of rotations by `from_bop`.
+A symmetry is named by its turns about the object's z axis, and, after "+flip" (or "flip" alone), a
+half-turn about an axis across z, through the object's centre, that turns the object end over end:
+- "none", "180" (a half-turn about z: LineMOD's eggbox and glue), "full" (any turn about z: a bowl);
+- "flip": a half-turn about the x axis, its ends alike (a marker, a banana-like shape);
+- "180+flip": a box, half-turns about z, x and y;
+- "full+flip": a can whose two ends look alike (any turn about z, and end over end);
+- "@<degrees>" after the flip: its axis that many degrees from x in the xy plane (a box whose sides are
+  not along its mesh's x and y axes: "180+flip@28").
+The turns are about axes through the object's centre (`centre`, mm; the origin when not given: the
+service's poses need only the rotations). BOP's `symmetries_discrete` 4x4 matrices and
+`symmetries_continuous` are read into these names where they are such turns (`from_bop`), into a list of
+rotations otherwise; `bop_form` states a name in BOP's form.
 `symmetry_transformations` gives the (R, t) transformations BOP's MSSD and MSPD minimise over.
 """
 
 from __future__ import annotations
 
+import re
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 
 from index.geometry.pose import rotation_of
 
-SYMMETRIES = ("none", "180", "full")
-Symmetry = str | Sequence[np.ndarray]  # one of SYMMETRIES, or BOP's discrete rotations
+#: the turns about z a symmetry may have
+ABOUT_Z = ("none", "180", "full")
+#: the named symmetries (a flip's axis other than x: "@<degrees>" after the name)
+SYMMETRIES = ("none", "180", "full", "flip", "180+flip", "full+flip")
+Symmetry = str | Sequence[np.ndarray]  # a name, or BOP's discrete rotations
+
+_NAME = re.compile(r"^(none|180|full)$|^(?:(180|full)\+)?flip(?:@(-?\d+(?:\.\d+)?))?$")
+
+
+@dataclass(frozen=True)
+class Named:
+    """A named symmetry: its turns about z (one of `ABOUT_Z`) and its flip's axis, degrees from x in the xy
+    plane (None: no flip), brought to its smallest equivalent: [0, 180), [0, 90) with "180", 0 with "full"."""
+
+    about_z: str
+    flip_deg: float | None = None
+
+    def __post_init__(self) -> None:
+        if self.flip_deg is not None:
+            period = {"none": 180.0, "180": 90.0, "full": None}[self.about_z]
+            deg = 0.0 if period is None else round(float(self.flip_deg) % period, 1) % period
+            object.__setattr__(self, "flip_deg", deg)
+
+    @property
+    def name(self) -> str:
+        if self.flip_deg is None:
+            return self.about_z
+        stem = "flip" if self.about_z == "none" else f"{self.about_z}+flip"
+        return stem if self.flip_deg == 0 else f"{stem}@{self.flip_deg:g}"
+
+    @property
+    def continuous(self) -> bool:
+        return self.about_z == "full"
+
+
+def parse(symmetry: str) -> Named:
+    """The named symmetry `symmetry` (see the module's docstring); ValueError for a name that is not one."""
+    m = _NAME.match(symmetry.strip()) if isinstance(symmetry, str) else None
+    if m is None:
+        raise ValueError(
+            f"unknown symmetry {symmetry!r}; use one of {', '.join(SYMMETRIES)} "
+            "(a flip about an axis other than x: '@<degrees from x>' after it, e.g. '180+flip@30')"
+        )
+    if m.group(1):
+        return Named(m.group(1))
+    return Named(m.group(2) or "none", float(m.group(3) or 0.0))
+
+
+def canonical(symmetry: str) -> str:
+    """`symmetry`'s name in its smallest form ("180+flip@90" is "180+flip"); ValueError if it is none."""
+    return parse(symmetry).name
+
+
+def continuous(symmetry: Symmetry) -> Named | None:
+    """The named symmetry when `symmetry` is one with any turn about z (errors treat it exactly), else None."""
+    if not isinstance(symmetry, str):
+        return None
+    named = parse(symmetry)
+    return named if named.continuous else None
 
 
 def _rot_z(deg: float) -> np.ndarray:
     c, s = np.cos(np.radians(deg)), np.sin(np.radians(deg))
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def flip_rotation(deg: float) -> np.ndarray:
+    """The half-turn about the axis in the xy plane `deg` degrees from x."""
+    a = np.array([np.cos(np.radians(deg)), np.sin(np.radians(deg)), 0.0])
+    return 2.0 * np.outer(a, a) - np.eye(3)
+
+
+def _group(named: Named, full_steps: int) -> list[np.ndarray]:
+    """The rotations of a named symmetry, identity first; "full" sampled in `full_steps` equal turns."""
+    n = {"none": 1, "180": 2, "full": full_steps}[named.about_z]
+    turns = [_rot_z(360.0 * i / n) for i in range(n)]
+    if named.flip_deg is None:
+        return turns
+    flip = flip_rotation(named.flip_deg)
+    return turns + [Z @ flip for Z in turns]
 
 
 def symmetry_rotations(symmetry: Symmetry) -> list[np.ndarray]:
@@ -32,43 +114,69 @@ def symmetry_rotations(symmetry: Symmetry) -> list[np.ndarray]:
     "full" is sampled every 1°; `index.geometry.pose_error` treats it exactly."""
     if not isinstance(symmetry, str):
         return [np.eye(3)] + [np.asarray(S, float)[:3, :3] for S in symmetry]
-    if symmetry == "none":
-        return [np.eye(3)]
-    if symmetry == "180":
-        return [np.eye(3), _rot_z(180.0)]
-    if symmetry == "full":
-        return [_rot_z(a) for a in range(360)]
-    raise ValueError(f"unknown symmetry {symmetry!r}; use one of {SYMMETRIES}")
+    return _group(parse(symmetry), 360)
+
+
+def _flip_deg(R: np.ndarray, atol: float = 0.05) -> float | None:
+    """The axis of `R` (degrees from x in the xy plane) when it is a half-turn about an axis across z."""
+    if abs(R[2, 2] + 1.0) > atol or abs(np.trace(R) + 1.0) > atol:
+        return None
+    axis_outer = (R + np.eye(3)) / 2.0  # a a^T for a half-turn about a
+    j = int(np.argmax(np.diag(axis_outer)))
+    a = axis_outer[:, j] / np.sqrt(max(axis_outer[j, j], 1e-12))
+    return float(np.degrees(np.arctan2(a[1], a[0])) % 180.0)
+
+
+def _named_discrete(rotations: Sequence[np.ndarray], atol: float = 0.05) -> str | None:
+    """The name of a set of discrete rotations (identity left out) when it is one, else None."""
+    z180 = any(np.allclose(R, _rot_z(180.0), atol=atol) for R in rotations)
+    flips = [d for d in (_flip_deg(R, atol) for R in rotations) if d is not None]
+    named = Named("180" if z180 else "none", flips[0] if flips else None)
+    expected = _group(named, 1)[1:]
+    if not expected or len(expected) != len(rotations):
+        return None
+    if all(any(np.allclose(R, E, atol=atol) for R in rotations) for E in expected):
+        return named.name
+    return None
 
 
 def from_bop(info: dict) -> str | list[np.ndarray]:
-    """The symmetry of a `models_info.json` entry."""
+    """The symmetry of a `models_info.json` entry: a name where its turns are a named symmetry's (offsets
+    aside: they move the object, not how it looks from a turned camera), else BOP's 4x4 matrices."""
+    mats = [np.asarray(m, float).reshape(4, 4) for m in info.get("symmetries_discrete") or []]
     if info.get("symmetries_continuous"):
-        return "full"
-    discrete = info.get("symmetries_discrete") or []
-    if not discrete:
+        flipped = any(_flip_deg(m[:3, :3]) is not None for m in mats)
+        return "full+flip" if flipped else "full"
+    if not mats:
         return "none"
-    mats = [np.asarray(m, float).reshape(4, 4) for m in discrete]
-    if len(mats) == 1 and np.allclose(mats[0][:3, :3], _rot_z(180.0), atol=0.05):
-        return "180"
-    return mats
+    named = _named_discrete([m[:3, :3] for m in mats])
+    return named if named is not None else mats
 
 
-def bop_form(symmetry: str) -> dict:
-    """One of `SYMMETRIES` as `models_info.json` states it (`from_bop`'s inverse): the keys to add."""
-    if symmetry == "full":
-        return {"symmetries_continuous": [{"axis": [0.0, 0.0, 1.0], "offset": [0.0, 0.0, 0.0]}]}
-    if symmetry == "180":
-        return {"symmetries_discrete": [_half_turn()]}
-    if symmetry == "none":
-        return {}
-    raise ValueError(f"unknown symmetry {symmetry!r}; use one of {SYMMETRIES}")
-
-
-def _half_turn() -> list[float]:
+def _about(R: np.ndarray, centre: np.ndarray) -> list[float]:
+    """The 4x4 of the turn R about `centre` (x -> R (x - c) + c), as BOP lists it."""
     m = np.eye(4)
-    m[:3, :3] = _rot_z(180.0)
+    m[:3, :3], m[:3, 3] = R, centre - R @ centre
     return m.ravel().tolist()
+
+
+def bop_form(symmetry: str, centre: Sequence[float] | None = None) -> dict:
+    """A named symmetry as `models_info.json` states it (`from_bop`'s inverse), its turns about axes through
+    `centre` (mm; the origin when None): the keys to add."""
+    named, c = parse(symmetry), _centre(centre)
+    out: dict = {}
+    if named.continuous:
+        out["symmetries_continuous"] = [{"axis": [0.0, 0.0, 1.0], "offset": c.tolist()}]
+        discrete = [] if named.flip_deg is None else [flip_rotation(named.flip_deg)]
+    else:
+        discrete = _group(named, 1)[1:]
+    if discrete:
+        out["symmetries_discrete"] = [_about(R, c) for R in discrete]
+    return out
+
+
+def _centre(centre: Sequence[float] | None) -> np.ndarray:
+    return np.zeros(3) if centre is None else np.asarray(centre, float).reshape(3)
 
 
 #: BOP's rule for discretising a continuous symmetry: no model point may move more than this fraction of
@@ -83,21 +191,19 @@ def continuous_steps(max_step: float = MAX_SYM_DISC_STEP) -> int:
 
 
 def symmetry_transformations(
-    symmetry: Symmetry, max_step: float = MAX_SYM_DISC_STEP
+    symmetry: Symmetry, max_step: float = MAX_SYM_DISC_STEP, centre: Sequence[float] | None = None
 ) -> list[tuple[np.ndarray, np.ndarray]]:
     """The object-frame transformations x -> R x + t (t in mm) that leave the object looking the same,
     identity first, as BOP's model-based errors (MSSD, MSPD) minimise over them.
 
-    "full" (a continuous symmetry about z through the origin) is sampled by BOP's max-distance rule
-    (`continuous_steps`); BOP's discrete 4x4 matrices keep their translation offsets."""
-    if isinstance(symmetry, str) and symmetry == "full":
-        n = continuous_steps(max_step)
-        return [(_rot_z(360.0 * i / n), np.zeros(3)) for i in range(n)]
+    A name's turns are about axes through `centre` (the origin when None), "full" sampled by BOP's
+    max-distance rule (`continuous_steps`); BOP's discrete 4x4 matrices keep their translation offsets."""
     if not isinstance(symmetry, str):
         mats = [np.asarray(m, float) for m in symmetry]
         mats = [m.reshape(4, 4) if m.size == 16 else m.reshape(3, 3) for m in mats]
         return [(np.eye(3), np.zeros(3))] + [(m[:3, :3], _offset(m)) for m in mats]
-    return [(S, np.zeros(3)) for S in symmetry_rotations(symmetry)]
+    c = _centre(centre)
+    return [(R, c - R @ c) for R in _group(parse(symmetry), continuous_steps(max_step))]
 
 
 def _offset(m: np.ndarray) -> np.ndarray:

@@ -3,27 +3,22 @@ benchmarks: mesh -> renders of every template view (on the render thread) -> pat
 every model -> the store, in one transaction for all models.
 
 Template views: the paper's level-3 half-sphere (301 viewpoints; every side's 642 when a registration asks,
-`index.templates.viewpoints.VIEWPOINTS`) at 400 mm, times each model's in-plane angles. A model trained
-with the whole turn of roll says so in its metadata (`inplane_step`, see `index.features.embed.ModelInfo`): its templates are the views at every multiple of that step over the whole turn
-(12 per viewpoint for 30°). A model without it (a legacy model) has upright templates only. Settings may
-override both (`TemplateConfig`). The models of a service may differ, so the union of their views is
-rendered once (a render per viewpoint; in-plane variants are turns of it, `index.templates.render`) and each model
-embeds its own subset.
+`index.templates.viewpoints.VIEWPOINTS`) at 400 mm, times each model's in-plane angles: every multiple of
+its metadata's `inplane_step` over the whole turn (`index.features.embed.ModelInfo`), upright only for a
+legacy model; settings may override both (`TemplateConfig`). The union of the models' views is rendered
+once (in-plane variants are turns of a render, `index.templates.render`); each model embeds its subset.
 
-Costs (`benchmarks/serving/costs.py`, `posedesc bench`; a 21.8k-face mesh, an idle machine): 301 templates a
-model render in 1.2 s, embedded alongside, 1.35 s in all; in-plane variants cost no render but embedding.
-The shipped models (rgb with 12 rolls a viewpoint, its RGB-D twin, upright depth) on a 100-object store,
-2 cores shared with other work (load 2-3): a registration's CPU is about 1.3 s the render thread, 1.1 s
-Mesa's rasterising threads, 2.5-3 s embedding (turning the variants included), 0.4 s the rest, so once
-render and embedding overlap throughout (`make_templates`) the two cores bound it: in-process 4.5-4.6 s
-before that (and before the store wrote its snapshot files after returning, `index.store.embedded`),
-3.6-3.8 s after (medians of 6, A/B alternating).
+Costs (`benchmarks/serving/costs.py`, `posedesc bench`; a 21.8k-face mesh): 301 templates a model render in
+1.2 s, embedded alongside, 1.35 s in all. The shipped models on a 100-object store, render and embedding
+overlapping throughout (`make_templates`): 3.6-3.8 s a registration in-process, the two cores the bound
+(docs/experiments.md has the split).
 
-Symmetric objects do not need every viewpoint: the views of a "180" object from azimuth a and a + 180
-are the same picture, so only azimuths in [0, 180) are kept; a "full" object looks the same from every
-azimuth at one elevation, and the icosphere is 5-fold symmetric about z, so the wedge [0, 72) holds
-every elevation of the set: a fifth of the templates with no loss of elevation resolution. The answer
-for such an object gives the matched template's azimuth, one of the equivalent ones.
+Symmetric objects do not need every view (`index.geometry.symmetry`): the views of a "180" object from
+azimuth a and a + 180 are the same picture, so only azimuths in [0, 180) are kept; a "full" object looks the
+same from every azimuth at one elevation, and the icosphere is 5-fold symmetric about z, so the wedge
+[0, 72) holds every elevation of the set. A flip shows the side below as the side above, rolled: from
+every side with the whole turn of roll, the upper half's views hold it. The answer for such an object
+gives the matched template's pose, one of the equivalent ones.
 
 Each object is seen through the window its size asks for (`index.templates.windows`: chosen here from the mesh's
 diameter, stored with its record as `extra["window_mm"]` and `extra["diameter_mm"]`): its templates are
@@ -47,7 +42,7 @@ from index.features.embed import Embedder
 from index.features.local import with_relief, with_silhouettes
 from index.geometry.pose import View
 from index.geometry.shape_symmetry import resolve
-from index.geometry.symmetry import SYMMETRIES
+from index.geometry.symmetry import parse
 from index.store import ObjectRecord, TemplateSet, TemplateStore
 from index.templates import viewpoints as vp
 from index.templates.mesh import MeshError, diameter, load_mesh, simplify
@@ -123,12 +118,16 @@ def template_views(
 ) -> list[View]:
     """The template views of an object with this symmetry for a model whose metadata says `model_step`
     (viewpoint-major: the in-plane variants of a viewpoint are adjacent)."""
-    if symmetry not in SYMMETRIES:
-        raise MeshError(f"unknown symmetry {symmetry!r}; use one of {', '.join(SYMMETRIES)}")
-    views = vp.sphere_views(cfg.level, cfg.inplane(model_step), cfg.distance_mm, cfg.whole)
-    if symmetry == "none":
-        return views
-    wedge = {"180": 180.0, "full": 72.0}[symmetry]
+    try:
+        named = parse(symmetry)
+    except ValueError as e:
+        raise MeshError(str(e)) from None
+    inplane = cfg.inplane(model_step)
+    views = vp.sphere_views(cfg.level, inplane, cfg.distance_mm, cfg.whole)
+    if named.flip_deg is not None and cfg.whole and vp.whole_turn(inplane):
+        # a flip shows the side below as the side above, rolled: the rolls of the upper half's views hold it
+        views = [v for v in views if v.elevation > -1e-6]
+    wedge = {"none": 360.0, "180": 180.0, "full": 72.0}[named.about_z]
     # +1e-6: a vertex on a wedge's edge may come out of arctan2 a hair below it (359.9999... for 0)
     return [v for v in views if (v.azimuth + 1e-6) % 360.0 < wedge]
 
@@ -420,16 +419,16 @@ def register(
 ) -> Registration:
     """Adds `mesh` (mm) under `name` to every model's store, through the window its diameter asks for
     (`index.templates.windows`), with `symmetry` (or, "auto", the one `index.geometry.shape_symmetry.resolve`
-    finds), from `viewpoints` (`index.templates.viewpoints.VIEWPOINTS`; None: `cfg.whole`); raises MeshError when it cannot be used. `progress`, when given, is told how far it is (`Progress`)."""
+    finds), from `viewpoints` (`index.templates.viewpoints.VIEWPOINTS`; None: `cfg.whole`); raises MeshError
+    when it cannot be used. `progress`, when given, is told how far it is (`Progress`)."""
     t0 = time.perf_counter()
     light = decimated(worker, mesh)  # meanwhile, the diameter that decides the views
     size = diameter(mesh)
-    chosen = resolve(mesh, symmetry, size)
-    symmetry = chosen.symmetry
     try:
-        whole = vp.whole_sphere(viewpoints, cfg.whole)
+        chosen, whole = resolve(mesh, symmetry, size), vp.whole_sphere(viewpoints, cfg.whole)
     except ValueError as e:
         raise MeshError(str(e)) from None
+    symmetry = chosen.symmetry
     model_window = min(e.info.window_mm for e in embedders.values())
     window = window_class(size, model_window)
     views = model_views(symmetry, replace(cfg.through(window, model_window), whole=whole), embedders)

@@ -92,6 +92,15 @@ def inplane_steps(step_deg: float = 0.0, max_deg: float = 45.0) -> np.ndarray:
     return np.arange(-n, n + 1) * float(step_deg)
 
 
+def whole_turn(inplane: np.ndarray) -> bool:
+    """Whether in-plane angles (degrees) go all the way round, evenly (`inplane_steps` of the whole turn)."""
+    a = np.sort(np.asarray(inplane, float) % 360.0)
+    if len(a) < 2:
+        return False
+    gaps = np.diff(np.r_[a, a[0] + 360.0])
+    return bool(gaps.max() - gaps.min() < 1e-6)
+
+
 def sphere_views(
     level: int = 3, inplane: np.ndarray | None = None, distance: float = 400.0, whole: bool = False
 ) -> list[View]:

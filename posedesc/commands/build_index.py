@@ -13,6 +13,18 @@ from pathlib import Path
 from posedesc.cli import UserError
 
 
+def _symmetry(text: str) -> str:
+    """A --symmetry: "auto" or a name of `index.geometry.symmetry`, in its smallest form."""
+    from index.geometry.symmetry import canonical
+
+    if text == "auto":
+        return text
+    try:
+        return canonical(text)
+    except ValueError as e:
+        raise argparse.ArgumentTypeError(str(e)) from None
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
     from index.geometry.units import UNITS
     from index.templates.mesh import FORMATS_TEXT
@@ -27,7 +39,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--units", choices=UNITS, default=None,
                    help="units of the mesh files (not given: mm, but a file whose size would read as an "
                    "ordinary object's in other units is refused until they are given)")  # fmt: skip
-    p.add_argument("--symmetry", choices=("none", "180", "full"), default="none", help="of every mesh")
+    p.add_argument("--symmetry", type=_symmetry, default="none",
+                   help="of every mesh: 'auto' (each shape-only mesh's found from its shape), 'none', '180', "
+                   "'full', each with '+flip' ('180+flip': a box; see POST /objects)")  # fmt: skip
     p.add_argument("--inplane-step", type=float, default=None,
                    help="template in-plane step for every model, degrees (0: upright only; default: each "
                    "model's own metadata, as the service)")  # fmt: skip

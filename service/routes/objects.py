@@ -12,6 +12,8 @@ from typing import Annotated, Literal
 from fastapi import APIRouter, File, Form, Query, Response, UploadFile
 from fastapi.responses import JSONResponse
 
+from index.geometry.shape_symmetry import AUTO
+from index.geometry.symmetry import canonical
 from index.geometry.units import LARGEST_MM, ORDINARY_MM, SMALLEST_MM, Units
 from index.store import NameTaken, StoreError
 from index.templates.mesh import FORMATS_TEXT, MeshError, MeshTooLarge, load_mesh
@@ -96,11 +98,14 @@ async def add_object(
         ),
     ] = None,
     symmetry: Annotated[
-        Literal["auto", "none", "180", "full"],
+        str,
         Form(
-            description="about the object's z axis: 'none', '180' (a half-turn), 'full' (any turn); 'auto': "
-            "'none' for a mesh with colours (a texture, vertex or face colours), and for a shape-only mesh "
-            "the symmetry of its shape (a box's half-turn, a can's full turn)"
+            description="the turns that leave it looking the same: 'none', '180' (a half-turn about z), "
+            "'full' (any turn about z), each with '+flip' (and end over end: a half-turn about x, or "
+            "'+flip@30' about the axis 30 degrees from x in the xy plane; 'flip' alone); '180+flip' is a box, "
+            "'full+flip' a can with both ends alike. 'auto': 'none' for a mesh with colours (a texture, "
+            "vertex or face colours), and for a shape-only mesh the symmetry of its shape",
+            examples=["auto"],
         ),
     ] = "auto",
     viewpoints: Annotated[
@@ -113,6 +118,11 @@ async def add_object(
         ),
     ] = None,
 ) -> Response | ObjectCreated:
+    if symmetry != AUTO:
+        try:
+            symmetry = canonical(symmetry)
+        except ValueError as e:
+            raise ApiError(422, f"symmetry: {e}") from None
     file_type = Path(mesh.filename or "").suffix.lstrip(".").lower()
     if not file_type:
         raise ApiError(422, f"mesh: the file name needs an extension: {FORMATS_TEXT}")

@@ -53,3 +53,14 @@ def test_build_index_errors(tmp_path, posedesc_models, capsys):
         == 2
     )
     assert "no models in" in capsys.readouterr().err
+
+
+def test_a_symmetry_that_is_not_one_is_refused_in_one_line(tmp_path, capsys):
+    args = ["build-index", "--meshes", str(tmp_path), "--data-dir", str(tmp_path / "d"), "--symmetry", "box"]
+    try:
+        code = main(args)
+    except SystemExit as e:  # argparse's own refusal
+        code = e.code
+    assert code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert "unknown symmetry 'box'; use one of none, 180, full, flip, 180+flip, full+flip" in err[-1]

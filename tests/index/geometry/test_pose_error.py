@@ -33,7 +33,7 @@ def test_rotation_errors_are_every_pair_of_the_one_pair_function():
     rng = np.random.default_rng(1)
     est = np.stack([R(*rng.uniform([0, 0, -180], [360, 90, 180])) for _ in range(5)])
     gt = np.stack([R(*rng.uniform([0, 0, -180], [360, 90, 180])) for _ in range(3)])
-    for symmetry in ("none", "180", "full"):
+    for symmetry in ("none", "180", "full", "180+flip@20", "full+flip"):
         errors = rotation_errors(est, gt, symmetry)
         assert errors.shape == (5, 3)
         for i in range(5):
@@ -47,6 +47,31 @@ def test_rotation_error_counts_in_plane_and_forgives_symmetries():
     assert rotation_error(R(190, 30), R(10, 30)) > 100
     assert rotation_error(R(130, 30), R(10, 30), "full") == pytest.approx(0, abs=1e-5)
     assert rotation_error(R(130, 30, 20), R(10, 30), "full") > 5  # a roll still tilts the z axis
+
+
+def test_a_flip_is_forgiven_only_where_the_object_has_one():
+    """A pose turned end over end (a half-turn about the object's x axis, or about the axis 30° from it)
+    counts 0 for a box or a can with both ends alike, and about 180° for an object whose ends differ."""
+    gt = R(10, 30, 15)
+    about_x = gt @ np.diag([1.0, -1.0, -1.0])
+    a = np.array([np.cos(np.radians(30)), np.sin(np.radians(30)), 0.0])
+    about_30 = gt @ (2 * np.outer(a, a) - np.eye(3))
+    assert rotation_error(about_x, gt, "180+flip") == pytest.approx(0, abs=1e-5)
+    assert rotation_error(about_x, gt, "flip") == pytest.approx(0, abs=1e-5)
+    assert rotation_error(about_30, gt, "180+flip@30") == pytest.approx(0, abs=1e-5)
+    assert rotation_error(about_30, gt, "180+flip") == pytest.approx(60, abs=1e-4)
+    assert rotation_error(about_x, gt, "180") == pytest.approx(180, abs=1e-4)
+    assert rotation_error(about_x @ _turn_z(77), gt, "full+flip") == pytest.approx(0, abs=1e-5)
+    assert rotation_error(about_x, gt, "full") == pytest.approx(180, abs=1e-4)
+    # the viewing direction: seen from 30° below a can with both ends alike is seen from 30° above
+    assert view_error(10, -30, 100, 30, "full+flip") == pytest.approx(0, abs=1e-5)
+    assert view_error(10, -30, 100, 40, "full+flip") == pytest.approx(10, abs=1e-5)
+    assert view_error(10, -30, 100, 30, "full") == pytest.approx(60, abs=1e-5)
+
+
+def _turn_z(deg: float) -> np.ndarray:
+    c, s = np.cos(np.radians(deg)), np.sin(np.radians(deg))
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
 def test_view_errors_ignore_in_plane_on_any_ray():

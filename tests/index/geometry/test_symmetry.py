@@ -6,8 +6,11 @@ import pytest
 
 from index.geometry.symmetry import (
     MAX_SYM_DISC_STEP,
+    bop_form,
+    canonical,
     continuous_steps,
     from_bop,
+    symmetry_rotations,
     symmetry_transformations,
     transformations_from_bop,
 )
@@ -98,3 +101,45 @@ def test_bop_discrete_symmetries_of_lmo_map_the_eggbox_onto_itself(lmo):
         assert np.linalg.norm(S_t) > 0.1
         coarse = symmetry_transformations(from_bop(ds.models_info[o]))
         assert 1.0 < mssd(S_R, S_t + t_gt, R_gt, t_gt, pts, coarse) < 2.0
+
+
+def test_names_come_to_their_smallest_form_and_a_wrong_one_is_refused_with_the_names():
+    assert canonical("180+flip@90") == "180+flip"  # with a half-turn about z, the flips repeat every 90°
+    assert canonical("flip@190") == "flip@10" and canonical("flip@-30") == "flip@150"
+    assert canonical("full+flip@33") == "full+flip"  # about z any axis across it is as good
+    assert canonical("180+flip@28") == "180+flip@28" and canonical(" 180 ") == "180"
+    for wrong in ("box", "180+", "flip@x", "", "none+flip", "full+flip@nan", "180 + flip"):
+        with pytest.raises(ValueError, match="use one of none, 180, full, flip, 180[+]flip, full[+]flip"):
+            canonical(wrong)
+
+
+@pytest.mark.parametrize(
+    "symmetry, count",
+    [("none", 1), ("180", 2), ("flip@40", 2), ("180+flip@28", 4), ("full", 360), ("full+flip", 720)],
+)
+def test_each_named_symmetry_is_a_group_of_proper_rotations(symmetry, count):
+    """Closed under composition (a turn after a turn is a turn that leaves the object alike), identity first."""
+    rots = symmetry_rotations(symmetry)
+    assert len(rots) == count and np.allclose(rots[0], np.eye(3))
+    assert all(np.allclose(R @ R.T, np.eye(3)) and np.linalg.det(R) == pytest.approx(1) for R in rots)
+    sample = rots if count <= 4 else rots[::37]
+    stack = np.stack(rots)
+    for A in sample:
+        for B in sample:
+            assert np.abs(stack - A @ B).reshape(len(rots), -1).max(axis=1).min() < 0.02
+
+
+def test_a_flip_turns_the_object_end_over_end_about_its_centre():
+    """A box's flip about x through its centre at z = 40: the centre stays, the top goes to the bottom; as
+    BOP states it and back."""
+    centre = np.array([0.0, 0.0, 40.0])
+    syms = symmetry_transformations("180+flip", centre=centre)
+    assert len(syms) == 4 and all(np.allclose(R @ centre + t, centre) for R, t in syms)
+    top = np.array([10.0, 20.0, 60.0])
+    assert any(np.allclose(R @ top + t, [10.0, -20.0, 20.0]) for R, t in syms)  # about x
+    for name in ("180", "flip@40", "180+flip@28", "full", "full+flip", "none"):
+        info = bop_form(name, centre)
+        assert from_bop(info) == name
+        moved = transformations_from_bop(info)
+        assert len(moved) == len(symmetry_transformations(name, centre=centre))
+        assert all(np.allclose(R @ centre + t, centre) for R, t in moved)

@@ -50,6 +50,23 @@ def test_template_views_per_symmetry():
         template_views("90")
 
 
+def test_a_flip_keeps_the_upper_half_of_every_sides_views_when_the_rolls_hold_the_rest():
+    """Every side, a box's or a double-ended can's views from below are its views from above rolled: with
+    the whole turn of roll (a model trained with it) the upper half's are kept; upright templates keep all."""
+    sphere = TemplateConfig(whole=True)
+    every = template_views("180", sphere, model_step=30.0)
+    box = template_views("180+flip@28", sphere, model_step=30.0)
+    assert min(v.elevation for v in every) < -80 and min(v.elevation for v in box) > -1e-6
+    upper_half = [v for v in every if v.elevation > -1e-6]
+    assert box == upper_half and len(every) > 1.8 * len(box)  # the equator is in both halves
+    assert template_views("180+flip", sphere, model_step=0.0) == template_views("180", sphere, model_step=0.0)
+    assert template_views("full+flip", TemplateConfig(), 30.0) == template_views(
+        "full", TemplateConfig(), 30.0
+    )
+    with pytest.raises(MeshError, match="unknown symmetry 'box'"):
+        template_views("box")
+
+
 def test_register_then_find_its_own_templates(tmp_path, l_shape, render_worker, embedders):
     store = Store(tmp_path, store_keys(embedders))
     with ThreadPoolExecutor(2) as pool:

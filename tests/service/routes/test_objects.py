@@ -61,10 +61,14 @@ def test_a_shape_only_mesh_is_registered_as_such_with_its_shapes_symmetry(tmp_pa
     with TestClient(create_app(service_settings(tmp_path, posedesc_models, level=1))) as c:
         wait_ready(c)
         made = register(c, can, "can")
-        assert (made["symmetry"], made["textured"], made["symmetry_from"]) == ("full", False, "shape")
+        assert (made["symmetry"], made["textured"], made["symmetry_from"]) == ("full+flip", False, "shape")
         assert any("no colours" in w for w in made["warnings"])
         listed = c.get(f"/objects/{made['object_id']}").json()
-        assert (listed["symmetry"], listed["textured"], listed["symmetry_from"]) == ("full", False, "shape")
+        assert (listed["symmetry"], listed["textured"], listed["symmetry_from"]) == (
+            "full+flip",
+            False,
+            "shape",
+        )
         coloured = register(c, l_shape, "L")
         assert (coloured["symmetry"], coloured["textured"], coloured["symmetry_from"]) == (
             "none",
@@ -76,6 +80,16 @@ def test_a_shape_only_mesh_is_registered_as_such_with_its_shapes_symmetry(tmp_pa
         assert (made["viewpoints"], coloured["viewpoints"], listed["viewpoints"]) == ("upper",) * 3
         asked = register(c, can, "can-as-asked", symmetry="none")
         assert (asked["symmetry"], asked["symmetry_from"]) == ("none", "given")
+        box = register(c, can, "can-as-a-box", symmetry="180+flip@90")  # kept, in its smallest form
+        assert (box["symmetry"], box["symmetry_from"]) == ("180+flip", "given")
+        before = c.get("/objects").json()
+        r = c.post(
+            "/objects", files={"mesh": ("x.ply", ply_bytes(can))}, data={"name": "x", "symmetry": "box"}
+        )
+        assert r.status_code == 422 and r.json()["detail"].startswith(
+            "symmetry: unknown symmetry 'box'; use one of"
+        )
+        assert c.get("/objects").json() == before
         assert asked["templates"] == coloured["templates"]
         whole = register(c, can, "can-every-side", symmetry="none", viewpoints="sphere")
         assert whole["viewpoints"] == "sphere" and whole["templates"] > 1.9 * coloured["templates"]
