@@ -165,11 +165,14 @@ class Settings(BaseSettings):
         "calibration (its metadata `reject_above`), none without one",
     )  # fmt: skip
     level: int = Field(3, ge=0, le=4, description="template viewpoints: icosphere level (3 = 301)")
-    # Every side's templates found YCB-V video 0000's brick and box, which lie with their z axis down, but
-    # cost elsewhere (docs/experiments.md): the upper half unless a registration asks for the sphere
-    viewpoints: Literal["upper", "sphere"] = Field(
-        "upper", description="a registration that does not say: its templates seen from above the mesh's xy "
-        "plane ('upper', the paper's half-sphere) or from every side ('sphere': twice the templates)",
+    # docs/experiments.md, "Every side for a shape-only mesh": YCB-V's shape-only objects are named more
+    # often from every side; LM-O's scans stand as scanned
+    viewpoints: Literal["upper", "sphere", "auto"] = Field(
+        "upper", description="a registration that does not say: its templates seen from above the "
+        "mesh's xy plane ('upper', the paper's half-sphere), from every side ('sphere': twice the templates, "
+        "fewer for a shape that turns over onto itself), or 'auto': every side for a shape-only mesh (a CAD "
+        "file's axes say nothing of how it lies), the upper half for a mesh with colours (a scan stands as "
+        "it was scanned)",
     )  # fmt: skip
     index_kind: Literal["auto", "flat", "ivf"] = Field(
         "auto", description="auto = exact below `ivf_min_templates`, IVF from there; flat = always exact; ivf"

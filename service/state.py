@@ -212,7 +212,11 @@ def load_state(settings: Settings, embedders: dict[str, Embedder] | None = None)
     )
     worker = RenderWorker(size=sizes.pop(), window_mm=min(windows))
     cfg = TemplateConfig(
-        settings.level, settings.inplane_step, settings.inplane_max, whole=settings.viewpoints == "sphere"
+        settings.level,
+        settings.inplane_step,
+        settings.inplane_max,
+        whole=settings.viewpoints == "sphere",
+        whole_shape_only=settings.viewpoints == "auto",
     )
     where = (
         settings.data_dir

@@ -64,11 +64,12 @@ def _degrees(cos: np.ndarray) -> np.ndarray:
 def rotation_errors(R_est: np.ndarray, R_gt: np.ndarray, symmetry: Symmetry = "none") -> np.ndarray:
     """3-D rotation error, in-plane included: the smallest angle (degrees) between each R_est and any
     pose R_gt @ S that looks the same (S a symmetry of the object). Under "full" only where the two
-    poses put the object's z axis is observable (with "+flip", that axis either way round).
+    poses put the axis it turns about is observable (with "+flip", that axis either way round).
     Shape: (N, 3, 3), (M, 3, 3) -> (N, M)."""
     R_est, R_gt = _stack(R_est), _stack(R_gt)
     if (named := continuous(symmetry)) is not None:
-        cos = R_est[:, :, 2] @ R_gt[:, :, 2].T
+        i = "xyz".index(named.axis)  # where each pose puts the axis it turns about
+        cos = R_est[:, :, i] @ R_gt[:, :, i].T
         return _degrees(np.abs(cos) if named.flip_deg is not None else cos)
     # trace(R_est^T R_gt S) is the sum of the element-wise product of R_est and R_gt S.
     trace = np.full((len(R_est), len(R_gt)), -np.inf)
@@ -90,13 +91,14 @@ def view_errors(
 ) -> np.ndarray:
     """Viewing-direction error (the paper's pose error): the angle (degrees) between where the two poses
     put the camera as seen from the object, -R^T ray for an object on `ray` (camera frame; both poses on
-    it), the smallest over the symmetries; in-plane does not count. Under "full" only elevation is
-    observable (with "+flip", its size only). Shape: (N, 3, 3), (M, 3, 3) -> (N, M)."""
+    it), the smallest over the symmetries; in-plane does not count. Under "full" only elevation (over the
+    plane across its axis) is observable (with "+flip", its size only). Shape: (N, 3, 3), (M, 3, 3) -> (N, M)."""
     R_est, R_gt = _stack(R_est), _stack(R_gt)
     r = np.asarray(ray, dtype=float) / np.linalg.norm(ray)
     c_est, c_gt = -np.einsum("k,nkj->nj", r, R_est), -np.einsum("k,nkj->nj", r, R_gt)
     if (named := continuous(symmetry)) is not None:
-        el_est, el_gt = np.arcsin(np.clip(c_est[:, 2], -1, 1)), np.arcsin(np.clip(c_gt[:, 2], -1, 1))
+        i = "xyz".index(named.axis)
+        el_est, el_gt = np.arcsin(np.clip(c_est[:, i], -1, 1)), np.arcsin(np.clip(c_gt[:, i], -1, 1))
         if named.flip_deg is not None:
             el_est, el_gt = np.abs(el_est), np.abs(el_gt)
         return np.degrees(np.abs(el_est[:, None] - el_gt[None, :]))

@@ -12,13 +12,14 @@ breaks the symmetry (a mug's handle, a nozzle) counts. A turn is a symmetry when
 `TOLERANCE` of the diameter: a scanned box's half-turn comes out at 2-6 % (its faces are not flat), an
 object that is not symmetric at 10 % and more (LM-O's five, a mug, a banana). Turns about the z axis
 first: "full" when every one of a set of turns (`CONTINUOUS_TURNS`, one of them not a fraction of the turn
-that a 2-, 3-, 4-, 5- or 6-fold symmetry repeats on) is, else "180" or "none"; then the flip, a half-turn
-end over end about an axis across z through the middle of the object's height (`centre`): every
-`FLIP_STEP` degrees on a tenth of the points, then to the degree about the best (a box whose sides are not
-along its mesh's x and y axes has its flip at some angle; x or y when it fits as well). Measured on LM-O's and YCB-Video's meshes:
-docs/experiments.md, "Shape-only meshes" and "A box's half-turns". Deterministic (seeded sampling), under
-a second and a half for YCB-Video's meshes. The tolerance is a share of the whole diameter: a long thin
-bar of square section (turned, its corners move little against its length) is taken as round ("full").
+that a 2-, 3-, 4-, 5- or 6-fold symmetry repeats on) is, else "180" or "none", unless the shape is round
+about its x or y axis (a pen lying along y: "y:full"); then the flip, a half-turn end over end about an
+axis across that axis, through the middle of the object's extent along it (`centre`): every `FLIP_STEP`
+degrees on a tenth of the points, then to the degree about the best (a box whose sides are not along its
+mesh's x and y axes has its flip at some angle; x or y when it fits as well). Measured on LM-O's and
+YCB-Video's meshes: docs/experiments.md, "Shape-only meshes" and "A box's half-turns". Deterministic
+(seeded sampling), under 1.6 s for YCB-Video's meshes. The tolerance is a share of the whole diameter: a
+long thin bar of square section (turned, its corners move little against its length) is taken as round.
 """
 
 from __future__ import annotations
@@ -51,7 +52,7 @@ AXIS_PREFERENCE = 0.005
 class ShapeSymmetry:
     """The symmetry found (a name of `index.geometry.symmetry`), per turn about z tried (degrees) the
     `QUANTILE` of the turned surface's distances to the surface as a share of the diameter, the same of the
-    best flip (None: not tried), and the centre its turns are about (mm: on z, mid-height)."""
+    best flip (None: not tried), and the centre its turns are about (mm: on its axis, mid-extent)."""
 
     symmetry: str
     misfit: dict[float, float]
@@ -71,20 +72,35 @@ def shape_symmetry(mesh: trimesh.Trimesh, diameter_mm: float, seed: int = 0) -> 
     a = np.asarray(trimesh.sample.sample_surface(mesh, POINTS, seed=seed)[0], float)
     b = np.asarray(trimesh.sample.sample_surface(mesh, POINTS, seed=seed + 1)[0], float)
     surface = cKDTree(a)
-    centre = np.array([0.0, 0.0, float(np.mean(mesh.bounds[:, 2]))])
+    middle = np.mean(mesh.bounds, axis=0)
 
-    def misfit(R: np.ndarray, every: int = 1) -> float:
-        d = surface.query((b[::every] - centre) @ R.T + centre)[0]
-        return float(np.quantile(d, QUANTILE) / diameter_mm)
+    def misfit_about(axis: str) -> tuple[Callable[..., float], np.ndarray]:
+        """The misfit of a turn (given in the frame whose z is `axis`) about the axis's mid-point, and that
+        point."""
+        P = Named("none", axis=axis).frame
+        centre = P[:, 2] * (P[:, 2] @ middle)
 
+        def misfit(R: np.ndarray, every: int = 1) -> float:
+            d = surface.query((b[::every] - centre) @ (P @ R @ P.T).T + centre)[0]
+            return float(np.quantile(d, QUANTILE) / diameter_mm)
+
+        return misfit, centre
+
+    axis, (misfit, centre) = "z", misfit_about("z")
     misfits = {deg: misfit(_turn_z(deg)) for deg in sorted({180.0, *CONTINUOUS_TURNS})}
     if all(misfits[deg] <= TOLERANCE for deg in CONTINUOUS_TURNS):
-        about_z = "full"
+        about = "full"
     else:
-        about_z = "180" if misfits[180.0] <= TOLERANCE else "none"
-    flip_deg, flip_misfit = _best_flip(about_z, misfit)
-    named = Named(about_z, flip_deg if flip_misfit <= TOLERANCE else None)
-    return ShapeSymmetry(named.name, misfits, flip_misfit, (0.0, 0.0, float(centre[2])))
+        about = "180" if misfits[180.0] <= TOLERANCE else "none"
+        for other in ("x", "y"):  # round about another of the mesh's axes (a pen lying along y)
+            turned, mid = misfit_about(other)
+            if all(turned(_turn_z(deg)) <= TOLERANCE for deg in CONTINUOUS_TURNS):
+                about, axis, misfit, centre = "full", other, turned, mid
+                break
+    flip_deg, flip_misfit = _best_flip(about, misfit)
+    named = Named(about, flip_deg if flip_misfit <= TOLERANCE else None, axis)
+    x, y, z = (float(v) for v in centre)
+    return ShapeSymmetry(named.name, misfits, flip_misfit, (x, y, z))
 
 
 def _best_flip(about_z: str, misfit: Callable[..., float]) -> tuple[float, float]:

@@ -4,11 +4,13 @@ them are `index.geometry.pose_error`'s).
 A symmetry is named by its turns about the object's z axis, and, after "+flip" (or "flip" alone), a
 half-turn about an axis across z, through the object's centre, that turns the object end over end:
 - "none", "180" (a half-turn about z: LineMOD's eggbox and glue), "full" (any turn about z: a bowl);
-- "flip": a half-turn about the x axis, its ends alike (a marker, a banana-like shape);
+- "flip": a half-turn about the x axis, its ends alike;
 - "180+flip": a box, half-turns about z, x and y;
 - "full+flip": a can whose two ends look alike (any turn about z, and end over end);
 - "@<degrees>" after the flip: its axis that many degrees from x in the xy plane (a box whose sides are
-  not along its mesh's x and y axes: "180+flip@28").
+  not along its mesh's x and y axes: "180+flip@28");
+- "x:" or "y:" before the name: the same about the mesh's x or y axis in place of z ("y:full+flip", a pen
+  lying along y), the flip's angle then measured from y or z (the axes x, y, z turned so that z goes there).
 The turns are about axes through the object's centre (`centre`, mm; the origin when not given: the
 service's poses need only the rotations). BOP's `symmetries_discrete` 4x4 matrices and
 `symmetries_continuous` are read into these names where they are such turns (`from_bop`), into a list of
@@ -28,20 +30,29 @@ from index.geometry.pose import rotation_of
 
 #: the turns about z a symmetry may have
 ABOUT_Z = ("none", "180", "full")
-#: the named symmetries (a flip's axis other than x: "@<degrees>" after the name)
+#: the named symmetries (a flip's axis other than x: "@<degrees>" after the name; "x:" or "y:" before it
+#: for the mesh's x or y axis in place of z)
 SYMMETRIES = ("none", "180", "full", "flip", "180+flip", "full+flip")
 Symmetry = str | Sequence[np.ndarray]  # a name, or BOP's discrete rotations
 
-_NAME = re.compile(r"^(none|180|full)$|^(?:(180|full)\+)?flip(?:@(-?\d+(?:\.\d+)?))?$")
+_NAME = re.compile(r"^(?:([xyz]):)?(?:(none|180|full)|(?:(180|full)\+)?flip(?:@(-?\d+(?:\.\d+)?))?)$")
+#: the frame that takes z to each axis (columns: where x, y, z go), a cyclic turn of the axes
+_FRAMES = {
+    "z": np.eye(3),
+    "x": np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]),
+    "y": np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]]),
+}
 
 
 @dataclass(frozen=True)
 class Named:
-    """A named symmetry: its turns about z (one of `ABOUT_Z`) and its flip's axis, degrees from x in the xy
-    plane (None: no flip), brought to its smallest equivalent: [0, 180), [0, 90) with "180", 0 with "full"."""
+    """A named symmetry: its turns about its axis (one of `ABOUT_Z`), its flip's axis, degrees in the plane
+    across it (None: no flip), brought to its smallest equivalent ([0, 180), [0, 90) with "180", 0 with
+    "full"), and the mesh's axis it is about ("z", or "x" or "y": `_FRAMES`)."""
 
     about_z: str
     flip_deg: float | None = None
+    axis: str = "z"
 
     def __post_init__(self) -> None:
         if self.flip_deg is not None:
@@ -52,13 +63,20 @@ class Named:
     @property
     def name(self) -> str:
         if self.flip_deg is None:
-            return self.about_z
-        stem = "flip" if self.about_z == "none" else f"{self.about_z}+flip"
-        return stem if self.flip_deg == 0 else f"{stem}@{self.flip_deg:g}"
+            stem = self.about_z
+        else:
+            stem = "flip" if self.about_z == "none" else f"{self.about_z}+flip"
+            stem = stem if self.flip_deg == 0 else f"{stem}@{self.flip_deg:g}"
+        return stem if self.axis == "z" else f"{self.axis}:{stem}"
 
     @property
     def continuous(self) -> bool:
         return self.about_z == "full"
+
+    @property
+    def frame(self) -> np.ndarray:
+        """The rotation that takes z to the symmetry's axis (`_FRAMES`)."""
+        return _FRAMES[self.axis]
 
 
 def parse(symmetry: str) -> Named:
@@ -67,24 +85,36 @@ def parse(symmetry: str) -> Named:
     if m is None:
         raise ValueError(
             f"unknown symmetry {symmetry!r}; use one of {', '.join(SYMMETRIES)} "
-            "(a flip about an axis other than x: '@<degrees from x>' after it, e.g. '180+flip@30')"
+            "(a flip about an axis other than x: '@<degrees from x>' after it, e.g. '180+flip@30'; about the "
+            "mesh's x or y axis in place of z: 'x:' or 'y:' before it)"
         )
-    if m.group(1):
-        return Named(m.group(1))
-    return Named(m.group(2) or "none", float(m.group(3) or 0.0))
+    axis = m.group(1) or "z"
+    if m.group(2):
+        return Named(m.group(2), None, axis)
+    return Named(m.group(3) or "none", float(m.group(4) or 0.0), axis)
 
 
 def canonical(symmetry: str) -> str:
-    """`symmetry`'s name in its smallest form ("180+flip@90" is "180+flip"); ValueError if it is none."""
-    return parse(symmetry).name
+    """`symmetry`'s name in its smallest form ("180+flip@90" is "180+flip", "x:180" is "flip": z first);
+    ValueError if it is none."""
+    named = parse(symmetry)
+    if named.axis == "z" or named.continuous:
+        return named.name
+    return _named_discrete(_group(named, 1)[1:]) or named.name
 
 
 def continuous(symmetry: Symmetry) -> Named | None:
-    """The named symmetry when `symmetry` is one with any turn about z (errors treat it exactly), else None."""
+    """The named symmetry when `symmetry` is one with any turn about its axis (errors treat it exactly)."""
     if not isinstance(symmetry, str):
         return None
     named = parse(symmetry)
     return named if named.continuous else None
+
+
+def turns_over(symmetry: str) -> bool:
+    """Whether one of the symmetry's turns takes the mesh's z axis to -z: the object seen from below its xy
+    plane is then the object seen from above, turned."""
+    return any(S[2, 2] < -1.0 + 1e-6 for S in _group(parse(symmetry), 4))
 
 
 def _rot_z(deg: float) -> np.ndarray:
@@ -102,10 +132,11 @@ def _group(named: Named, full_steps: int) -> list[np.ndarray]:
     """The rotations of a named symmetry, identity first; "full" sampled in `full_steps` equal turns."""
     n = {"none": 1, "180": 2, "full": full_steps}[named.about_z]
     turns = [_rot_z(360.0 * i / n) for i in range(n)]
-    if named.flip_deg is None:
-        return turns
-    flip = flip_rotation(named.flip_deg)
-    return turns + [Z @ flip for Z in turns]
+    if named.flip_deg is not None:
+        flip = flip_rotation(named.flip_deg)
+        turns += [Z @ flip for Z in turns]
+    P = named.frame
+    return [P @ S @ P.T for S in turns]
 
 
 def symmetry_rotations(symmetry: Symmetry) -> list[np.ndarray]:
@@ -128,25 +159,35 @@ def _flip_deg(R: np.ndarray, atol: float = 0.05) -> float | None:
 
 
 def _named_discrete(rotations: Sequence[np.ndarray], atol: float = 0.05) -> str | None:
-    """The name of a set of discrete rotations (identity left out) when it is one, else None."""
-    z180 = any(np.allclose(R, _rot_z(180.0), atol=atol) for R in rotations)
-    flips = [d for d in (_flip_deg(R, atol) for R in rotations) if d is not None]
-    named = Named("180" if z180 else "none", flips[0] if flips else None)
-    expected = _group(named, 1)[1:]
-    if not expected or len(expected) != len(rotations):
-        return None
-    if all(any(np.allclose(R, E, atol=atol) for R in rotations) for E in expected):
-        return named.name
+    """The name of a set of discrete rotations (identity left out) when it is one, else None: about z
+    first, then about x and y."""
+    for axis, P in _FRAMES.items():
+        local = [P.T @ R @ P for R in rotations]
+        z180 = any(np.allclose(R, _rot_z(180.0), atol=atol) for R in local)
+        flips = [d for d in (_flip_deg(R, atol) for R in local) if d is not None]
+        named = Named("180" if z180 else "none", flips[0] if flips else None, axis)
+        expected = _group(named, 1)[1:]
+        if not expected or len(expected) != len(rotations):
+            continue
+        if all(any(np.allclose(R, E, atol=atol) for R in rotations) for E in expected):
+            return named.name
     return None
 
 
 def from_bop(info: dict) -> str | list[np.ndarray]:
     """The symmetry of a `models_info.json` entry: a name where its turns are a named symmetry's (offsets
-    aside: they move the object, not how it looks from a turned camera), else BOP's 4x4 matrices."""
+    aside: they move the object, not how it looks from a turned camera), else its rotations (BOP's 4x4
+    matrices; a continuous symmetry about an axis that is none of the mesh's, sampled every degree)."""
     mats = [np.asarray(m, float).reshape(4, 4) for m in info.get("symmetries_discrete") or []]
-    if info.get("symmetries_continuous"):
-        flipped = any(_flip_deg(m[:3, :3]) is not None for m in mats)
-        return "full+flip" if flipped else "full"
+    if turning := info.get("symmetries_continuous"):
+        a = np.asarray(turning[0]["axis"], float)
+        a /= np.linalg.norm(a)
+        for axis, P in _FRAMES.items():
+            if abs(a @ P[:, 2]) > 0.999:
+                flipped = any(_flip_deg(P.T @ m[:3, :3] @ P) is not None for m in mats)
+                return Named("full", 0.0 if flipped else None, axis).name
+        turns = [_axis_turn(a, deg) for deg in range(360)]
+        return [T @ D for T in turns for D in [np.eye(3)] + [m[:3, :3] for m in mats]][1:]
     if not mats:
         return "none"
     named = _named_discrete([m[:3, :3] for m in mats])
@@ -166,8 +207,9 @@ def bop_form(symmetry: str, centre: Sequence[float] | None = None) -> dict:
     named, c = parse(symmetry), _centre(centre)
     out: dict = {}
     if named.continuous:
-        out["symmetries_continuous"] = [{"axis": [0.0, 0.0, 1.0], "offset": c.tolist()}]
-        discrete = [] if named.flip_deg is None else [flip_rotation(named.flip_deg)]
+        P = named.frame
+        out["symmetries_continuous"] = [{"axis": P[:, 2].tolist(), "offset": c.tolist()}]
+        discrete = [] if named.flip_deg is None else [P @ flip_rotation(named.flip_deg) @ P.T]
     else:
         discrete = _group(named, 1)[1:]
     if discrete:

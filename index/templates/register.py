@@ -9,9 +9,8 @@ legacy model; settings may override both (`TemplateConfig`). The union of the mo
 once (in-plane variants are turns of a render, `index.templates.render`); each model embeds its subset.
 
 Costs (`benchmarks/serving/costs.py`, `posedesc bench`; a 21.8k-face mesh): 301 templates a model render in
-1.2 s, embedded alongside, 1.35 s in all. The shipped models on a 100-object store, render and embedding
-overlapping throughout (`make_templates`): 3.6-3.8 s a registration in-process, the two cores the bound
-(docs/experiments.md has the split).
+1.2 s, embedded alongside, 1.35 s in all; the shipped models on a 100-object store, render and embedding
+overlapping (`make_templates`), 3.6-3.8 s a registration, the two cores the bound (docs/experiments.md).
 
 Symmetric objects do not need every view (`index.geometry.symmetry`): the views of a "180" object from
 azimuth a and a + 180 are the same picture, so only azimuths in [0, 180) are kept; a "full" object looks the
@@ -42,7 +41,7 @@ from index.features.embed import Embedder
 from index.features.local import with_relief, with_silhouettes
 from index.geometry.pose import View
 from index.geometry.shape_symmetry import resolve
-from index.geometry.symmetry import parse
+from index.geometry.symmetry import parse, turns_over
 from index.store import ObjectRecord, TemplateSet, TemplateStore
 from index.templates import viewpoints as vp
 from index.templates.mesh import MeshError, diameter, load_mesh, simplify
@@ -77,8 +76,10 @@ class TemplateConfig:
     #: roll, +-45 for a legacy one
     inplane_max: float | None = None
     distance_mm: float = 400.0  # render distance (LineMOD's); patches are metric, so it barely matters
-    #: every side's viewpoints (`index.templates.viewpoints.viewpoints`), not the upper half's only
+    #: every side's viewpoints (`index.templates.viewpoints.viewpoints`), not the upper half's only; with
+    #: `whole_shape_only`, every side's for a shape-only mesh (a registration that says keeps its own)
     whole: bool = False
+    whole_shape_only: bool = False
 
     def inplane(self, model_step: float = 0.0) -> np.ndarray:
         """In-plane angles of the templates of a model whose metadata says `model_step` (0: legacy)."""
@@ -124,10 +125,10 @@ def template_views(
         raise MeshError(str(e)) from None
     inplane = cfg.inplane(model_step)
     views = vp.sphere_views(cfg.level, inplane, cfg.distance_mm, cfg.whole)
-    if named.flip_deg is not None and cfg.whole and vp.whole_turn(inplane):
+    if cfg.whole and turns_over(symmetry) and vp.whole_turn(inplane):
         # a flip shows the side below as the side above, rolled: the rolls of the upper half's views hold it
         views = [v for v in views if v.elevation > -1e-6]
-    wedge = {"none": 360.0, "180": 180.0, "full": 72.0}[named.about_z]
+    wedge = {"none": 360.0, "180": 180.0, "full": 72.0}[named.about_z] if named.axis == "z" else 360.0
     # +1e-6: a vertex on a wedge's edge may come out of arctan2 a hair below it (359.9999... for 0)
     return [v for v in views if (v.azimuth + 1e-6) % 360.0 < wedge]
 
@@ -419,13 +420,14 @@ def register(
 ) -> Registration:
     """Adds `mesh` (mm) under `name` to every model's store, through the window its diameter asks for
     (`index.templates.windows`), with `symmetry` (or, "auto", the one `index.geometry.shape_symmetry.resolve`
-    finds), from `viewpoints` (`index.templates.viewpoints.VIEWPOINTS`; None: `cfg.whole`); raises MeshError
+    finds), from `viewpoints` (`index.templates.viewpoints.VIEWPOINTS`; None: `cfg`'s); raises MeshError
     when it cannot be used. `progress`, when given, is told how far it is (`Progress`)."""
     t0 = time.perf_counter()
     light = decimated(worker, mesh)  # meanwhile, the diameter that decides the views
     size = diameter(mesh)
     try:
-        chosen, whole = resolve(mesh, symmetry, size), vp.whole_sphere(viewpoints, cfg.whole)
+        chosen = resolve(mesh, symmetry, size)
+        whole = vp.whole_sphere(viewpoints, cfg.whole or (cfg.whole_shape_only and not chosen.textured))
     except ValueError as e:
         raise MeshError(str(e)) from None
     symmetry = chosen.symmetry

@@ -103,7 +103,8 @@ async def add_object(
             description="the turns that leave it looking the same: 'none', '180' (a half-turn about z), "
             "'full' (any turn about z), each with '+flip' (and end over end: a half-turn about x, or "
             "'+flip@30' about the axis 30 degrees from x in the xy plane; 'flip' alone); '180+flip' is a box, "
-            "'full+flip' a can with both ends alike. 'auto': 'none' for a mesh with colours (a texture, "
+            "'full+flip' a can with both ends alike; 'x:' or 'y:' before it: about that axis in place of z "
+            "('y:full+flip', a pen lying along y). 'auto': 'none' for a mesh with colours (a texture, "
             "vertex or face colours), and for a shape-only mesh the symmetry of its shape",
             examples=["auto"],
         ),

@@ -33,7 +33,7 @@ def test_rotation_errors_are_every_pair_of_the_one_pair_function():
     rng = np.random.default_rng(1)
     est = np.stack([R(*rng.uniform([0, 0, -180], [360, 90, 180])) for _ in range(5)])
     gt = np.stack([R(*rng.uniform([0, 0, -180], [360, 90, 180])) for _ in range(3)])
-    for symmetry in ("none", "180", "full", "180+flip@20", "full+flip"):
+    for symmetry in ("none", "180", "full", "180+flip@20", "full+flip", "y:full", "x:180+flip"):
         errors = rotation_errors(est, gt, symmetry)
         assert errors.shape == (5, 3)
         for i in range(5):
@@ -67,6 +67,11 @@ def test_a_flip_is_forgiven_only_where_the_object_has_one():
     assert view_error(10, -30, 100, 30, "full+flip") == pytest.approx(0, abs=1e-5)
     assert view_error(10, -30, 100, 40, "full+flip") == pytest.approx(10, abs=1e-5)
     assert view_error(10, -30, 100, 30, "full") == pytest.approx(60, abs=1e-5)
+    # about the mesh's y axis: a turn about y costs nothing, a tilt of y what it tilts
+    about_y = np.array([[np.cos(1.0), 0.0, np.sin(1.0)], [0.0, 1.0, 0.0], [-np.sin(1.0), 0.0, np.cos(1.0)]])
+    assert rotation_error(gt @ about_y, gt, "y:full") == pytest.approx(0, abs=1e-5)
+    assert rotation_error(gt @ about_y, gt, "full") > 50
+    assert rotation_error(gt @ _turn_z(25), gt, "y:full") == pytest.approx(25, abs=1e-5)
 
 
 def _turn_z(deg: float) -> np.ndarray:

@@ -34,6 +34,9 @@ def test_a_box_has_its_half_turns_a_can_every_turn_and_both_turn_end_over_end():
     turned = trimesh.creation.box(extents=[120, 70, 40])  # its sides 28° from the mesh's x and y
     turned.apply_transform(trimesh.transformations.rotation_matrix(np.radians(28), [0, 0, 1]))
     assert found(turned) == "180+flip@28"
+    pen = trimesh.creation.cylinder(radius=8, height=140, sections=64)  # lying along y
+    pen.apply_transform(trimesh.transformations.rotation_matrix(np.radians(90), [1, 0, 0]))
+    assert found(pen) == "y:full+flip"
     cup = trimesh.creation.annulus(r_min=35, r_max=40, height=100, sections=96)
     bottom = trimesh.creation.cylinder(radius=40, height=6, sections=96)
     bottom.apply_translation([0, 0, -47])
@@ -91,7 +94,7 @@ def test_the_ycbv_shapes_symmetries_and_lmo_keeps_its_own(ycbv, lmo):
     names = {o: data.models_info[o]["name"] for o in data.obj_ids}
     got = {names[o]: data.symmetry(o) for o in data.obj_ids}
     assert got["002_master_chef_can"] == "full+flip"
-    assert got["003_cracker_box"] == got["040_large_marker"] == "180+flip"
+    assert got["003_cracker_box"] == "180+flip" and got["040_large_marker"] == "y:full+flip"
     # boxes whose sides are not along the mesh's x and y
     assert got["004_sugar_box"] == "180+flip@87" and got["010_potted_meat_can"] == "180+flip@3"
     assert got["008_pudding_box"] == "180+flip@28" and got["009_gelatin_box"] == "180+flip@13"

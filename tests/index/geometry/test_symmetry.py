@@ -13,6 +13,7 @@ from index.geometry.symmetry import (
     symmetry_rotations,
     symmetry_transformations,
     transformations_from_bop,
+    turns_over,
 )
 
 
@@ -137,9 +138,26 @@ def test_a_flip_turns_the_object_end_over_end_about_its_centre():
     assert len(syms) == 4 and all(np.allclose(R @ centre + t, centre) for R, t in syms)
     top = np.array([10.0, 20.0, 60.0])
     assert any(np.allclose(R @ top + t, [10.0, -20.0, 20.0]) for R, t in syms)  # about x
-    for name in ("180", "flip@40", "180+flip@28", "full", "full+flip", "none"):
+    for name in ("180", "flip@40", "180+flip@28", "full", "full+flip", "none", "y:full+flip", "x:full"):
         info = bop_form(name, centre)
         assert from_bop(info) == name
         moved = transformations_from_bop(info)
         assert len(moved) == len(symmetry_transformations(name, centre=centre))
         assert all(np.allclose(R @ centre + t, centre) for R, t in moved)
+
+
+def test_a_symmetry_about_the_meshs_x_or_y_axis_is_the_same_turned():
+    """A pen lying along y: any turn about y, and end over end; named "y:", and read back from BOP's form."""
+    assert canonical("z:180") == "180" and canonical("y:full+flip@40") == "y:full+flip"
+    assert canonical("x:180") == "flip" and canonical("y:180") == "flip@90"  # the same turns, named about z
+    assert canonical("y:180+flip") == "180+flip"
+    about_y = symmetry_rotations("y:full")
+    y = np.array([0.0, 1.0, 0.0])
+    assert len(about_y) == 360 and all(np.allclose(R @ y, y) for R in about_y)
+    assert any(np.allclose(R, np.diag([-1.0, 1.0, -1.0]), atol=1e-9) for R in about_y)  # its half-turn
+    info = bop_form("y:full+flip", (0.0, 5.0, 0.0))
+    assert info["symmetries_continuous"][0]["axis"] == [0.0, 1.0, 0.0] and from_bop(info) == "y:full+flip"
+    tilted = {"symmetries_continuous": [{"axis": [1.0, 1.0, 0.0], "offset": [0, 0, 0]}]}
+    assert len(from_bop(tilted)) == 359  # none of the mesh's axes: its turns, every degree
+    assert turns_over("y:full") and turns_over("flip") and turns_over("x:180")
+    assert not turns_over("180") and not turns_over("full") and not turns_over("none")

@@ -63,6 +63,10 @@ def test_a_flip_keeps_the_upper_half_of_every_sides_views_when_the_rolls_hold_th
     assert template_views("full+flip", TemplateConfig(), 30.0) == template_views(
         "full", TemplateConfig(), 30.0
     )
+    # round about y: no azimuth wedge (that is about z), but turned over from every side
+    assert template_views("y:full", TemplateConfig(), 30.0) == template_views("none", TemplateConfig(), 30.0)
+    upright = [v for v in template_views("none", sphere, 30.0) if v.elevation > -1e-6]
+    assert template_views("y:full", sphere, 30.0) == upright
     with pytest.raises(MeshError, match="unknown symmetry 'box'"):
         template_views("box")
 

@@ -113,3 +113,21 @@ def test_the_services_viewpoints_setting_is_what_a_registration_gets_unless_it_a
         upper = register(c, l_shape, "L-upper", viewpoints="upper")
         assert (every["viewpoints"], upper["viewpoints"]) == ("sphere", "upper")
         assert every["templates"] > 1.9 * upper["templates"]
+
+
+def test_auto_viewpoints_are_every_side_for_a_shape_only_mesh(tmp_path, posedesc_models, l_shape):
+    """POSEDESC_VIEWPOINTS=auto: a shape-only mesh (a CAD file: its axes say nothing of how it lies) is seen
+    from every side, a coloured one (a scan, standing as scanned) from above; a registration that says keeps it."""
+    import trimesh
+
+    box = trimesh.creation.box(extents=[120, 70, 40])
+    with TestClient(create_app(service_settings(tmp_path, posedesc_models, level=1, viewpoints="auto"))) as c:
+        wait_ready(c)
+        shape, coloured = register(c, box, "box"), register(c, l_shape, "L")
+        asked = register(c, box, "box-from-above", viewpoints="upper")
+        assert (shape["viewpoints"], coloured["viewpoints"], asked["viewpoints"]) == (
+            "sphere",
+            "upper",
+            "upper",
+        )
+        assert shape["templates"] > 1.5 * asked["templates"]  # upright test models: nothing turns over
