@@ -124,7 +124,8 @@ class Settings(BaseSettings):
     )  # fmt: skip
     shape_handicap: float = Field(
         SHAPE_HANDICAP, ge=0, le=10, description="colour and RGB-D answers: a shape-only object's distance "
-        "times 1 + this (its grey renders are near any colour patch: without it, it takes textured objects' names)",
+        "times 1 + this, in choosing the re-ranking's candidates and in the answer (its grey renders are near "
+        "any colour patch: without it, it takes textured objects' names)",
     )  # fmt: skip
     relief_weight: float = Field(
         5.0, ge=0, le=100, description="re-ranking with depth: add this times the distance between the "

@@ -104,6 +104,7 @@ class Snapshot(ABC):
         offsets: np.ndarray | None = None,
         variants: int = 1,
         most: int = 8192,
+        weights: Mapping[int, float] | None = None,
     ) -> Found:
         """The k best distinct (object, viewpoint) answers to one query described by Q descriptors (Q, D):
         the query cut Q times, turned by `offsets` (Q,) degrees (`index.features.patches.crop`'s in-plane, undone
@@ -111,7 +112,9 @@ class Snapshot(ABC):
         wrapped to (-180, 180]; the in-plane variants and turns of one viewpoint collapse to their
         nearest (`index.store.answers.distinct`). Each turn searches k * min(`variants`, 4) neighbours
         (`variants`: the templates a viewpoint has), twice as many (up to `most`) while they hold fewer
-        than k distinct viewpoints; fewer answers than k only when the store is small."""
+        than k distinct viewpoints; fewer answers than k only when the store is small. `weights`: an object's
+        distances count times its weight in choosing the k among twice as many neighbours (a shape-only
+        object's in colour, `Settings.shape_handicap`); the distances returned are the descriptors'."""
         size = self.size(model)
         if size == 0 or k <= 0:
             return Found(self.objects, np.zeros(0, int), np.zeros((0, 3)), np.zeros(0))
@@ -121,18 +124,26 @@ class Snapshot(ABC):
         # k * 4 neighbours held k distinct viewpoints for every validation query with 12 variants (the
         # fewest: 225 distinct in the 800 nearest for k = 200); fewer found: the search goes on with twice
         # as many, so the answers are those of searching everything
-        n = min(size, max(k, k * min(variants, 4)), most)
+        n = min(size, max(k, k * min(variants, 4)) * (2 if weights else 1), most)
         while True:
             dist, ids, allposes = self.knn(model, q, n)
             turn, col = np.nonzero(ids >= 0)
             oid, poses, d = ids[turn, col], allposes[turn, col], dist[turn, col]
-            best = distinct((oid, poses[:, 0], poses[:, 1]), d, k)
+            best = distinct((oid, poses[:, 0], poses[:, 1]), _weighed(d, oid, weights), k)
             if len(best) >= k or n >= min(size, most):
                 break
             n = min(size, most, 2 * n)
         inplane = np.asarray(wrap_degrees(poses[best, 2].astype(float) + offsets[turn[best]]), float)
         poses = np.column_stack([poses[best, :2].astype(float), inplane])
         return Found(self.objects, oid[best], poses, np.sqrt(np.maximum(d[best].astype(float), 0.0)))
+
+
+def _weighed(d2: np.ndarray, oid: np.ndarray, weights: Mapping[int, float] | None) -> np.ndarray:
+    """Squared distances `d2` of objects `oid`, each times its weight squared (`Snapshot.answers`)."""
+    if not weights:
+        return d2
+    w = np.array([weights.get(int(o), 1.0) for o in np.unique(oid)])
+    return d2 * w[np.searchsorted(np.unique(oid), oid)] ** 2
 
 
 class Found(Sequence[Match]):

@@ -7,7 +7,8 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 from index.features.embed import Embedder
-from index.templates.register import TemplateConfig
+from index.store import Snapshot
+from index.templates.register import TEXTURED_KEY, TemplateConfig
 from service.pipeline.context import Context
 from service.settings import Settings
 
@@ -40,11 +41,12 @@ class SearchConfig:
 
     variants: int
     rerank: int
+    handicap: float = 0.0
 
     @classmethod
     def from_settings(cls, settings: Settings, embedder: Embedder, templates: TemplateConfig) -> SearchConfig:
         variants = len(templates.inplane(embedder.info.inplane_step))
-        return cls(variants, settings.rerank if embedder.has_local else 0)
+        return cls(variants, settings.rerank if embedder.has_local else 0, settings.shape_handicap)
 
 
 @dataclass(frozen=True)
@@ -65,6 +67,19 @@ class Search:
         rerank = self.config.rerank if ctx.snapshot.models[m].local else 0
         # a snapshot within a window class's objects (`service.pipeline.Pipeline`) searches theirs only
         found = ctx.snapshot.answers(
-            m, ctx.descriptors, max(ctx.wanted, rerank), ctx.patches.offsets, self.config.variants
+            m,
+            ctx.descriptors,
+            max(ctx.wanted, rerank),
+            ctx.patches.offsets,
+            self.config.variants,
+            weights=shape_weights(ctx.snapshot, self.config.handicap) if m != "depth" else None,
         )
         return replace(ctx, matches=found)
+
+
+def shape_weights(snapshot: Snapshot, handicap: float) -> dict[int, float]:
+    """1 + `handicap` for each shape-only object (`TEXTURED_KEY` false): the weight of its distances when the
+    candidates are chosen in colour, as `service.pipeline.answer.handicapped` weighs the answers."""
+    if handicap <= 0:
+        return {}
+    return {o: 1.0 + handicap for o, rec in snapshot.objects.items() if rec.extra.get(TEXTURED_KEY) is False}

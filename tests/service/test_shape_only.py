@@ -11,6 +11,7 @@ from service_helpers import depth_png, frame, frame_fields, png, register, servi
 
 from index.geometry.pose import View
 from service.main import create_app
+from service.pipeline.search import shape_weights
 
 VIEW = View(azimuth=40.0, elevation=30.0, inplane=0.0, distance=600.0)
 UV = (380.0, 240.0)
@@ -56,7 +57,8 @@ def test_in_colour_a_shape_only_objects_distances_carry_the_handicap(
     tmp_path, posedesc_models, renderer, l_shape
 ):
     """The same colour query with and without `shape_handicap`: the shape-only object's answers are as far
-    as before times 1 + the handicap, the coloured object's unchanged; with depth alone, no handicap."""
+    as before times 1 + the handicap, the coloured object's unchanged (the candidates are chosen so weighed
+    too); with depth alone, no handicap."""
     rgb, depth = frame(renderer, l_shape, VIEW, UV, wall_mm=1500.0)
     answers = {}
     for handicap in (0.0, 0.5):
@@ -65,8 +67,10 @@ def test_in_colour_a_shape_only_objects_distances_carry_the_handicap(
         )
         with TestClient(create_app(settings)) as c:
             wait_ready(c)
-            register(c, l_shape, "L")
-            register(c, shape_only_part(), "part")
+            made = register(c, l_shape, "L"), register(c, shape_only_part(), "part")
+            # the candidates are chosen with the same weights (the search, `shape_weights`)
+            weights = shape_weights(c.app.state.posedesc.store.snapshot, handicap)
+            assert weights == ({made[1]["object_id"]: 1.5} if handicap else {})
             sent = {"rgb": ("f.png", png(rgb))}
             r = c.post("/recognize", files=sent, data=frame_fields(UV, k=40, distance_mm=600))
             assert r.status_code == 200, r.text

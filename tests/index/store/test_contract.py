@@ -142,6 +142,26 @@ def test_answers_are_distinct_viewpoints_at_their_best(open_store):
     assert (turned[0].azimuth, turned[0].inplane) == (90.0, -150.0)  # 120 + 90, wrapped
 
 
+def test_weights_choose_the_answers_and_leave_their_distances(open_store):
+    """An object weighed 2 (a shape-only one in colour) gives its place to another's farther templates; the
+    distances returned are still the descriptors'."""
+    store = open_store({"rgb": (2, "fp")})
+    poses = np.array([(az, 30.0, 0.0) for az in (0.0, 90.0)])
+    grey = store.add_object(
+        "grey", "none", {"rgb": TemplateSet(poses, np.array([[0, 0], [0, 1]], np.float32))}
+    )
+    seen = store.add_object(
+        "seen", "none", {"rgb": TemplateSet(poses, np.array([[3, 0], [3, 1]], np.float32))}
+    )
+    snap, q = store.snapshot, np.array([[1.0, 0.0]], np.float32)
+    assert [m.object_id for m in snap.answers("rgb", q, 2)] == [grey.object_id] * 2
+    weighed = snap.answers("rgb", q, 2, weights={grey.object_id: 2.5})
+    assert [m.object_id for m in weighed] == [seen.object_id] * 2
+    assert weighed[0].distance == pytest.approx(2.0)  # the descriptors' distance, not 2.0 weighed
+    lighter = snap.answers("rgb", q, 2, weights={grey.object_id: 1.5})  # 1.5 and 2.1 against 2 and 2.2
+    assert [m.object_id for m in lighter] == [grey.object_id, seen.object_id]
+
+
 def test_local_features_persist_and_leave_with_their_object(open_store):
     ts = templates(1.0, n=4)
     rows = np.array([0, 2])
