@@ -386,7 +386,7 @@ DETECTION = Table(
     "detection by how well the frame's colours agree with its object's at its pose (no training for any "
     "object) took the false detections from 2.05 to 0.05 a frame; verifying the best 8 colour proposals at "
     "their centres, not 10 at nine screened centres each (the pose fit moves them), then took recall from "
-    "64.5 to 72.9, AP50 from 76.4 to 82.4 and the frame from 1.47 s to 0.43 s (both chosen on the "
+    "64.5 to 72.9, AP50 from 76.4 to 82.4 and the frame from 1.47 s to 0.43 s, 0.32 s on two threads (chosen on the "
     "validation frames, "
     "[docs/detection.md](docs/detection.md)); with depth (RGB-D, real colour and rendered depth, which "
     "flatters: [`detect-test-rgbd.json`](docs/results/detect-test-rgbd.json)), recall 86.9, precision 91.2, "
