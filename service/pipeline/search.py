@@ -79,7 +79,13 @@ class Search:
 
 def shape_weights(snapshot: Snapshot, handicap: float) -> dict[int, float]:
     """1 + `handicap` for each shape-only object (`TEXTURED_KEY` false): the weight of its distances when the
-    candidates are chosen in colour, as `service.pipeline.answer.handicapped` weighs the answers."""
+    candidates are chosen in colour, as `service.pipeline.answer.handicapped` weighs the answers; none when
+    every object is shape-only (the same weight for all changes no order)."""
     if handicap <= 0:
         return {}
-    return {o: 1.0 + handicap for o, rec in snapshot.objects.items() if rec.extra.get(TEXTURED_KEY) is False}
+    weights = {
+        o: 1.0 + handicap for o, rec in snapshot.objects.items() if rec.extra.get(TEXTURED_KEY) is False
+    }
+    return (
+        weights if len(weights) < len(snapshot.objects) else {}
+    )  # all alike: the plain order, the plain cost

@@ -79,6 +79,8 @@ def test_in_colour_a_shape_only_objects_distances_carry_the_handicap(
             )
             assert d.status_code == 200, d.text
             answers[handicap] = (r.json()["matches"], d.json()["matches"])
+            assert c.delete(f"/objects/{made[0]['object_id']}").status_code == 204
+            assert shape_weights(c.app.state.posedesc.store.snapshot, handicap) == {}  # only shapes left
     key = lambda m: (m["name"], m["azimuth"], m["elevation"], m["inplane"])  # noqa: E731
     plain, handicapped = ({key(m): m["distance"] for m in answers[h][0]} for h in (0.0, 0.5))
     common = plain.keys() & handicapped.keys()
