@@ -31,7 +31,10 @@ def test_a_tiny_fit_run(lmo: Path, posedesc_models: Path):
         assert on["runs"] + on["refused"] == off["runs"] + off["refused"] == row["calls"] >= 1
         # the fit's own time where it is on, none where it is off: per call, one answer fitted
         assert on["fit_runs"] == on["runs"] and "fit" in on["stages_median_ms"]
-        assert 0 < on["fit_p50_ms"] <= on["fit_p90_ms"] <= on["fit_max_ms"] <= on["call_p90_ms"]
+        assert 0 < on["fit_p50_ms"] <= on["fit_p90_ms"] <= on["fit_max_ms"]
+        # each call's fit is part of that call, so each percentile of the fits is at most the calls' (the
+        # slowest fit may pass the calls' 90th percentile: its call may be the slowest)
+        assert on["fit_p90_ms"] <= on["call_p90_ms"]
         assert off["fit_runs"] == 0 and off["fit_p50_ms"] is None and "fit" not in off["stages_median_ms"]
         assert off["fit_moved"] == 0 and 0 <= on["fit_moved"] <= on["fit_runs"]
         assert row["call_p50_ratio_on_off"] == pytest.approx(on["call_p50_ms"] / off["call_p50_ms"])
