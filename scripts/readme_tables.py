@@ -391,7 +391,7 @@ DETECTION = Table(
     "[docs/detection.md](docs/detection.md)); with depth (RGB-D, real colour and rendered depth, which "
     "flatters: [`detect-test-rgbd.json`](docs/results/detect-test-rgbd.json)), recall 86.9, precision 91.2, "
     "0 false detections a frame. YCB-V: the three videos' runs pooled "
-    "(AP50 and times are per run: frame median 0.27-0.62 s), BOP AR 36.5 (a box turned over is the box: its "
+    "(AP50 and times are per run: frame median 0.26-0.55 s), BOP AR 36.5 (a box turned over is the box: its "
     "half-turns are found from its shape); in colour nothing is found there "
     "(shape-only meshes; `ycbv-detect-rgb-*.json`). **Objects the objectness network "
     "never saw are not found**: left out of its training, the ape and the driller are found 0 % of the "

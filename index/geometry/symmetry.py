@@ -28,8 +28,6 @@ import numpy as np
 
 from index.geometry.pose import rotation_of
 
-#: the turns about z a symmetry may have
-ABOUT_Z = ("none", "180", "full")
 #: the named symmetries (a flip's axis other than x: "@<degrees>" after the name; "x:" or "y:" before it
 #: for the mesh's x or y axis in place of z)
 SYMMETRIES = ("none", "180", "full", "flip", "180+flip", "full+flip")
@@ -46,7 +44,7 @@ _FRAMES = {
 
 @dataclass(frozen=True)
 class Named:
-    """A named symmetry: its turns about its axis (one of `ABOUT_Z`), its flip's axis, degrees in the plane
+    """A named symmetry: its turns about its axis ("none", "180" or "full"), its flip's axis, degrees in the plane
     across it (None: no flip), brought to its smallest equivalent ([0, 180), [0, 90) with "180", 0 with
     "full"), and the mesh's axis it is about ("z", or "x" or "y": `_FRAMES`)."""
 

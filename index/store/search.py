@@ -142,8 +142,8 @@ def _weighed(d2: np.ndarray, oid: np.ndarray, weights: Mapping[int, float] | Non
     """Squared distances `d2` of objects `oid`, each times its weight squared (`Snapshot.answers`)."""
     if not weights:
         return d2
-    w = np.array([weights.get(int(o), 1.0) for o in np.unique(oid)])
-    return d2 * w[np.searchsorted(np.unique(oid), oid)] ** 2
+    ids, at = np.unique(oid, return_inverse=True)
+    return d2 * np.array([weights.get(int(o), 1.0) for o in ids])[at] ** 2
 
 
 class Found(Sequence[Match]):

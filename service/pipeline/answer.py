@@ -24,9 +24,9 @@ from index.features.embed import Embedder
 from index.features.patches import surface_depth
 from index.refine.fit import Fit
 from index.store import Match, Snapshot
-from index.templates.register import TEXTURED_KEY
 from index.templates.surface import offset_of
 from service.pipeline.context import Context
+from service.pipeline.query import untextured
 from service.poses import match_pose
 from service.rejection import LISTED, judge, read_calibrations, served_score
 from service.settings import Settings
@@ -93,10 +93,10 @@ def ranked_matches(ctx: Context) -> list[Match]:
 
 
 def handicapped(m: Match, snapshot: Snapshot, handicap: float) -> Match:
-    """`m` with its distance times 1 + `handicap` when its object is shape-only (`TEXTURED_KEY` false): in
+    """`m` with its distance times 1 + `handicap` when its object is shape-only (`untextured`): in
     colour, a grey render is near any patch (`Settings.shape_handicap`)."""
     rec = snapshot.objects.get(m.object_id)
-    if rec is None or rec.extra.get(TEXTURED_KEY) is not False:
+    if rec is None or not untextured(rec):
         return m
     return replace(m, distance=m.distance * (1.0 + handicap))
 

@@ -15,7 +15,7 @@ import numpy as np
 
 from index.features.embed import Embedder
 from index.features.patches import PatchSpec, crops, patch_camera
-from index.store import TemplateStore
+from index.store import ObjectRecord, TemplateStore
 from index.templates.register import TEXTURED_KEY, TemplateConfig
 from service.errors import ApiError
 from service.inputs.camera import undistorted
@@ -49,12 +49,17 @@ class Loaded(Protocol):
     def store(self) -> TemplateStore: ...
 
 
+def untextured(rec: ObjectRecord) -> bool:
+    """Whether an object is shape-only: its mesh without colours (`TEXTURED_KEY` false; objects registered
+    before the flag was kept count as textured)."""
+    return rec.extra.get(TEXTURED_KEY) is False
+
+
 def shape_only(store: TemplateStore) -> bool:
-    """Whether every registered object is shape-only (its mesh without colours, `TEXTURED_KEY` false): then
-    the colour of an RGB-D frame can match nothing but grey renders, and the depth model answers (objects
-    registered before the flag was kept count as textured)."""
+    """Whether every registered object is shape-only (`untextured`): then the colour of an RGB-D frame can
+    match nothing but grey renders, and the depth model answers."""
     objects = store.snapshot.objects.values()
-    return bool(objects) and all(rec.extra.get(TEXTURED_KEY) is False for rec in objects)
+    return bool(objects) and all(untextured(rec) for rec in objects)
 
 
 def decode(state: Loaded, q: Query) -> Decoded:

@@ -8,8 +8,9 @@ from dataclasses import dataclass, replace
 
 from index.features.embed import Embedder
 from index.store import Snapshot
-from index.templates.register import TEXTURED_KEY, TemplateConfig
+from index.templates.register import TemplateConfig
 from service.pipeline.context import Context
+from service.pipeline.query import untextured
 from service.settings import Settings
 
 
@@ -78,14 +79,11 @@ class Search:
 
 
 def shape_weights(snapshot: Snapshot, handicap: float) -> dict[int, float]:
-    """1 + `handicap` for each shape-only object (`TEXTURED_KEY` false): the weight of its distances when the
+    """1 + `handicap` for each shape-only object (`untextured`): the weight of its distances when the
     candidates are chosen in colour, as `service.pipeline.answer.handicapped` weighs the answers; none when
     every object is shape-only (the same weight for all changes no order)."""
     if handicap <= 0:
         return {}
-    weights = {
-        o: 1.0 + handicap for o, rec in snapshot.objects.items() if rec.extra.get(TEXTURED_KEY) is False
-    }
-    return (
-        weights if len(weights) < len(snapshot.objects) else {}
-    )  # all alike: the plain order, the plain cost
+    weights = {o: 1.0 + handicap for o, rec in snapshot.objects.items() if untextured(rec)}
+    # all alike: the plain order, at the plain cost
+    return weights if len(weights) < len(snapshot.objects) else {}

@@ -24,6 +24,7 @@ from service.demo import DEMO_KEY
 from service.deps import ApiKeyDep, KnownFieldsDep, StateDep
 from service.errors import DISK_FULL, ApiError, responses
 from service.jobs import Busy, Job
+from service.pipeline.query import untextured
 from service.schemas import JobAccepted, ObjectCreated, ObjectOut, ObjectsRemoved
 from service.state import AppState
 
@@ -240,7 +241,7 @@ def _register(state: AppState, job: Job, mesh, name: str, symmetry: str, viewpoi
         textured=_flag(reg.record.extra.get(TEXTURED_KEY)),
         symmetry_from=_text(reg.record.extra.get(SYMMETRY_FROM_KEY)),
         viewpoints=_text(reg.record.extra.get(VIEWPOINTS_KEY)),
-        warnings=[] if reg.record.extra.get(TEXTURED_KEY) is not False else [SHAPE_ONLY],
+        warnings=[SHAPE_ONLY] if untextured(reg.record) else [],
     ).model_dump()
     job.status = "done"
 
