@@ -212,7 +212,7 @@ class FaissSnapshot(Snapshot):
 
     def knn(self, model: str, queries: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         mi = self.models[model]
-        params = None if self.only is None else self.only[model].params
+        params = None if self.only is None else self.only[model].params()
         dist, ids = mi.index.search(queries.reshape(len(queries), mi.index.d), n, params=params)
         pos = np.searchsorted(mi.ids, np.where(ids >= 0, ids, 0))
         pos = np.minimum(pos, max(mi.size - 1, 0))
@@ -222,20 +222,30 @@ class FaissSnapshot(Snapshot):
 
 @dataclass(frozen=True)
 class Selection:
-    """Some objects' templates in one model's index: FAISS search parameters that select them (the
-    selector kept beside them: FAISS holds it by a bare pointer) and how many there are."""
+    """Some objects' templates in one model's index: their FAISS selector and how many there are.
 
-    params: faiss.SearchParameters
+    A search takes its own parameters (`params`): FAISS's `IndexIDMap` swaps the selector in the
+    parameters it is given for the time of a search, so two threads searching with one parameters
+    object crash the process (it did: two places of a frame verified at once against one window class)."""
+
     selector: faiss.IDSelector
     size: int
+    nprobe: int | None = None  # an IVF index's: given parameters replace the index's own
 
     @classmethod
     def of(cls, mi: ModelIndex, object_ids: list[int]) -> Selection:
         ids = np.ascontiguousarray(mi.ids[np.isin(mi.object_ids, object_ids)], np.int64)
-        selector = faiss.IDSelectorBatch(ids)
         ivf = faiss.try_extract_index_ivf(mi.index)
-        params = faiss.SearchParameters() if ivf is None else faiss.SearchParametersIVF()
-        params.sel = selector
-        if ivf is not None:  # given parameters replace the index's own
-            params.nprobe = ivf.nprobe  # type: ignore[attr-defined]  # SearchParametersIVF's
-        return cls(params, selector, len(ids))
+        nprobe = None if ivf is None else int(ivf.nprobe)
+        return cls(faiss.IDSelectorBatch(ids), len(ids), nprobe)
+
+    def params(self) -> faiss.SearchParameters:
+        """New search parameters selecting these templates (the selector, read only, is shared: FAISS
+        holds it by a bare pointer, so it lives as long as this selection)."""
+        if self.nprobe is None:
+            params = faiss.SearchParameters()
+        else:
+            params = faiss.SearchParametersIVF()
+            params.nprobe = self.nprobe
+        params.sel = self.selector
+        return params

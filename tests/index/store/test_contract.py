@@ -250,3 +250,30 @@ def test_a_snapshot_within_some_objects_searches_theirs_only(open_store):
     assert {m.object_id for m in found} == {far, farther} and found[0].object_id == far
     assert len(found) == 10  # every viewpoint of the two, none of the nearest object's
     assert snap.answers("rgb", q, 1)[0].object_id == near and snap.size("rgb") == 15
+
+
+def test_threads_search_one_snapshot_within_some_objects_at_once(open_store):
+    """Two places of a frame are verified at once against one window class (`Snapshot.within`): the
+    searches answer as one at a time does. FAISS swaps the selector in a search's parameters while it
+    searches, so one parameters object shared by two threads crashed the process."""
+    store = open_store(MODELS)
+    sets = {m: templates(1.0, n=3000) for m in MODELS}
+    a = store.add_object("a", "none", sets).object_id
+    add(store, "b", 1.05)
+    within = store.snapshot.within(frozenset({a}))
+    q = np.full((4, 4), 1.0, np.float32) + np.arange(4, dtype=np.float32)[:, None] * 0.01
+    alone = within.knn("rgb", q, 20)
+    errors: list[str] = []
+
+    def search() -> None:
+        for _ in range(300):
+            d, oids, poses = within.knn("rgb", q, 20)
+            if not (np.array_equal(oids, alone[1]) and np.allclose(d, alone[0])):
+                errors.append("another answer")
+
+    threads = [threading.Thread(target=search) for _ in range(2)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert errors == [] and set(alone[1].ravel().tolist()) == {a}
