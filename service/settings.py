@@ -85,20 +85,25 @@ class Settings(BaseSettings):
         150, ge=0, le=1000, description="re-ranking: compare this many best answers also at every other "
         "in-plane angle of the templates, and keep the roll that fits best (0: off)",
     )  # fmt: skip
-    # 1: the best answer, the one a user acts on (and each detection's); more costs a fit each
-    # YCB-V video 0000 (real depth, shape-only objects, centre given, the depth model): the best answer was
-    # the right object for 25 % of instances, one of the first 5 for 67 %; re-ordered by fit, 67 %. The
-    # other two videos were not looked at to choose (docs/experiments.md)
+    # YCB-V video 0000 (real depth, shape-only objects, centre given, the depth model): the first 5 re-ordered
+    # by their fits, the right object 53 %; the first 20, each looked at coarsely
+    # (`service.pipeline.fit.COARSE_ITERATIONS`), the best 3 then fitted fully, 95 %: the mug's right pose was
+    # an answer past the fifth (docs/experiments.md). 122 -> 178 ms a query there
     depth_rerank: int = Field(
-        5, ge=0, le=20, description="a frame with depth, its camera and a centre (the pose fit on): this many "
-        "best answers are each fitted to the depth and re-ordered by the share of their points it explains "
-        "plus their confidence; 0 or 1: not re-ordered",
+        20, ge=0, le=50, description="a frame with depth, its camera and a centre (the pose fit on): this many "
+        "best answers are each fitted to the depth (coarsely) and re-ordered by the share of their points it "
+        "explains plus their confidence; 0 or 1: not re-ordered",
+    )  # fmt: skip
+    depth_refine: int = Field(
+        3, ge=1, le=50, description="of the answers `depth_rerank` re-orders, this many best fitted fully, then "
+        "re-ordered again",
     )  # fmt: skip
     # YCB-V whole frames, RGB-D (video 0001): 5 took recall 0.725 -> 0.80, precision 0.75 -> 0.71, and the
     # frame's median 0.68 -> 1.27 s (5 fits for each of up to 30 proposals): over issue 37's 1 s
     detect_depth_rerank: int = Field(
         0, ge=0, le=20, description="a frame without u and v, with depth: `depth_rerank` for each place verified",
     )  # fmt: skip
+    # 1: the best answer, the one a user acts on (and each detection's); more costs a fit each
     pose_fit: int = Field(
         1, ge=0, le=100, description="refine the pose of this many best answers over all six degrees of "
         "freedom against the frame (a frame sent with its camera): the mesh's outline against the colour "

@@ -32,6 +32,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 import trimesh
 from scipy.spatial import cKDTree
@@ -77,6 +78,10 @@ MIN_PAIRS = 30  # fewer pairs than this: six parameters from too little, the fit
 #: Levenberg damping, relative to the normal matrix's mean diagonal: keeps turns the depth cannot see
 #: (about a symmetry axis, along a plane) at zero instead of wherever noise takes them
 DAMPING = 1e-3
+#: `beyond_of`: the ring around a pose's silhouette (a share of its larger side) and how near (mm) a reading
+#: there must be to the model's nearest seen depth to count as its surface going on
+BEYOND_RING = 0.15
+BEYOND_MM = 15.0
 #: self-occlusion: model points are compared with the nearest model point of their CELL_PX x CELL_PX cell
 #: (at ~1 m the points are ~2-3 px apart, so a cell holds some of the front surface; 0: no test) and are
 #: hidden when more than SELF_MM behind it
@@ -190,6 +195,49 @@ def score_of(
     seen = d[facing] > 0
     agree, through = np.abs(gap) < tol_mm, seen & (gap > tol_mm)
     return float(max(0.0, np.mean(agree) - np.mean(through)))
+
+
+def beyond_of(
+    model: DepthModel,
+    R: np.ndarray,
+    t: np.ndarray,
+    K: np.ndarray,
+    depth: np.ndarray,
+    ring: float = BEYOND_RING,
+    tol_mm: float = BEYOND_MM,
+) -> float:
+    """How far the measured surface goes on past the model at (R, t), in [0, 1]: of the pixels with a reading
+    in a ring around its silhouette (`ring` of its larger side wide), the share whose reading is within
+    `tol_mm` of the model's nearest seen depth there. An object's own outline is where its surface ends (the
+    table behind it, or a nearer occluder), so a right pose scores near 0; a smaller object posed on a face of
+    a larger one, whose points the depth explains as well (`score_of`), scores high: the larger one's surface
+    goes on around it."""
+    p, _, facing, _ = _seen(model, R, t, K, depth)
+    if facing.sum() < MIN_PAIRS:
+        return 0.0
+    q = p[facing]
+    u = np.round(K[0, 0] * q[:, 0] / q[:, 2] + K[0, 2]).astype(int)
+    v = np.round(K[1, 1] * q[:, 1] / q[:, 2] + K[1, 2]).astype(int)
+    side = max(u.max() - u.min(), v.max() - v.min()) + 1
+    grow = max(2, int(round(ring * side)))
+    h, w = depth.shape
+    x0, y0 = max(u.min() - grow - 2, 0), max(v.min() - grow - 2, 0)
+    x1, y1 = min(u.max() + grow + 3, w), min(v.max() + grow + 3, h)
+    z = np.full((y1 - y0, x1 - x0), np.inf, np.float32)
+    np.minimum.at(z, (v - y0, u - x0), q[:, 2].astype(np.float32))
+    gap = max(1, int(np.ceil(side / np.sqrt(len(q)))))  # the points' spacing in px: close the silhouette
+    close = np.ones((2 * gap + 1,) * 2, np.uint8)
+    silhouette = cv2.morphologyEx(np.isfinite(z).astype(np.uint8), cv2.MORPH_CLOSE, close)
+    silhouette = cv2.dilate(silhouette, close)  # out to the outline: the outermost points fall short of it
+    around = (cv2.dilate(silhouette, np.ones((2 * grow + 1,) * 2, np.uint8)) > 0) & (silhouette == 0)
+    nearest = cv2.erode(
+        np.where(np.isfinite(z), z, 1e9).astype(np.float32), np.ones((2 * grow + 1,) * 2, np.uint8)
+    )
+    d = depth[y0:y1, x0:x1].astype(np.float32)
+    ring_px = around & (d > 0) & (nearest < 1e9)
+    if not ring_px.any():
+        return 0.0
+    return float(np.mean(np.abs(d[ring_px] - nearest[ring_px]) < tol_mm))
 
 
 def slide_to_surface(

@@ -83,7 +83,13 @@ class Pipeline:
         fit = (
             None
             if shapes is None or settings.pose_fit == 0
-            else PoseFit(settings.pose_fit, shapes, settings.depth_rerank, settings.detect_depth_rerank)
+            else PoseFit(
+                settings.pose_fit,
+                shapes,
+                settings.depth_rerank,
+                settings.detect_depth_rerank,
+                settings.depth_refine,
+            )
         )
         return cls(tuple(s for s in made if s is not None), settings, judged(settings, embedder), fit)
 

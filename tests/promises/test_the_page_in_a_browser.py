@@ -91,7 +91,7 @@ def test_register_recognise_and_delete_through_the_page(server, browser):
     assert len(rows) == 5 and all(r.startswith("part") for r in rows), rows  # k = 5; the only object
     assert rows[0].startswith(("part (best", "part (rejected")), rows[0]
     # the best answer fitted to the frame says so, its origin where the fit put it; with depth the first
-    # five are fitted to re-order them (`DEPTH_RERANK`); those the fit left where they were are at the click
+    # twenty are fitted to re-order them (`DEPTH_RERANK`); those the fit left where they were are at the click
     assert "fitted" in rows[0] and all(f"({u:.0f}, {v:.0f})" in r for r in rows if "fitted" not in r), rows
     assert text(b, "rec-error") == ""
 

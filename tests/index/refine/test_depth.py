@@ -98,3 +98,21 @@ def test_a_depth_model_is_seeded_area_samples_with_outward_normals():
     assert on_x.mean() == pytest.approx(19200 / 35200, abs=0.04)
     with pytest.raises(ValueError, match="surface"):
         DepthModel.of(trimesh.Trimesh(vertices=np.zeros((3, 3)), faces=[[0, 1, 2]]))
+
+
+def test_beyond_says_where_the_measured_surface_goes_on_past_a_pose():
+    """A 200 mm board's face at 600 mm before a wall at 900 mm: a 60 mm box posed on that face is explained
+    by the depth as well as the board (`score_of`), but the face goes on all around it; around the board
+    itself is the wall."""
+    from index.refine.depth import beyond_of, score_of
+
+    K = np.array([[600.0, 0, 320], [0, 600.0, 240], [0, 0, 1]])
+    v, u = np.mgrid[0:480, 0:640]
+    x, y = (u - 320) * 600 / 600.0, (v - 240) * 600 / 600.0  # mm on the plane z = 600
+    depth = np.where((np.abs(x) < 100) & (np.abs(y) < 100), 600.0, 900.0).astype(np.float32)
+    small = DepthModel.of(trimesh.creation.box((60.0, 60.0, 20.0)))
+    board = DepthModel.of(trimesh.creation.box((200.0, 200.0, 20.0)))
+    t = np.array([0.0, 0.0, 610.0])  # the front faces at 600 mm
+    assert score_of(small, np.eye(3), t, K, depth) > 0.9 and score_of(board, np.eye(3), t, K, depth) > 0.9
+    assert beyond_of(small, np.eye(3), t, K, depth) > 0.9
+    assert beyond_of(board, np.eye(3), t, K, depth) < 0.1

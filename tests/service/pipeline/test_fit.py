@@ -5,6 +5,8 @@ apart, so a template's pose is visibly off), a rendered frame at a pose between 
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from fastapi.testclient import TestClient
@@ -108,7 +110,19 @@ def test_in_colour_only_the_best_answer_is_fitted_by_default(client, shot):
     assert "fit" in r.json()["timings_ms"]
 
 
-def test_with_depth_one_answer_asked_is_still_chosen_among_the_fitted_five(client, shot):
+def test_with_depth_the_best_three_of_the_reordered_answers_are_fitted_fully(client, shot):
+    """The depth re-ordering looks at the first `depth_rerank` (20) answers coarsely, and fits the best
+    `depth_refine` (3) of them fully: those three come first, each moved off its template by its fit."""
+    files = {"rgb": ("f.png", png(shot["rgb"])), "depth": ("d.png", depth_png(shot["depth"]))}
+    r = client.post("/recognize", files=files, data=frame_fields(UV, k="10"))
+    assert r.status_code == 200, r.text
+    matches = r.json()["matches"]
+    assert len(matches) == 10 and [m["refined"] for m in matches[:3]] == [True] * 3, matches
+    R, _ = pose(matches[0])
+    assert rotation_error(R, shot["R"]) < 3.0
+
+
+def test_with_depth_one_answer_asked_is_still_chosen_among_the_fitted_ones(client, shot):
     files = {"rgb": ("f.png", png(shot["rgb"])), "depth": ("d.png", depth_png(shot["depth"]))}
     r = client.post("/recognize", files=files, data=frame_fields(UV, k="1"))
     assert r.status_code == 200, r.text
@@ -144,6 +158,19 @@ def test_the_fitted_answers_are_ordered_by_the_depth_they_explain_plus_their_con
     assert r.origins_mm == [501.0, 503.0, 502.0, 500.0, 504.0]
     assert [f.score if f else None for f in r.fits] == [0.9, None, 0.5, 0.1]
     assert [m.object_id for m in first(r, 2).matches] == [1, 3] and len(first(r, 2).fits) == 2
+
+
+def test_an_object_whose_measured_surface_goes_on_past_it_is_ordered_lower():
+    """`beyond` (the depth's surface going on around an answer's silhouette) counts against an object by its
+    least among its answers: a small object posed on a larger one's face loses to the larger one, while the
+    order of one object's poses stays the fit's."""
+    r = result_of([0.9, 0.8, 0.7, 0.75], [0.5, 0.5, 0.5, 0.5], 4)
+    r = replace(r, matches=[replace(m, object_id=o) for m, o in zip(r.matches, [0, 1, 0, 1], strict=True)])
+    # object 0: every answer with its surface going on (0.6, 0.5); object 1: one answer with none (0.0)
+    out = reranked(r, 4, [0.6, 0.0, 0.5, 0.4])
+    assert [m.object_id for m in out.matches] == [1, 1, 0, 0]
+    assert [f.score for f in out.fits] == [0.8, 0.75, 0.9, 0.7]  # each object's poses in the fit's order
+    assert [m.object_id for m in reranked(r, 4).matches] == [0, 1, 1, 0]  # without it: 1.4, 1.3, 1.25, 1.2
 
 
 def test_colour_only_the_rotation_is_fitted_and_the_sent_centre_and_distance_kept(client, shot):
