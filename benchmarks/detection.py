@@ -57,6 +57,7 @@ DETECT_SETTINGS = (
     "detect_screen_rerank",
     "threads",
     "detect_threads",
+    "objectness_levels",
 )
 
 

@@ -38,6 +38,13 @@ class Settings(BaseSettings):
         None, description="the objectness network colour frames without u and v are searched with "
         "(default: posedesc-objectness.onnx in models_dir)",
     )  # fmt: skip
+    # LM-O validation frames, colour, whole frames: the model's nine quarter-octave levels against these five
+    # half-octave ones, recall 79.1 -> 78.3, AP50 84.8 -> 86.4, found within 20 deg 53.0 -> 55.7, false a
+    # frame 0.1 -> 0.1; the frame's median 314 -> 280 ms, proposals 79 -> 46 ms (docs/experiments.md)
+    objectness_levels: list[Annotated[float, Field(gt=0, le=4)]] | None = Field(
+        [1.0, 0.7071, 0.5, 0.3536, 0.25], description="the scales a colour frame is searched at by the "
+        "objectness network (each a level of the pyramid); empty or null: the model's own",
+    )  # fmt: skip
     api_key: SecretStr | None = Field(None, description="when set, POST/DELETE /objects need it (X-API-Key)")
     allow_open_writes: bool = Field(
         False, description="without an API key on a non-loopback address, allow POST/DELETE /objects anyway"

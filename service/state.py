@@ -6,7 +6,7 @@ import asyncio
 import logging
 import threading
 import time
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from functools import partial
@@ -226,7 +226,7 @@ def load_state(settings: Settings, embedders: dict[str, Embedder] | None = None)
     log.info("models %s, %d objects in %s", sorted(embedders), len(store.snapshot.objects), where)
     # behind a load balancer a job is polled on any replica: with a shared store, job states are shared files
     jobs = Jobs() if settings.store == EMBEDDED else Jobs(files=SharedFiles(settings.data_dir))
-    colour = colour_proposals(objectness_path(settings), settings.detect_threads)
+    colour = colour_proposals(objectness_path(settings), settings.detect_threads, settings.objectness_levels)
     return AppState(settings, embedders, store, worker, cfg, jobs=jobs, colour_proposals=colour)
 
 
@@ -235,14 +235,15 @@ def objectness_path(settings: Settings) -> Path:
     return settings.objectness_model or settings.models_dir / OBJECTNESS_FILE
 
 
-def colour_proposals(path: Path, threads: int) -> Colour | None:
-    """The objectness model at `path` as the detection's colour proposals, or None when there is none (a
-    colour frame without a centre is then refused with what to send instead)."""
+def colour_proposals(path: Path, threads: int, levels: Sequence[float] | None = None) -> Colour | None:
+    """The objectness model at `path` as the detection's colour proposals, run at `levels` (the frame's
+    scales; None: those in the model's metadata), or None when there is none (a colour frame without a
+    centre is then refused with what to send instead)."""
     if not path.is_file():
         log.warning("no objectness model at %s: colour frames need u and v", path)
         return None
     net = ObjectnessNet(path, threads)
-    return partial(propose_objects, net)
+    return partial(propose_objects, net, levels=levels or None)
 
 
 def close_state(state: AppState) -> None:

@@ -110,3 +110,27 @@ def test_the_objectness_network_is_beside_the_models_unless_a_setting_says_where
     elsewhere = Settings(data_dir=tmp_path, models_dir=tmp_path / "m", objectness_model=tmp_path / "o.onnx")
     assert objectness_path(elsewhere) == tmp_path / "o.onnx"
     assert colour_proposals(objectness_path(elsewhere), 1) is None  # no file there: colour needs u and v
+
+
+def test_the_objectness_network_runs_at_the_levels_the_settings_give():
+    """`POSEDESC_OBJECTNESS_LEVELS`: the frame is searched at those scales only. At scale 1 alone the network
+    sees windows about its reference size (64 px, within a factor 1.6 either way: its head knows no others);
+    at a quarter, four times as large; unset, the model's own nine levels cover both."""
+    from service_helpers import ROOT
+
+    from index.features.objectness import OBJECTNESS_FILE
+    from service.settings import Settings
+    from service.state import colour_proposals
+
+    rgb = np.random.default_rng(0).integers(0, 255, (480, 640, 3), np.uint8)
+    rgb[150:330, 250:430] = (200, 60, 40)  # a block of colour for something to propose
+    path = ROOT / "models" / OBJECTNESS_FILE
+    windows = {}
+    for levels in ([1.0], [0.25], None):
+        colour = colour_proposals(path, 1, levels)
+        assert colour is not None
+        windows[str(levels)] = [p.window_px for p in colour(rgb, 50)]
+    assert windows["[1.0]"] and all(30 < w < 110 for w in windows["[1.0]"])
+    assert windows["[0.25]"] and all(120 < w < 440 for w in windows["[0.25]"])
+    assert Settings().objectness_levels == [1.0, 0.7071, 0.5, 0.3536, 0.25]
+    assert min(windows["None"]) < 110 and max(windows["None"]) > 120
