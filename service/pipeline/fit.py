@@ -119,13 +119,14 @@ class PoseFit:
         for i, m in enumerate(result.matches[:count]):
             fit = self.tried(q, d, K, m.object_id, *result.pose(i))
             before = result.fits[i] if i < len(result.fits) else None
-            if fit is not None and before is not None and before.moved and not fit.moved:
-                fit = before  # the coarse look's pose stands when the full fit finds nothing better
-            fits.append(fit if fit is not None or before is None else before)
+            if fit is None or (before is not None and before.moved and not fit.moved):
+                fit = before  # the coarse look's pose stands when the full fit fails or finds nothing better
+            fits.append(fit)
         fitted = replace(result, fits=fits + list(result.fits[count:]))
         if not self.reorders(q, d):
             return fitted
-        return reranked(fitted, len(fits), self.beyond(fitted, len(fits), d, K))
+        assert d.depth is not None  # `reorders`: a frame with depth
+        return reranked(fitted, len(fits), self.beyond(fitted, len(fits), d.depth, K))
 
     def coarse(self, result: Result, q: Query, d: Decoded, K: np.ndarray) -> Result:
         """`result` with its first `reordered` answers fitted coarsely to the depth (`COARSE_ITERATIONS`,
@@ -135,18 +136,14 @@ class PoseFit:
             for i, m in enumerate(result.matches[: self.reordered(q)])
         ]
         looked = replace(result, fits=fits)
-        return reranked(looked, len(fits), self.beyond(looked, len(fits), d, K))
+        assert d.depth is not None  # only a frame with depth is re-ordered
+        return reranked(looked, len(fits), self.beyond(looked, len(fits), d.depth, K))
 
-    def beyond(self, result: Result, n: int, d: Decoded, K: np.ndarray) -> list[float]:
+    def beyond(self, result: Result, n: int, depth: np.ndarray, K: np.ndarray) -> list[float]:
         """How far the measured surface goes on past each of the first `n` answers at its pose
-        (`index.refine.depth.beyond_of`; 0 without a model or depth)."""
-        out = []
-        for i, m in enumerate(result.matches[:n]):
-            model = self.shapes.depth.get(m.object_id) if d.depth is not None else None
-            out.append(
-                0.0 if model is None or d.depth is None else beyond_of(model, *result.pose(i), K, d.depth)
-            )
-        return out
+        (`index.refine.depth.beyond_of`; 0 for an object without a depth model)."""
+        models = [self.shapes.depth.get(m.object_id) for m in result.matches[:n]]
+        return [0.0 if m is None else beyond_of(m, *result.pose(i), K, depth) for i, m in enumerate(models)]
 
     def tried(
         self,
