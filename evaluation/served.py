@@ -36,6 +36,7 @@ import trimesh
 
 from evaluation.bop.recall import MSPD_REFERENCE_WIDTH
 from evaluation.bop.scores import Best, bop_block, estimates, object_model
+from evaluation.bop.vsd import vsd_for
 from evaluation.config import Config
 from evaluation.masks import black_outside, visible_masks
 from evaluation.paper import ours
@@ -164,7 +165,7 @@ def evaluate_served(cfg: Config) -> Evaluation:
     }
     if depth_errors:  # measured from depth: where the answers put the origin, against ‖t‖
         ev.extra["origin_distance_mm"] = origin_errors(np.array(depth_errors))
-    ev.extra["bop"] = _bop_scores(dataset, instances, bop, cfg.min_visib, cfg.modality)
+    ev.extra["bop"] = _bop_scores(dataset, instances, bop, cfg.min_visib, cfg.modality, kind)
     ev.bop_estimates = estimates(instances, bop.bests)
     obj, views, rejected = answers
     rot, view, same = score(obj, views, instances, symmetries)
@@ -272,16 +273,26 @@ def _best(result: Result, obj_id: int, seconds: float) -> Best | None:
 
 
 def _bop_scores(
-    dataset: BopDataset, instances: Sequence[Instance], bop: _BopAnswers, min_visib: float, modality: str
+    dataset: BopDataset,
+    instances: Sequence[Instance],
+    bop: _BopAnswers,
+    min_visib: float,
+    modality: str,
+    sent: str,
 ) -> dict:
-    """The JSON's "bop" block (`evaluation.bop.scores`): models from the full meshes and models_info."""
+    """The JSON's "bop" block (`evaluation.bop.scores`): models from the full meshes and models_info; VSD
+    where the frames sent have recorded depth (`sent`: `served_data`'s kind)."""
     if len(bop.widths) > 1:
         raise ValueError(f"frames of several widths {sorted(bop.widths)}: MSPD's thresholds need one")
     width = bop.widths.pop() if bop.widths else MSPD_REFERENCE_WIDTH  # every query refused: all missing
-    models = {
-        o: object_model(dataset.symmetry_info(o), dataset.mesh(o)) for o in {i.obj_id for i in instances}
-    }
-    block = bop_block(instances, bop.bests, models, width, min_visib)
+    meshes = {o: dataset.mesh(o) for o in {i.obj_id for i in instances}}
+    models = {o: object_model(dataset.symmetry_info(o), m) for o, m in meshes.items()}
+    vsd = vsd_for(instances, meshes, {o: m.diameter for o, m in models.items()}, sent)
+    try:
+        block = bop_block(instances, bop.bests, models, width, min_visib, vsd)
+    finally:
+        if vsd is not None:
+            vsd.close()
     if modality == "rgb":  # colour is sent the true centre and distance: the answer's t is the truth's
         block["translation"] = (
             "colour queries are sent the ground truth's centre and distance (as a user with a detector and "

@@ -25,7 +25,25 @@ from typing import Any
 import numpy as np
 
 SHARES = ("methods", "view_direction", "open_set_off", "rejected")  # shares of each run's queries
-BOP_SHARES = ("ar", "ar_mssd", "ar_mspd", "recall_add_s", "recall_5deg_5cm")  # shares of its targets
+BOP_SHARES = (
+    "ar",
+    "ar_mssd",
+    "ar_mspd",
+    "ar_vsd",
+    "recall_add_s",
+    "recall_5deg_5cm",
+)  # shares of its targets
+
+
+def pooled_bop(runs: list[dict]) -> dict[str, Any]:
+    """BOP's shares of the runs weighted by their targets; AR_VSD only where every run measured it (frames
+    with recorded depth), else None, as a run without it says."""
+    targets = [r["bop"]["n_targets"] for r in runs]
+    out: dict[str, Any] = {}
+    for k in BOP_SHARES:
+        values = [r["bop"].get(k) for r in runs]
+        out[k] = None if None in values else float(np.average(values, weights=targets))
+    return out | {"n_targets": sum(targets), "n_estimated": sum(r["bop"]["n_estimated"] for r in runs)}
 
 
 def pooled_share(parts: list[Any], weights: list[float]) -> Any:
@@ -58,14 +76,9 @@ def pool(runs: list[dict]) -> dict:
     }
     for key in SHARES:
         out[key] = pooled_share([r[key] for r in runs], n)
-    targets = [r["bop"]["n_targets"] for r in runs]
-    bop: dict[str, Any] = {
-        k: float(np.average([r["bop"][k] for r in runs], weights=targets)) for k in BOP_SHARES
-    }
+    bop = pooled_bop(runs)
     te = [i["te"] for r in runs for i in r["bop"]["per_instance"] if i.get("te") is not None]
     bop |= {
-        "n_targets": sum(targets),
-        "n_estimated": sum(r["bop"]["n_estimated"] for r in runs),
         "te_mm_right_object": {
             "n": len(te),
             "median": float(np.median(te)) if te else None,
@@ -96,7 +109,6 @@ def pool_detect(runs: list[dict]) -> dict:
     """One result of several runs of the detect protocol (see the module's docstring)."""
     frames = [len(r["frames"]) for r in runs]
     objects = sorted({o for r in runs for o in r["posedesc"]["per_object"]}, key=int)
-    targets = [r["bop"]["n_targets"] for r in runs]
     return {
         "protocol": "detect",
         "modality": runs[0]["modality"],
@@ -115,8 +127,7 @@ def pool_detect(runs: list[dict]) -> dict:
                 np.average([r["posedesc"]["detections_per_frame"] for r in runs], weights=frames)
             ),
         },
-        "bop": {k: float(np.average([r["bop"][k] for r in runs], weights=targets)) for k in BOP_SHARES}
-        | {"n_targets": sum(targets), "n_estimated": sum(r["bop"]["n_estimated"] for r in runs)},
+        "bop": pooled_bop(runs),
         "not_pooled": "AP50, the median distance error and the frame times: each run's own, in its JSON",
     }
 

@@ -21,10 +21,13 @@ from evaluation.bop.recall import (
     MSPD_REFERENCE_WIDTH,
     MSPD_THRESHOLDS,
     MSSD_THRESHOLDS,
+    VSD_TAUS,
+    VSD_THRESHOLDS,
     BopRecall,
     bop_matches,
     bop_recall,
 )
+from evaluation.bop.vsd import NO_VSD_NOTE, VSD_NOTE, Vsd
 from index.data.bop import Instance
 from index.geometry.pose_error import (
     ADD_FRACTION,
@@ -100,16 +103,17 @@ class Best:
 
 
 def instance_errors(
-    inst: Instance, best: Best | Estimate | None, model: ObjectModel
-) -> dict[str, float | bool | None]:
+    inst: Instance, best: Best | Estimate | None, model: ObjectModel, vsd: Vsd | None = None
+) -> dict[str, float | bool | list[float] | None]:
     """The BOP errors of `best` against `inst`'s ground truth: mssd (mm), mspd (px), add_s (ADD for an
     object without symmetries, ADD-S with), te (mm), re (degrees, BOP's: no symmetry forgiven), deg_cm
-    ("5°, 5 cm" under the object's symmetries); None (and deg_cm False) where there is no estimate of
-    the instance's object."""
+    ("5°, 5 cm" under the object's symmetries), with `vsd` the VSD at each of `VSD_TAUS`; None (and
+    deg_cm False) where there is no estimate of the instance's object."""
     if best is None or best.obj_id != inst.obj_id:
-        return {**dict.fromkeys(ERRORS), "deg_cm": False}
+        return {**dict.fromkeys(ERRORS), "deg_cm": False, **({"vsd": None} if vsd is not None else {})}
     R, t, pts = best.R, best.t, model.pts
     return {
+        **({"vsd": vsd.errors(inst, R, t)} if vsd is not None else {}),
         "mssd": mssd(R, t, inst.R, inst.t, pts, model.syms),
         "mspd": mspd(R, t, inst.R, inst.t, inst.K, pts, model.syms),
         "add_s": (adi if model.symmetric else add)(R, t, inst.R, inst.t, pts),
@@ -125,16 +129,21 @@ def _missing(values: Sequence[float | None]) -> np.ndarray:
 
 def pooled(per_instance: Sequence[dict], image_width: float) -> dict:
     """The pooled figures over the targets `per_instance` (each with its errors, "diameter" and
-    "deg_cm"): AR_MSSD, AR_MSPD, AR (of the two: no VSD), their recall per threshold, and the recall of
-    ADD(-S) < 0.1 d and of "5°, 5 cm"."""
+    "deg_cm", and "vsd" where it was measured): AR_MSSD, AR_MSPD, AR_VSD where every target has its
+    "vsd" (None: no estimate), AR (the mean of those there are), their recall per threshold, and the recall
+    of ADD(-S) < 0.1 d and of "5°, 5 cm"."""
     if not per_instance:
         raise ValueError("no targets to score")
     d = np.array([p["diameter"] for p in per_instance], float)
+    vsd = None
+    if all("vsd" in p for p in per_instance):
+        vsd = np.array([[np.inf] * len(VSD_TAUS) if p["vsd"] is None else p["vsd"] for p in per_instance])
     r = bop_recall(
         _missing([p["mssd"] for p in per_instance]),
         _missing([p["mspd"] for p in per_instance]),
         d,
         image_width,
+        vsd,
     )
     return figures(
         r,
@@ -169,9 +178,10 @@ def bop_block(
     models: dict[int, ObjectModel],
     image_width: float,
     min_visib: float,
+    vsd: Vsd | None = None,
 ) -> dict:
     """The "bop" block of the JSON: the pooled figures, what they were measured on, and per instance its
-    errors (in the order sent)."""
+    errors (in the order sent); with `vsd` (frames with recorded depth) VSD too."""
     per_instance = [
         {
             "scene_id": inst.scene_id,
@@ -181,7 +191,7 @@ def bop_block(
             "answer_obj_id": None if best is None else best.obj_id,
             "diameter": models[inst.obj_id].diameter,
             "add_kind": "ADD-S" if models[inst.obj_id].symmetric else "ADD",
-            **instance_errors(inst, best, models[inst.obj_id]),
+            **instance_errors(inst, best, models[inst.obj_id], vsd),
         }
         for inst, best in zip(instances, bests, strict=True)
     ]
@@ -195,8 +205,7 @@ def bop_block(
         "missing": "no estimate of the instance's object (rejected, refused, or another object named): "
         "errors null, wrong at every threshold, as BOP counts a target without a matching estimate",
         **CONVENTIONS,
-        "vsd": "not computed (colour has no depth; for depth/rgbd VSD is left to do): AR = mean of AR_MSSD "
-        "and AR_MSPD",
+        "vsd": NO_VSD_NOTE if vsd is None else VSD_NOTE,
         "estimates": "--bop-csv rows: the best answer of each query not rejected, obj_id the object it "
         f"names, score its confidence ({NO_CONFIDENCE_SCORE} where the model has no calibration to give one), "
         "time the seconds of that query's recognise call (BOP's is the whole image's)",
@@ -228,6 +237,7 @@ def detections_block(
     ests: Sequence[Estimate],
     models: Mapping[int, ObjectModel],
     image_width: float,
+    vsd: Vsd | None = None,
 ) -> dict:
     """The detect protocol's "bop" block: several scored estimates an image, matched to the targets as BOP
     matches them. Targets: the `instances` at least `BOP_MIN_VISIB` visible. Per image and object only
@@ -235,7 +245,8 @@ def detections_block(
     greedily by score (`evaluation.bop.recall.bop_matches`); an estimate of an object with no target in
     its image costs nothing, as in BOP. The figures pooled over all targets and per object; each target's
     errors are those of its nearest (by MSSD) counted estimate, the one BOP matches when the image holds
-    one instance of the object (every LM-O image)."""
+    one instance of the object (every LM-O image). With `vsd` (frames with recorded depth), VSD too: matched
+    at each tau and threshold as the other errors are at theirs."""
     targets = [i for i in instances if i.visib_fract >= BOP_MIN_VISIB]
     if not targets:
         raise ValueError("no targets to score")
@@ -250,11 +261,12 @@ def detections_block(
         k: np.zeros((len(targets), n), bool) for k, n in (("mssd", len(MSSD_THRESHOLDS)), ("mspd", len(px)))
     }
     found |= {k: np.zeros((len(targets), 1), bool) for k in ("add_s", "deg_cm")}
+    found_vsd = np.zeros((len(targets), len(VSD_TAUS), len(VSD_THRESHOLDS)), bool)
     per_instance: list[dict] = [{} for _ in targets]
     for key, js in groups.items():
         model = models[key[2]]
         top = sorted(of_key.get(key, []), key=lambda e: -e.score)[: len(js)]
-        errors = [[instance_errors(targets[j], e, model) for j in js] for e in top]
+        errors = [[instance_errors(targets[j], e, model, vsd) for j in js] for e in top]
 
         def grid(name: str, errors: list = errors, n: int = len(js)) -> np.ndarray:
             # deg_cm is a verdict: 0 where right, so that it matches below any positive threshold
@@ -273,6 +285,11 @@ def detections_block(
         scores = [e.score for e in top]
         for name, th in thresholds.items():
             found[name][js] = bop_matches(scores, grid(name), np.asarray(th, float)).T
+        if vsd is not None:
+            v = np.array([[r["vsd"] or [np.inf] * len(VSD_TAUS) for r in row] for row in errors], float)
+            v = v.reshape(len(errors), len(js), len(VSD_TAUS))
+            for k in range(len(VSD_TAUS)):
+                found_vsd[js, k] = bop_matches(scores, v[:, :, k], VSD_THRESHOLDS).T
         mssd_grid = grid("mssd")
         for g, j in enumerate(js):
             inst = targets[j]
@@ -286,11 +303,15 @@ def detections_block(
                 "add_kind": "ADD-S" if model.symmetric else "ADD",
                 "n_estimates": len(top),
                 "score": None if near is None else top[near].score,
-                **(instance_errors(inst, None, model) if near is None else errors[near][g]),
+                **(instance_errors(inst, None, model, vsd) if near is None else errors[near][g]),
             }
 
     def block(rows: list[int]) -> dict:
-        r = BopRecall(found["mssd"][rows].mean(0), found["mspd"][rows].mean(0))
+        r = BopRecall(
+            found["mssd"][rows].mean(0),
+            found["mspd"][rows].mean(0),
+            None if vsd is None else found_vsd[rows].mean(0),
+        )
         return figures(
             r,
             float(found["add_s"][rows].mean()),
@@ -308,6 +329,7 @@ def detections_block(
         "matching": "per image and object, its n best-scored estimates (n: its targets there), greedy by "
         "score at each threshold (bop_toolkit's matching); a target no estimate matches is wrong",
         **CONVENTIONS,
+        "vsd": NO_VSD_NOTE if vsd is None else VSD_NOTE,
         "per_object": {str(o): block([j for j, t in enumerate(targets) if t.obj_id == o]) for o in objects},
         "per_instance": per_instance,
     }

@@ -47,6 +47,7 @@ from evaluation.baselines.linemod_frames import (
 )
 from evaluation.bop.csv import Estimate
 from evaluation.bop.scores import BOP_MIN_VISIB, detections_block, object_model
+from evaluation.bop.vsd import vsd_for
 from evaluation.detect.score import IOU, MIN_VISIB, ROTATION_OK_DEG, Hit, Truth, match, scores
 from evaluation.paper.samples import RENDERED, select_instances, served_data
 from evaluation.paper.templates import service_symmetry
@@ -142,7 +143,7 @@ def evaluate_detect(cfg: DetectConfig) -> tuple[dict, list[Estimate]]:
             close_state(state)
         out: dict = {"posedesc": _figures(ours, truths, symmetries, len(frames))}
         rows = bop_estimates(ours, frames)
-        out["bop"] = _bop(dataset, instances, rows, _frame_size(frames[0])[1], embedder.modality)
+        out["bop"] = _bop(dataset, instances, rows, _frame_size(frames[0])[1], kind)
         n_templates = sum(map(len, views.values()))
         if cfg.linemod:
             t0 = time.perf_counter()
@@ -213,23 +214,22 @@ def bop_estimates(asked: Asked, frames: Sequence[Frame]) -> list[Estimate]:
 
 
 def _bop(
-    dataset: BopDataset, instances: Sequence[Instance], rows: Sequence[Estimate], width: int, modality: str
+    dataset: BopDataset, instances: Sequence[Instance], rows: Sequence[Estimate], width: int, sent: str
 ) -> dict:
     """The JSON's "bop" block (`evaluation.bop.scores.detections_block`): models from the full meshes and
-    models_info."""
-    models = {
-        o: object_model(dataset.symmetry_info(o), dataset.mesh(o)) for o in {i.obj_id for i in instances}
-    }
+    models_info; VSD where the frames sent have recorded depth (`sent`: `served_data`'s kind)."""
+    meshes = {o: dataset.mesh(o) for o in {i.obj_id for i in instances}}
+    models = {o: object_model(dataset.symmetry_info(o), m) for o, m in meshes.items()}
+    vsd = vsd_for(instances, meshes, {o: m.diameter for o, m in models.items()}, sent)
+    try:
+        block = detections_block(instances, rows, models, width, vsd)
+    finally:
+        if vsd is not None:
+            vsd.close()
     return {
-        **detections_block(instances, rows, models, width),
+        **block,
         "estimates": "the detections reported at the floor (the --bop-csv rows): the dataset's object of "
         "each one's best answer, its confidence as the score, that answer's pose",
-        "vsd": (
-            "not computed: colour frames have no depth, and VSD compares depth maps; AR = mean of AR_MSSD "
-            "and AR_MSPD"
-            if modality == "rgb"
-            else "not computed (left to do for depth and rgbd): AR = mean of AR_MSSD and AR_MSPD"
-        ),
     }
 
 

@@ -49,7 +49,7 @@ def test_detect_protocol_on_an_lmo_frame(lmo, tmp_path, capsys):
     assert {(r.scene_id, r.im_id) for r in rows} == {(2, 224)} and len({r.time for r in rows}) == 1
     assert all(r.obj_id in s["objects"] and 0 <= r.score <= 1 and r.t[2] > 0 for r in rows)
     assert all(np.allclose(r.R @ r.R.T, np.eye(3), atol=1e-6) for r in rows)
-    assert bop["n_targets"] == 7 and bop["ar_vsd"] is None and "colour frames have no depth" in bop["vsd"]
+    assert bop["n_targets"] == 7 and bop["ar_vsd"] is None and "no recorded depth" in bop["vsd"]
     for key in ("ar", "ar_mssd", "ar_mspd", "recall_add_s", "recall_5deg_5cm"):
         assert 0 <= bop[key] <= 1 and all(0 <= b[key] <= 1 for b in bop["per_object"].values())
     assert bop["ar"] == pytest.approx((bop["ar_mssd"] + bop["ar_mspd"]) / 2)
