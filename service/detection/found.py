@@ -11,6 +11,10 @@ from index.store import Snapshot
 from service.pipeline.answer import Result
 from service.pipeline.query import Decoded, Query
 
+#: a `Proposal`'s source when it is a part of a depth segment larger than any registered object (a guess at
+#: where one of several touching objects ends); "depth" for a whole segment, "colour" for the objectness's
+DEPTH_PART = "depth part"
+
 
 @dataclass(frozen=True)
 class Proposal:

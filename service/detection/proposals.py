@@ -18,9 +18,9 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from index.features.objectness import Colour
-from index.templates.windows import size_classes, window_classes
-from service.detection.depth_segments import depth_proposals
-from service.detection.found import Frame, Proposal
+from index.templates.windows import object_diameter, size_classes, window_classes
+from service.detection.depth_segments import depth_proposals, largest_visible
+from service.detection.found import DEPTH_PART, Frame, Proposal
 from service.errors import ApiError
 from service.pipeline.query import Decoded
 from service.settings import Settings
@@ -34,18 +34,21 @@ def propose(
     limit: int,
     depth_limit: int,
     sizes: Mapping[float, frozenset[int]] | None = None,
+    largest_mm: float | None = None,
 ) -> list[Proposal]:
     """At most `limit` colour proposals and `depth_limit` depth ones for the decoded frame, best first.
     `windows`: the window classes (mm) among the registered objects, and their objects
     (`index.templates.windows.window_classes`); `colour` None when the service has no objectness model.
     `sizes` (`index.templates.windows.size_classes`): a colour place is also proposed at the distance its
     extent gives each size class, for those objects: the network's window is of an object it knows, its
-    extent (the object's projected diameter) holds for one it never saw."""
+    extent (the object's projected diameter) holds for one it never saw. `largest_mm`: the largest visible
+    extent a registered object shows (`depth_segments.largest_visible`): a larger depth segment is also
+    proposed in parts."""
     out: list[Proposal] = []
     if d.depth is not None:
         out += [
-            Proposal(p.u, p.v, None, p.box, p.score, "depth")
-            for p in depth_proposals(d.depth, K, limit=depth_limit)
+            Proposal(p.u, p.v, None, p.box, p.score, DEPTH_PART if p.part else "depth")
+            for p in depth_proposals(d.depth, K, limit=depth_limit, largest_mm=largest_mm)
         ]
     if d.rgb is not None and d.modality != "depth":  # the depth model answers: its segments only
         if colour is None:
@@ -100,6 +103,10 @@ class Propose:
     def __call__(self, frame: Frame) -> Frame:
         windows = window_classes(frame.snapshot.objects, frame.d.embedder.info.window_mm)
         sizes = size_classes(frame.snapshot.objects) if self.by_extent else None
-        found = propose(frame.d, frame.K, self.colour, windows, self.limit, self.depth_limit, sizes)
+        largest = None
+        if frame.d.depth is not None:
+            diameters = (object_diameter(r.extra) for r in frame.snapshot.objects.values())
+            largest = largest_visible(d for d in diameters if d is not None)
+        found = propose(frame.d, frame.K, self.colour, windows, self.limit, self.depth_limit, sizes, largest)
         kept = tuple(p for p in found if p.source != "colour" or p.score >= frame.floor)
         return replace(frame, proposals=kept)

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 
-from service.detection.found import Detection, Frame, Proposal
+from service.detection.found import DEPTH_PART, Detection, Frame, Proposal
 from service.pipeline.answer import Result
 from service.settings import Settings
 
@@ -31,22 +31,30 @@ class Report:
 @dataclass(frozen=True)
 class Floors:
     """What a detection needs to be reported when no `min_confidence` is asked: `confidence`, from a colour
-    proposal; `depth_fit`, the share of its visible points its depth fit explains; `colour_distance`, at most
+    proposal; `depth_fit`, the share of its visible points its depth fit explains (`part_fit` from a part of a
+    depth segment: `service.detection.found.DEPTH_PART`); `colour_distance`, at most
     this far from its object's colours (`service.detection.agree`; None: no ceiling)."""
 
     confidence: float
     depth_fit: float = 0.0
     colour_distance: float | None = None
+    part_fit: float = 0.0
 
 
 def floors(settings: Settings, depth: bool) -> Floors:
     """A frame's `Floors`. A colour frame whose confidences are weighed by their colours
     (`Settings.detect_colour_weight`) has its own confidence floor, `Settings.detect_rgb_floor`; a frame
-    with depth has `Settings.detect_floor`, `Settings.detect_depth_fit_floor` and, its detections not
+    with depth has `Settings.detect_floor`, `Settings.detect_depth_fit_floor` (`detect_part_fit_floor` for a
+    part of a depth segment) and, its detections not
     weighed, a ceiling on their colour distance (`Settings.detect_colour_ceiling`)."""
     if depth:
         ceiling = settings.detect_colour_ceiling if settings.detect_colour_ceiling < 2 else None
-        return Floors(settings.detect_floor, settings.detect_depth_fit_floor, ceiling)
+        return Floors(
+            settings.detect_floor,
+            depth_fit=settings.detect_depth_fit_floor,
+            part_fit=max(settings.detect_depth_fit_floor, settings.detect_part_fit_floor),
+            colour_distance=ceiling,
+        )
     weighed = settings.detect_colour_weight > 0
     return Floors(settings.detect_rgb_floor if weighed else settings.detect_floor)
 
@@ -70,7 +78,7 @@ def reported(x: Detection, min_confidence: float | None, at: Floors) -> bool:
     if min_confidence is not None:
         return x.confidence >= min_confidence
     fit = x.result.fits[0] if x.result.fits else None
-    if fit is not None and fit.score < at.depth_fit:
+    if fit is not None and fit.score < (at.part_fit if x.proposal.source == DEPTH_PART else at.depth_fit):
         return False
     ceiling, distance = at.colour_distance, x.colour_distance
     if ceiling is not None and distance is not None and distance > ceiling:

@@ -130,7 +130,7 @@ class Verify:
         q, d = frame.q, frame.d
         w, h = d.size
         side = p.box[2] - p.box[0]  # the proposal's window (colour) or the segment's extent (depth), px
-        step = (self.depth_shift if p.source == "depth" else self.shift) * side
+        step = (self.shift if p.source == "colour" else self.depth_shift) * side
         log_d = None if p.distance_mm is None else float(np.log(p.distance_mm))
         if step <= 0 and (log_d is None or self.scale <= 1) and not seen:  # nothing to screen: its centre
             if not (0 <= p.u < w and 0 <= p.v < h):

@@ -12,7 +12,7 @@ import trimesh
 
 from index.data.bop import BopDataset
 from index.geometry.sensor import SensorModel, plane_depth, support_plane
-from service.detection.depth_segments import Proposal, depth_proposals
+from service.detection.depth_segments import VISIBLE_SHARE, Proposal, depth_proposals, largest_visible
 
 LMO_DEPTH = Path(__file__).resolve().parents[3].parent / "shared" / "data" / "lmo-depth"
 K = np.array([[572.4, 0.0, 325.3], [0.0, 573.6, 242.0], [0.0, 0.0, 1.0]])
@@ -139,3 +139,40 @@ def test_proposal_fields_are_plain_floats():
         type(c) is float for c in (p.u, p.v, p.distance_mm, p.score, *p.box)
     )
     assert 300 <= p.u <= 360 and 200 <= p.v <= 260 and p.box == (300.0, 200.0, 359.0, 259.0)
+
+
+def test_touching_objects_larger_than_any_registered_one_are_proposed_in_parts(renderer):
+    """Three boxes standing side by side, touching, their fronts flush: one segment at every step level.
+    Larger than any object looked for (`largest_mm`), it is also cut into parts, and each box is proposed;
+    without knowing the objects' size, it is not (it is under two typical objects)."""
+    tilt = np.deg2rad(40)
+    R = np.array([[1, 0, 0], [0, -np.sin(tilt), -np.cos(tilt)], [0, np.cos(tilt), -np.sin(tilt)]])
+    t = np.array([0.0, 0.0, 1000.0])
+    n, d = support_plane(R, t, 0.0)
+    table = plane_depth(K, n, d, (H, W))
+    extents = (100.0, 80.0, 120.0)
+    centres = [R @ np.array([x, 0.0, extents[2] / 2]) + t for x in (-100.0, 0.0, 100.0)]
+    row = trimesh.creation.box(extents=(300.0, 80.0, 120.0))  # the three as one solid: no seam at all
+    _, objects = renderer.render_frame([(row, R, centres[1])], K, W, H)
+    depth = np.where(objects > 0, objects, table).astype(np.float32)
+    _, depth = SensorModel().apply(None, depth, np.random.default_rng(3))
+    diameter = float(np.linalg.norm(extents))
+
+    corners = trimesh.creation.box(extents=extents).vertices
+    boxes = []
+    for c in centres:
+        px = np.array([_project(R @ v + c) for v in corners])
+        boxes.append((*px.min(axis=0), *px.max(axis=0)))
+
+    def found(props: list[Proposal]) -> list[bool]:
+        """Whether each box has a proposal of its own: centred on it, over its extent."""
+        return [
+            any(np.hypot(*(np.array([p.u, p.v]) - _project(c))) < 15 and _iou(p.box, b) >= 0.4 for p in props)
+            for c, b in zip(centres, boxes, strict=True)
+        ]
+
+    assert found(depth_proposals(depth, K)) == [False, False, False]  # the row alone, and fragments
+    largest = largest_visible([diameter, 0.8 * diameter])
+    assert largest == pytest.approx(VISIBLE_SHARE * diameter)
+    assert found(depth_proposals(depth, K, largest_mm=largest)) == [True, True, True]
+    assert largest_visible([]) is None

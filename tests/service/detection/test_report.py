@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from index.refine.fit import Fit
-from service.detection.found import Detection, Proposal
+from service.detection.found import DEPTH_PART, Detection, Proposal
 from service.detection.report import Floors, floors, reported
 from service.pipeline.answer import Result
 
@@ -56,7 +56,22 @@ def test_a_colour_frame_weighed_by_its_colours_has_its_own_floor():
         detect_floor=0.4, detect_rgb_floor=0.25, detect_depth_fit_floor=0.2, detect_colour_weight=8.0
     )
     assert floors(s, depth=False) == Floors(0.25, 0.0, None)
-    assert floors(s, depth=True) == Floors(0.4, 0.2, 0.25)  # with depth: a ceiling on the colours, the fit
+    # with depth: a ceiling on the colours, the fit, a higher one for a part of a segment
+    assert floors(s, depth=True) == Floors(0.4, 0.2, 0.25, 0.6)
     unweighed = s.model_copy(update={"detect_colour_weight": 0.0, "detect_colour_ceiling": 2.0})
     assert floors(unweighed, depth=False) == Floors(0.4, 0.0, None)
     assert floors(unweighed, depth=True).colour_distance is None
+
+
+def test_a_part_of_a_depth_segment_needs_more_of_it_borne_out():
+    """A part of a segment larger than any registered object is a guess at where one object ends: its fit
+    must explain `part_fit` of its points; a whole segment's, `depth_fit`."""
+    at = Floors(0.4, 0.2, None, 0.6)
+    assert reported(detection("depth", 0.9, 0.5), None, at)
+    assert not reported(detection(DEPTH_PART, 0.9, 0.5), None, at)
+    assert reported(detection(DEPTH_PART, 0.9, 0.7), None, at)
+    assert reported(detection(DEPTH_PART, 0.9, 0.5), 0.5, at)  # min_confidence replaces the floors
+    from service.settings import Settings
+
+    low = Settings(detect_depth_fit_floor=0.7, detect_part_fit_floor=0.6)
+    assert floors(low, depth=True).part_fit == 0.7  # never below a whole segment's
