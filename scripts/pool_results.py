@@ -128,7 +128,26 @@ def pool_detect(runs: list[dict]) -> dict:
             ),
         },
         "bop": pooled_bop(runs),
+        **({"false_alarms": pooled_false_alarms(runs)} if all("false_alarms" in r for r in runs) else {}),
         "not_pooled": "AP50, the median distance error and the frame times: each run's own, in its JSON",
+    }
+
+
+def pooled_false_alarms(runs: list[dict]) -> dict:
+    """The runs' false detections with none of their objects registered (`--false-alarms`): per frame,
+    weighted by the runs' frames; the frames with any summed; the most in a frame."""
+    blocks = [r["false_alarms"]["posedesc"] for r in runs]
+    frames = [r["false_alarms"]["frames"] for r in runs]
+    return {
+        "objects": runs[0]["false_alarms"]["objects"],
+        "frames": sum(frames),
+        "posedesc": {
+            "detections_per_frame": float(
+                np.average([b["detections_per_frame"] for b in blocks], weights=frames)
+            ),
+            "frames_with_any": sum(b["frames_with_any"] for b in blocks),
+            "most_in_a_frame": max(b["most_in_a_frame"] for b in blocks),
+        },
     }
 
 

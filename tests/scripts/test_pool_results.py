@@ -41,6 +41,11 @@ def test_the_pooled_ycbv_detections_are_made_again_from_the_counts(tmp_path, scr
     assert now["posedesc"]["all"]["recall"] == pytest.approx(tp / targets)
     assert now["posedesc"]["all"]["precision"] == pytest.approx(tp / found)  # not a mean of the precisions
     assert now["frames"] == 60 and "ap50" not in now["posedesc"]["all"]
+    # the false detections with none of the objects registered (--false-alarms): per frame over all frames
+    alarms = [json.loads(r.read_text())["false_alarms"] for r in runs]
+    assert now["false_alarms"] == committed["false_alarms"] and now["false_alarms"]["frames"] == 60
+    per_frame = sum(a["posedesc"]["detections_per_frame"] * a["frames"] for a in alarms) / 60
+    assert now["false_alarms"]["posedesc"]["detections_per_frame"] == pytest.approx(per_frame)
 
 
 @pytest.mark.parametrize(
