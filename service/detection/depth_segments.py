@@ -3,9 +3,10 @@
 The frame is back-projected to points (every stride-th pixel), the large planes the objects stand on
 (and the floor or walls behind them) are found by RANSAC and removed, and what is left is cut into
 segments where neighbouring pixels' depths jump, at three thresholds (objects that touch often meet at a
-small step only). Each segment of a plausible size becomes a proposal; the few largest standing on the
-support are also cut into object-sized parts by k-means. Everything is in mm, OpenCV camera axes (x
-right, y down, z forward); `depth` holds z, 0 where the sensor measured nothing.
+small step only). Each segment of a plausible size becomes a proposal; the few larger than any object
+looked for, standing on the support, are also cut into 2, 3 and 4 parts by k-means (a real sensor joins
+touching objects). Everything is in mm, OpenCV camera axes (x right, y down, z forward); `depth` holds z,
+0 where the sensor measured nothing.
 
 Measured by scripts/depth_proposals_eval.py (docs/results/depth_proposals.json; the script is in the history
 at 36ee81d): on the real Kinect frame
