@@ -26,7 +26,7 @@ from index.templates.render import Renderer
 
 #: What the JSON says VSD was measured against.
 VSD_NOTE = (
-    "BOP19's VSD: delta 15 mm, taus 0.05-0.5 d, thresholds 0.05-0.5) against each frame's recorded depth, "
+    "BOP19's VSD (delta 15 mm, taus 0.05-0.5 d, thresholds 0.05-0.5) against each frame's recorded depth, "
     "the full mesh rendered at the estimate and the truth; AR = mean of AR_VSD, AR_MSSD and AR_MSPD"
 )
 NO_VSD_NOTE = (
