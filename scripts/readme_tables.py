@@ -411,7 +411,7 @@ FIT_COLUMNS = (
     Column("3-D < 20°", "pct", "methods.ours.k1.20"),
     Column("ADD(-S) < 0.1 d", "pct", "bop.recall_add_s"),
     Column("5°, 5 cm", "pct", "bop.recall_5deg_5cm"),
-    Column("AR (MSSD, MSPD)", "pct", "bop.ar"),
+    Column("AR (MSSD, MSPD; VSD too on recorded depth)", "pct", "bop.ar"),
 )
 
 

@@ -78,7 +78,7 @@ MIN_PAIRS = 30  # fewer pairs than this: six parameters from too little, the fit
 #: Levenberg damping, relative to the normal matrix's mean diagonal: keeps turns the depth cannot see
 #: (about a symmetry axis, along a plane) at zero instead of wherever noise takes them
 DAMPING = 1e-3
-#: `beyond_of`: the ring around a pose's silhouette (a share of its larger side) and how near (mm) a reading
+#: `outline_of`: the ring around a pose's silhouette (a share of its larger side) and how near (mm) a reading
 #: there must be to the model's nearest seen depth to count as its surface going on
 BEYOND_RING = 0.15
 BEYOND_MM = 15.0
@@ -197,29 +197,37 @@ def score_of(
     return float(max(0.0, np.mean(agree) - np.mean(through)))
 
 
-def beyond_of(
-    model: DepthModel,
-    R: np.ndarray,
-    t: np.ndarray,
-    K: np.ndarray,
-    depth: np.ndarray,
-    ring: float = BEYOND_RING,
-    tol_mm: float = BEYOND_MM,
-) -> float:
-    """How far the measured surface goes on past the model at (R, t), in [0, 1]: of the pixels with a reading
-    in a ring around its silhouette (`ring` of its larger side wide), the share whose reading is within
-    `tol_mm` of the model's nearest seen depth there. An object's own outline is where its surface ends (the
-    table behind it, or a nearer occluder), so a right pose scores near 0; a smaller object posed on a face of
-    a larger one, whose points the depth explains as well (`score_of`), scores high: the larger one's surface
-    goes on around it."""
-    p, _, facing, _ = _seen(model, R, t, K, depth)
+@dataclass(frozen=True)
+class Outline:
+    """What the measured depth shows around and over a pose's silhouette (`outline_of`).
+
+    `beyond`: how far the measured surface goes on past the model, in [0, 1]: of the pixels with a reading in a
+    ring around its silhouette (`BEYOND_RING` of its larger side wide), the share whose reading is within
+    `BEYOND_MM` of the model's nearest seen depth there. An object's own outline is where its surface ends
+    (the table behind it, or a nearer occluder), so a right pose scores near 0; a smaller object posed on a
+    face of a larger one, whose points the depth explains as well (`score_of`), scores high: the larger
+    one's surface goes on around it.
+
+    `explained`: how much of the image the depth explains at the pose, in px: the silhouette's area times the
+    share of its seen points whose reading is within `SCORE_MM` of theirs. `score_of` is a share of the
+    object's own points, so a small object posed on part of a larger one scores as well as the larger one,
+    and a larger one partly hidden scores lower; the area the pose explains tells them apart (the larger
+    object explains more of the measured surface)."""
+
+    beyond: float
+    explained: float
+
+
+def outline_of(model: DepthModel, R: np.ndarray, t: np.ndarray, K: np.ndarray, depth: np.ndarray) -> Outline:
+    """The `Outline` of the model at (R, t) against `depth`; zeros when it shows fewer than MIN_PAIRS points."""
+    p, _, facing, d = _seen(model, R, t, K, depth)
     if facing.sum() < MIN_PAIRS:
-        return 0.0
+        return Outline(0.0, 0.0)
     q = p[facing]
     u = np.round(K[0, 0] * q[:, 0] / q[:, 2] + K[0, 2]).astype(int)
     v = np.round(K[1, 1] * q[:, 1] / q[:, 2] + K[1, 2]).astype(int)
     side = max(u.max() - u.min(), v.max() - v.min()) + 1
-    grow = max(2, int(round(ring * side)))
+    grow = max(2, int(round(BEYOND_RING * side)))
     h, w = depth.shape
     x0, y0 = max(u.min() - grow - 2, 0), max(v.min() - grow - 2, 0)
     x1, y1 = min(u.max() + grow + 3, w), min(v.max() + grow + 3, h)
@@ -229,15 +237,16 @@ def beyond_of(
     close = np.ones((2 * gap + 1,) * 2, np.uint8)
     silhouette = cv2.morphologyEx(np.isfinite(z).astype(np.uint8), cv2.MORPH_CLOSE, close)
     silhouette = cv2.dilate(silhouette, close)  # out to the outline: the outermost points fall short of it
+    agree = np.abs(d[facing] - q[:, 2]) < SCORE_MM
+    explained = float(silhouette.sum()) * float(np.mean(agree))
     around = (cv2.dilate(silhouette, np.ones((2 * grow + 1,) * 2, np.uint8)) > 0) & (silhouette == 0)
     nearest = cv2.erode(
         np.where(np.isfinite(z), z, 1e9).astype(np.float32), np.ones((2 * grow + 1,) * 2, np.uint8)
     )
-    d = depth[y0:y1, x0:x1].astype(np.float32)
-    ring_px = around & (d > 0) & (nearest < 1e9)
-    if not ring_px.any():
-        return 0.0
-    return float(np.mean(np.abs(d[ring_px] - nearest[ring_px]) < tol_mm))
+    ring = depth[y0:y1, x0:x1].astype(np.float32)
+    ring_px = around & (ring > 0) & (nearest < 1e9)
+    beyond = float(np.mean(np.abs(ring[ring_px] - nearest[ring_px]) < BEYOND_MM)) if ring_px.any() else 0.0
+    return Outline(beyond, explained)
 
 
 def slide_to_surface(

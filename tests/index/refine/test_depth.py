@@ -100,11 +100,12 @@ def test_a_depth_model_is_seeded_area_samples_with_outward_normals():
         DepthModel.of(trimesh.Trimesh(vertices=np.zeros((3, 3)), faces=[[0, 1, 2]]))
 
 
-def test_beyond_says_where_the_measured_surface_goes_on_past_a_pose():
+def test_the_outline_says_where_the_measured_surface_goes_on_and_how_much_of_it_a_pose_explains():
     """A 200 mm board's face at 600 mm before a wall at 900 mm: a 60 mm box posed on that face is explained
-    by the depth as well as the board (`score_of`), but the face goes on all around it; around the board
-    itself is the wall."""
-    from index.refine.depth import beyond_of, score_of
+    by the depth as well as the board (`score_of`), but the face goes on all around it (`beyond`); around
+    the board itself is the wall. The board explains eleven times the box's area (`explained`), and still
+    about half of it when a nearer plate hides its left half (its score then halves too)."""
+    from index.refine.depth import outline_of, score_of
 
     K = np.array([[600.0, 0, 320], [0, 600.0, 240], [0, 0, 1]])
     v, u = np.mgrid[0:480, 0:640]
@@ -114,5 +115,13 @@ def test_beyond_says_where_the_measured_surface_goes_on_past_a_pose():
     board = DepthModel.of(trimesh.creation.box((200.0, 200.0, 20.0)))
     t = np.array([0.0, 0.0, 610.0])  # the front faces at 600 mm
     assert score_of(small, np.eye(3), t, K, depth) > 0.9 and score_of(board, np.eye(3), t, K, depth) > 0.9
-    assert beyond_of(small, np.eye(3), t, K, depth) > 0.9
-    assert beyond_of(board, np.eye(3), t, K, depth) < 0.1
+    s, b = outline_of(small, np.eye(3), t, K, depth), outline_of(board, np.eye(3), t, K, depth)
+    assert s.beyond > 0.9 and b.beyond < 0.1
+    # the faces' areas in px at 600 mm with f = 600: 60 x 60 and 200 x 200, give or take the outline
+    assert s.explained == pytest.approx(3600, rel=0.2) and b.explained == pytest.approx(40000, rel=0.1)
+    hidden = np.where((x < 0) & (np.abs(y) < 150) & (x > -150), 400.0, depth).astype(np.float32)
+    half = outline_of(board, np.eye(3), t, K, hidden)
+    assert half.explained == pytest.approx(20000, rel=0.15) and half.explained > 4 * s.explained
+    assert score_of(board, np.eye(3), t, K, hidden) < 0.6
+    nothing = outline_of(board, np.eye(3), t * np.array([1.0, 1.0, -1.0]), K, depth)  # behind the camera
+    assert nothing.beyond == 0.0 and nothing.explained == 0.0

@@ -24,11 +24,12 @@ from service_helpers import (
 
 from index.geometry.pose import View, view_to_pose
 from index.geometry.pose_error import rotation_error
+from index.refine.depth import Outline
 from index.refine.fit import Fit
 from index.store.records import Match
 from service.main import create_app
 from service.pipeline.answer import Result
-from service.pipeline.fit import first, reranked
+from service.pipeline.fit import EXPLAINED_WEIGHT, first, reranked
 
 #: between level 1's viewpoints and off the in-plane grid
 VIEW, UV = View(52.0, 38.0, 11.0, 600.0), (350.0, 230.0)
@@ -167,10 +168,25 @@ def test_an_object_whose_measured_surface_goes_on_past_it_is_ordered_lower():
     r = result_of([0.9, 0.8, 0.7, 0.75], [0.5, 0.5, 0.5, 0.5], 4)
     r = replace(r, matches=[replace(m, object_id=o) for m, o in zip(r.matches, [0, 1, 0, 1], strict=True)])
     # object 0: every answer with its surface going on (0.6, 0.5); object 1: one answer with none (0.0)
-    out = reranked(r, 4, [0.6, 0.0, 0.5, 0.4])
+    out = reranked(r, 4, [Outline(b, 0.0) for b in (0.6, 0.0, 0.5, 0.4)])
     assert [m.object_id for m in out.matches] == [1, 1, 0, 0]
     assert [f.score for f in out.fits] == [0.8, 0.75, 0.9, 0.7]  # each object's poses in the fit's order
     assert [m.object_id for m in reranked(r, 4).matches] == [0, 1, 1, 0]  # without it: 1.4, 1.3, 1.25, 1.2
+
+
+def test_an_answer_that_explains_more_of_the_image_is_ordered_higher():
+    """The area a pose explains, as a share of the largest among the answers, weighs `EXPLAINED_WEIGHT`: a
+    larger object partly hidden (its fit explaining a smaller share of its own points) passes a small object
+    posed on its visible face, which its fit explains whole but which covers a fifth of the area."""
+    r = result_of([0.85, 0.65, 0.5], [0.3, 0.3, 0.3], 3)
+    r = replace(r, matches=[replace(m, object_id=o) for m, o in zip(r.matches, [0, 1, 2], strict=True)])
+    looks = [Outline(0.0, 2000.0), Outline(0.0, 10000.0), Outline(0.0, 1000.0)]
+    assert [m.object_id for m in reranked(r, 3).matches] == [0, 1, 2]  # 1.15, 0.95, 0.8
+    assert EXPLAINED_WEIGHT > 0.25  # 1.15 + 0.2 w, 0.95 + w, 0.8 + 0.1 w: the larger one first
+    assert [m.object_id for m in reranked(r, 3, looks).matches] == [1, 0, 2]
+    assert (
+        reranked(r, 3, [Outline(0.0, 0.0)] * 3).matches == reranked(r, 3).matches
+    )  # nothing explained: as before
 
 
 def test_colour_only_the_rotation_is_fitted_and_the_sent_centre_and_distance_kept(client, shot):
