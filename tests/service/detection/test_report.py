@@ -8,6 +8,7 @@ from index.refine.fit import Fit
 from service.detection.found import DEPTH_PART, Detection, Proposal
 from service.detection.report import Floors, floors, reported
 from service.pipeline.answer import Result
+from service.settings import Settings
 
 
 def detection(
@@ -50,8 +51,6 @@ def test_the_other_floors_still_apply_and_min_confidence_replaces_them_all():
 
 
 def test_a_colour_frame_weighed_by_its_colours_has_its_own_floor():
-    from service.settings import Settings
-
     s = Settings(
         detect_floor=0.4, detect_rgb_floor=0.25, detect_depth_fit_floor=0.2, detect_colour_weight=8.0
     )
@@ -71,7 +70,5 @@ def test_a_part_of_a_depth_segment_needs_more_of_it_borne_out():
     assert not reported(detection(DEPTH_PART, 0.9, 0.5), None, at)
     assert reported(detection(DEPTH_PART, 0.9, 0.7), None, at)
     assert reported(detection(DEPTH_PART, 0.9, 0.5), 0.5, at)  # min_confidence replaces the floors
-    from service.settings import Settings
-
     low = Settings(detect_depth_fit_floor=0.7, detect_part_fit_floor=0.6)
     assert floors(low, depth=True).part_fit == 0.7  # never below a whole segment's
