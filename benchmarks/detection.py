@@ -14,7 +14,7 @@ Colour rows: LM-O test frames of scene 2 (real 640x480 PNGs as stored, the camer
 `warmup` untimed detections (the first reads the meshes that boxes are drawn from). The RGB-D row: the
 real Kinect frame (`lmo-depth`, scene 2 frame 3: colour and 16-bit depth), at the smallest count, with
 the RGB-D model (depth and colour proposals). Each row gives the p50 / p90 of `timings_ms["total"]`, the
-median of every `timings_ms` key (decode, propose, verify, agree, merge, report, mask, total) and how many proposals were verified.
+median of every `timings_ms` key (decode, propose, verify, agree, stand, merge, report, mask, total) and how many proposals were verified.
 The query is what a user sends: default `max_detections` and floor (a colour proposal scored under the
 floor is dropped before it is verified: `service.detection.proposals.Propose`)."""
 

@@ -12,6 +12,8 @@ The stages, in order (`stages`), each a module of this package with one call on 
 - `agree` (`agree.Agree`): how far the frame's colours are from the object's at its pose, which tells a
   registered object from one nobody registered: a colour frame's confidences weighed by it, a frame with
   depth held to a ceiling on it (`report.floors`);
+- `stand` (`stand.Stand`): with depth, a detection whose pose puts its object through the table the frame's
+  objects stand on is dropped;
 - `merge` (`merge.Merge`): one instance found twice (boxes overlapping) reported once, the more confident;
 - `report` (`report.Report`): the confidence a detection needs (`report.confidence`, `report.reported`) and
   at most `max_detections`;
@@ -32,6 +34,7 @@ from service.detection.mask import Mask
 from service.detection.merge import Merge
 from service.detection.proposals import Propose
 from service.detection.report import Report, floors, reported
+from service.detection.stand import Stand
 from service.detection.verify import Verify
 from service.errors import ApiError
 from service.inputs.depth_units import check_scene_depth
@@ -68,6 +71,7 @@ def stages(state: AppState) -> tuple[Stage, ...]:
         Propose.build(s, state.colour_proposals),
         Verify.build(state),
         Agree.build(state),
+        Stand.build(state),
         Merge.build(s),
         Report.build(s),
         Mask.build(state),

@@ -8,6 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from index.store import Snapshot
+from service.detection.depth_segments import Support
 from service.pipeline.answer import Result
 from service.pipeline.query import Decoded, Query
 
@@ -55,7 +56,8 @@ class Detection:
 class Frame:
     """One frame on its way through the detection: the query, its decoded images, its intrinsics `K`, the
     store's snapshot every proposal is verified against, the confidence a detection needs (`floor`), and
-    what the stages so far made of it."""
+    what the stages so far made of it: the places to look, the plane the frame's objects stand on (`support`,
+    from its depth; None without) and the objects found."""
 
     q: Query
     d: Decoded
@@ -63,6 +65,7 @@ class Frame:
     snapshot: Snapshot
     floor: float
     proposals: tuple[Proposal, ...] = ()
+    support: Support | None = None
     detections: tuple[Detection, ...] = ()
 
 

@@ -19,7 +19,7 @@ import numpy as np
 
 from index.features.objectness import Colour
 from index.templates.windows import object_diameter, size_classes, window_classes
-from service.detection.depth_segments import depth_proposals, largest_visible
+from service.detection.depth_segments import DepthScene, depth_proposals, depth_scene, largest_visible
 from service.detection.found import DEPTH_PART, Frame, Proposal
 from service.errors import ApiError
 from service.pipeline.query import Decoded
@@ -35,6 +35,7 @@ def propose(
     depth_limit: int,
     sizes: Mapping[float, frozenset[int]] | None = None,
     largest_mm: float | None = None,
+    scene: DepthScene | None = None,
 ) -> list[Proposal]:
     """At most `limit` colour proposals and `depth_limit` depth ones for the decoded frame, best first.
     `windows`: the window classes (mm) among the registered objects, and their objects
@@ -43,12 +44,12 @@ def propose(
     extent gives each size class, for those objects: the network's window is of an object it knows, its
     extent (the object's projected diameter) holds for one it never saw. `largest_mm`: the largest visible
     extent a registered object shows (`depth_segments.largest_visible`): a larger depth segment is also
-    proposed in parts."""
+    proposed in parts. `scene`: the depth's `depth_segments.depth_scene`, when the caller has it."""
     out: list[Proposal] = []
     if d.depth is not None:
         out += [
             Proposal(p.u, p.v, None, p.box, p.score, DEPTH_PART if p.part else "depth")
-            for p in depth_proposals(d.depth, K, limit=depth_limit, largest_mm=largest_mm)
+            for p in depth_proposals(d.depth, K, limit=depth_limit, largest_mm=largest_mm, scene=scene)
         ]
     if d.rgb is not None and d.modality != "depth":  # the depth model answers: its segments only
         if colour is None:
@@ -87,7 +88,9 @@ class Propose:
     """The frame's proposals: at most `limit` colour places (`Settings.detect_proposals`) and `depth_limit`
     depth segments (`Settings.detect_depth_proposals`), best first. A colour detection's confidence is at
     most its proposal's score (`service.detection.report.confidence`): one under the frame's floor is
-    dropped here, as it could not be reported. `colour`: the objectness network (None: the service has none)."""
+    dropped here, as it could not be reported. `colour`: the objectness network (None: the service has none).
+    A frame with depth also gets its support (`depth_segments.Support`: the plane its objects stand on), which
+    `service.detection.stand` holds the detections' poses to."""
 
     colour: Colour | None
     limit: int
@@ -103,10 +106,13 @@ class Propose:
     def __call__(self, frame: Frame) -> Frame:
         windows = window_classes(frame.snapshot.objects, frame.d.embedder.info.window_mm)
         sizes = size_classes(frame.snapshot.objects) if self.by_extent else None
-        largest = None
+        largest, scene = None, None
         if frame.d.depth is not None:
+            scene = depth_scene(frame.d.depth, frame.K)
             diameters = (object_diameter(r.extra) for r in frame.snapshot.objects.values())
             largest = largest_visible(d for d in diameters if d is not None)
-        found = propose(frame.d, frame.K, self.colour, windows, self.limit, self.depth_limit, sizes, largest)
+        found = propose(
+            frame.d, frame.K, self.colour, windows, self.limit, self.depth_limit, sizes, largest, scene
+        )
         kept = tuple(p for p in found if p.source != "colour" or p.score >= frame.floor)
-        return replace(frame, proposals=kept)
+        return replace(frame, proposals=kept, support=None if scene is None else scene.support)

@@ -16,7 +16,7 @@ from index.data.bop import BopDataset
 from index.features.objectness import OBJECTNESS_FILE
 from service.settings import Settings
 
-STAGES = {"decode", "propose", "verify", "agree", "merge", "report", "mask", "total"}
+STAGES = {"decode", "propose", "verify", "agree", "stand", "merge", "report", "mask", "total"}
 
 
 @pytest.fixture(scope="module")

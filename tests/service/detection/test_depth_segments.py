@@ -12,7 +12,13 @@ import trimesh
 
 from index.data.bop import BopDataset
 from index.geometry.sensor import SensorModel, plane_depth, support_plane
-from service.detection.depth_segments import VISIBLE_SHARE, Proposal, depth_proposals, largest_visible
+from service.detection.depth_segments import (
+    VISIBLE_SHARE,
+    Proposal,
+    depth_proposals,
+    depth_scene,
+    largest_visible,
+)
 
 LMO_DEPTH = Path(__file__).resolve().parents[3].parent / "shared" / "data" / "lmo-depth"
 K = np.array([[572.4, 0.0, 325.3], [0.0, 573.6, 242.0], [0.0, 0.0, 1.0]])
@@ -176,3 +182,36 @@ def test_touching_objects_larger_than_any_registered_one_are_proposed_in_parts(r
     assert largest == pytest.approx(VISIBLE_SHARE * diameter)
     assert found(depth_proposals(depth, K, largest_mm=largest)) == [True, True, True]
     assert largest_visible([]) is None
+
+
+def test_a_pose_through_the_table_is_sunk(renderer):
+    """Two boxes on a table: at their poses none of their surface lies below it; the first box moved 60 mm
+    down through the table has a share of it there. Points the
+    frame cannot show, beyond its edge or behind the camera, never count."""
+    depth, centres = _boxes_on_table(renderer)
+    scene = depth_scene(depth, K)
+    support = scene.support
+    assert support is not None
+    # the table's normal (facing the camera) and the boxes' surfaces, sampled
+    tilt = np.deg2rad(40)
+    R = np.array([[1, 0, 0], [0, -np.sin(tilt), -np.cos(tilt)], [0, np.cos(tilt), -np.sin(tilt)]])
+    assert abs(abs(support.plane.normal @ R[:, 2]) - 1) < 0.02
+    surfaces = []
+    for extents, centre in zip(((100.0, 80.0, 120.0), (60.0, 60.0, 180.0)), centres, strict=True):
+        points = trimesh.creation.box(extents=extents).sample(2000, seed=0)
+        surfaces.append(points @ R.T + centre)
+        assert support.sunk(surfaces[-1]) <= 0.01
+    down = -R[:, 2]
+    sunk = support.sunk(surfaces[0] + 60.0 * down)
+    assert 0.1 < sunk < 0.6, sunk
+    assert support.sunk(surfaces[0] + 5.0 * down) <= 0.01  # the plane's own noise is no fault
+    assert support.sunk(surfaces[0] + 60.0 * down + np.array([5000.0, 0, 0])) == 0.0  # beyond the frame
+    assert support.sunk(-surfaces[0]) == 0.0  # behind the camera
+    assert support.sunk(np.zeros((0, 3))) == 0.0
+
+
+def test_a_frame_without_a_table_has_no_support(renderer, l_shape):
+    R = trimesh.transformations.rotation_matrix(np.deg2rad(35), [1, 0.3, 0])[:3, :3]
+    _, clean = renderer.render_frame([(l_shape, R, np.array([40.0, -20.0, 700.0]))], K, W, H)
+    assert depth_scene(clean, K).support is None
+    assert depth_scene(np.zeros((H, W), np.float32), K).support is None

@@ -134,3 +134,45 @@ def test_the_objectness_network_runs_at_the_levels_the_settings_give():
     assert windows["[0.25]"] and all(120 < w < 440 for w in windows["[0.25]"])
     assert Settings().objectness_levels == [1.0, 0.7071, 0.5, 0.3536, 0.25]
     assert min(windows["None"]) < 110 and max(windows["None"]) > 120
+
+
+def test_a_detection_through_the_table_is_dropped(client, renderer, l_shape):
+    """The support check (`service.detection.stand`) on the L standing on a table, seen from 900 mm at 40
+    degrees down: the L at its pose stands; the same answer moved 80 mm down through the table is dropped;
+    a frame with no table found keeps both."""
+    from dataclasses import replace
+
+    from index.geometry.sensor import plane_depth, support_plane
+    from index.refine.fit import Fit
+    from index.store import Match
+    from service.detection.depth_segments import depth_scene
+    from service.detection.found import Detection, Frame, Proposal
+    from service.detection.stand import Stand
+    from service.pipeline.answer import Result
+
+    tilt = np.deg2rad(40)
+    R = np.array([[1, 0, 0], [0, -np.sin(tilt), -np.cos(tilt)], [0, np.cos(tilt), -np.sin(tilt)]])
+    table_t = np.array([0.0, 0.0, 900.0])
+    t = R @ np.array([0.0, 0.0, -l_shape.bounds[0][2]]) + table_t  # its lowest face on the table
+    n, d = support_plane(R, table_t, 0.0)
+    _, obj = renderer.render_frame([(l_shape, R, t)], K, 640, 480)
+    depth = np.where(obj > 0, obj, plane_depth(K, n, d, (480, 640))).astype(np.float32)
+    support = depth_scene(depth, K).support
+    assert support is not None
+
+    def found(t_at: np.ndarray) -> Detection:
+        match = Match(client.ids["L"], "L", 0.0, 0.0, 0.0, 0.1)
+        fit = Fit(R, t_at, 0.9, 0.5, 5, True)
+        result = Result("posedesc-depth", [match], {}, t_at / np.linalg.norm(t_at), 900.0, fits=[fit])
+        return Detection(
+            0.0, 0.0, (0.0, 0.0, 10.0, 10.0), 0.9, result, Proposal(0, 0, None, (0, 0, 1, 1), 1, "depth")
+        )
+
+    standing, sunk = found(t), found(t - 80.0 * R[:, 2])
+    state = client.app.state.posedesc
+    frame = Frame(None, None, K, state.store.snapshot, 0.0, support=support, detections=(standing, sunk))
+    stand = Stand.build(state)
+    assert stand.share == state.settings.detect_sunk_share
+    assert stand(frame).detections == (standing,)
+    assert stand(replace(frame, support=None)).detections == (standing, sunk)
+    assert Stand(state, 1.0)(frame).detections == (standing, sunk)  # a share of 1: never dropped
