@@ -7,6 +7,7 @@ from __future__ import annotations
 import io
 import json
 import logging
+import threading
 import weakref
 from functools import partial
 from pathlib import Path
@@ -153,9 +154,17 @@ def _check_indices(mesh: trimesh.Trimesh) -> None:
         raise MeshError("the mesh's faces point at vertices that do not exist")
 
 
+#: one decimation at a time in the process: the library (fast_simplification, through trimesh) keeps the mesh
+#: it works on in process-wide memory, loaded, decimated and read back in separate calls, so that two threads
+#: decimating at once (a registration, the pose fit's warm-up, a detection's masks) took each other's
+#: meshes: the same frames gave colour detection recall 53-70 % by the threads' timing (docs/experiments.md)
+_DECIMATING = threading.Lock()
+
+
 def simplify(mesh: trimesh.Trimesh, max_faces: int) -> trimesh.Trimesh:
     """Quadric decimation to at most `max_faces`, colours carried over from the nearest old vertex."""
-    simple = mesh.simplify_quadric_decimation(face_count=max_faces)
+    with _DECIMATING:
+        simple = mesh.simplify_quadric_decimation(face_count=max_faces)
     visual = mesh.visual
     colors = None
     if isinstance(visual, trimesh.visual.TextureVisuals):

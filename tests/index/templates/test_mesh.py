@@ -107,3 +107,21 @@ def test_the_diameter_is_measured_again_when_the_mesh_changes(l_shape):
     assert diameter(mesh) == pytest.approx(2 * size)
     other = l_shape.copy()  # another mesh of the same shape: its own
     assert diameter(other) == size
+
+
+def test_meshes_simplified_at_once_in_threads_are_each_their_own():
+    """The service simplifies meshes on several threads at once (a registration, the pose fit's warm-up, a
+    detection's masks); the decimation library keeps the mesh it works on in process-wide memory, loaded,
+    decimated and read back in three calls: each thread must get its own mesh's result."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from index.templates.mesh import simplify
+
+    meshes = [trimesh.creation.icosphere(subdivisions=5, radius=50.0 + 10 * i) for i in range(4)]
+    meshes += [trimesh.creation.cylinder(radius=30.0, height=80.0 + i, sections=1000) for i in range(4)]
+    alone = [simplify(m, 1500) for m in meshes]
+    with ThreadPoolExecutor(4) as pool:
+        for _ in range(3):
+            together = list(pool.map(lambda m: simplify(m, 1500), meshes))
+            for a, b in zip(alone, together, strict=True):
+                assert np.array_equal(a.faces, b.faces) and np.allclose(a.vertices, b.vertices)
