@@ -6,7 +6,8 @@ segments where neighbouring pixels' depths jump, at three thresholds (objects th
 small step only). Each segment of a plausible size becomes a proposal; the few larger than any object
 looked for, standing on the support, are also cut into 2, 3 and 4 parts by k-means (a real sensor joins
 touching objects). Everything is in mm, OpenCV camera axes (x right, y down, z forward); `depth` holds z,
-0 where the sensor measured nothing.
+0 where the sensor measured nothing. The frame sampled and its planes found (`depth_scene`) also give the
+support (`Support`), against which a pose that stands through the table is told (`Support.sunk`).
 
 Measured by scripts/depth_proposals_eval.py (docs/results/depth_proposals.json; the script is in the history
 at 36ee81d): on the real Kinect frame
