@@ -315,9 +315,9 @@ class Settings(BaseSettings):
         "object",
     )  # fmt: skip
     # A pose through the table is no object there (`service.detection.stand`): the share of its surface that
-    # may lie deeper below the frame's support than 2.5 times the plane's tolerance (30 mm at 1 m). Any
-    # share from 0.01 to 0.05, at 1.5-3.5 times the tolerance, dropped 37-41 of YCB-V video 0000's 43 false
-    # detections and none of its 39 right ones (docs/experiments.md, "Poses through the table")
+    # may lie deeper below the frame's support than 2.5 times the plane's tolerance (30 mm at 1 m). At 0.01,
+    # every factor from 1.5 to 3.5 times the tolerance dropped 37-41 of YCB-V video 0000's 43 false
+    # detections and none of its 39 right ones; at 0.05, 24-28 (docs/experiments.md, "Poses through the table")
     detect_sunk_share: float = Field(
         0.01, ge=0, le=1, description="a frame without u and v, with depth: a detection whose pose puts more "
         "than this share of its object's surface through the table the frame's objects stand on is dropped "

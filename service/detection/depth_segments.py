@@ -200,22 +200,13 @@ class Support:
 @dataclass(frozen=True)
 class DepthScene:
     """A depth frame sampled every `frame.stride`-th pixel, back-projected, its large planes found:
-    `on_plane` ((h, w) bool) marks the sampled pixels on any of them, `support` the first (None: none
-    found), `readings` the sampled pixels with a measurement."""
+    `on_plane` ((h, w) bool) marks the sampled pixels on any of them, `support` the first and the pixels
+    on it (None: none found), `readings` the sampled pixels with a measurement."""
 
     frame: _Frame
     on_plane: np.ndarray
     readings: int
-
-    @property
-    def support(self) -> Support | None:
-        plane = self.frame.support
-        if plane is None:
-            return None
-        points = self.frame.points
-        near = np.abs(plane.height(points)) < _tolerance(points[:, 2])
-        seen = self.on_plane & near.reshape(self.on_plane.shape)
-        return Support(plane, seen, self.frame.stride, self.frame.K)
+    support: Support | None = None
 
 
 def depth_scene(depth: np.ndarray, K: np.ndarray) -> DepthScene:
@@ -236,9 +227,10 @@ def depth_scene(depth: np.ndarray, K: np.ndarray) -> DepthScene:
     if valid.sum() < MIN_SEGMENT_PX:
         empty = _Frame(points.reshape(-1, 3), z.shape, stride, K, None)
         return DepthScene(empty, np.zeros(z.shape, bool), int(valid.sum()))
-    planes, on_plane = _planes(points, z, valid, K, stride)
+    planes, on_plane, on_support = _planes(points, z, valid, K, stride)
     frame = _Frame(points.reshape(-1, 3), z.shape, stride, K, planes[0] if planes else None)
-    return DepthScene(frame, on_plane, int(valid.sum()))
+    support = Support(planes[0], on_support, stride, K) if planes else None
+    return DepthScene(frame, on_plane, int(valid.sum()), support)
 
 
 def largest_visible(diameters_mm: Iterable[float]) -> float | None:
@@ -264,10 +256,12 @@ def _tolerance(z: np.ndarray) -> np.ndarray:
 
 def _planes(
     points: np.ndarray, z: np.ndarray, valid: np.ndarray, K: np.ndarray, stride: int
-) -> tuple[list[_Plane], np.ndarray]:
-    """The large planes (largest first) and the mask of sampled pixels on any of them."""
+) -> tuple[list[_Plane], np.ndarray, np.ndarray]:
+    """The large planes (largest first), the mask of sampled pixels on any of them and the mask of those on
+    the first (the support; all False without a plane)."""
     rng = np.random.default_rng(0)  # the same frame gives the same proposals
     on = np.zeros(z.shape, bool)
+    first = on
     planes: list[_Plane] = []
     n_valid = int(valid.sum())
     tol = _tolerance(z)
@@ -293,7 +287,8 @@ def _planes(
             break
         planes.append(plane)
         on |= inliers
-    return planes, on
+        first = inliers if len(planes) == 1 else first
+    return planes, on, first
 
 
 def _large_pieces(mask: np.ndarray, pixel_area: np.ndarray) -> np.ndarray:

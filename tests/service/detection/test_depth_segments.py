@@ -186,8 +186,8 @@ def test_touching_objects_larger_than_any_registered_one_are_proposed_in_parts(r
 
 def test_a_pose_through_the_table_is_sunk(renderer):
     """Two boxes on a table: at their poses none of their surface lies below it; the first box moved 60 mm
-    down through the table has a share of it there. Points the
-    frame cannot show, beyond its edge or behind the camera, never count."""
+    down through the table has a share of it there. Points the frame cannot show, beyond its edge or behind
+    the camera, never count."""
     depth, centres = _boxes_on_table(renderer)
     scene = depth_scene(depth, K)
     support = scene.support
