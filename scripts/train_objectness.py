@@ -44,6 +44,12 @@ def _train(args: argparse.Namespace) -> int:
         background=args.background,
         scrambled=args.scrambled,
         holdout=tuple(int(x) for x in args.holdout.split(",") if x),
+        objects=args.objects,
+        shapes=args.shapes,
+        shape_views=args.shape_views,
+        real_objects=args.real_objects,
+        negative_paste=args.negative_paste,
+        paste=tuple(int(x) for x in args.paste.split(",")),  # type: ignore[arg-type]  # two ints
     )
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "command.txt").write_text(
@@ -147,6 +153,22 @@ def main(argv: list[str] | None = None) -> int:
     t.add_argument("--background", choices=("negative", "ignore"), default=names["background"])
     t.add_argument("--scrambled", type=float, default=names["scrambled"])
     t.add_argument("--holdout", default="", help="object ids treated as never seen, comma-separated")
+    t.add_argument(
+        "--objects",
+        choices=("shapes", "catalogue"),
+        default=names["objects"],
+        help="what is pasted: procedural shapes, or pybullet's random_urdfs then shapes",
+    )
+    t.add_argument("--shapes", type=int, default=names["shapes"], help="objects rendered for pasting")
+    t.add_argument("--shape-views", type=int, default=names["shape_views"], help="renders of each")
+    t.add_argument(
+        "--real-objects",
+        choices=("target", "held"),
+        default=names["real_objects"],
+        help="held: the frames' annotated objects are never learned (neither target nor background)",
+    )
+    t.add_argument("--negative-paste", type=float, default=names["negative_paste"])
+    t.add_argument("--paste", default=",".join(map(str, names["paste"])), help="pastes a crop: min,max")
     t.add_argument("--init", type=Path, help="a checkpoint (best.pt) whose head this run goes on training")
     e = sub.add_parser("export")
     e.add_argument("--run", type=Path, required=True)

@@ -48,6 +48,16 @@ class ApiError(Exception):
         self.status_code, self.detail = status_code, detail
 
 
+class NothingMeasured(ApiError):
+    """A 422 for a place in the frame where nothing can be measured: no depth around it, a depth patch all
+    zero, a distance no camera or window allows. Sent by the user it is bad input; at a place the service
+    chose itself (a detection's proposal) it means that nothing is there, and only this error does: any
+    other error while verifying a proposal is a failure, not an answer."""
+
+    def __init__(self, detail: str):
+        super().__init__(422, detail)
+
+
 def _where(loc: tuple) -> str:
     parts = [str(p) for p in loc if p not in ("body", "query", "path", "header")]
     return ".".join(parts) or "request"

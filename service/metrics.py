@@ -34,8 +34,17 @@ class Metrics:
             buckets=(0.1, 0.25, 0.5, 1, 2, 4, 8, 16, 32),
             registry=r,
         )
+        self.failures = Counter(
+            "posedesc_pipeline_failures",
+            "failures inside the recognition pipeline, by stage: each rejects the answer it concerns",
+            ["stage"],
+            registry=r,
+        )
         self.objects = Gauge("posedesc_objects", "registered objects", registry=r)
         self.templates = Gauge("posedesc_templates", "templates in a model's store", ["model"], registry=r)
+
+    def failed(self, stage: str) -> None:
+        self.failures.labels(stage).inc()
 
     def observe_registration(self, timings: dict[str, float]) -> None:
         for stage, seconds in timings.items():

@@ -21,7 +21,8 @@ class Fit:
     camera axes). `score`: how well the pose fits what was measured, in [0, 1] (the refinement's own
     measure, higher is better; comparable between poses of one object in one frame, not across methods);
     `start_score` the same at the starting pose; `iterations` run; `moved`: the refinement kept its result
-    (False: it found nothing better than the start, and `R`, `t` are the start's)."""
+    (False: it found nothing better than the start, and `R`, `t` are the start's); `failed`: the fit raised
+    (`failed_at`): nothing was measured, and what is judged by its fit is rejected, never let through."""
 
     R: np.ndarray
     t: np.ndarray
@@ -29,6 +30,12 @@ class Fit:
     start_score: float
     iterations: int
     moved: bool
+    failed: bool = False
+
+
+def failed_at(R: np.ndarray, t: np.ndarray) -> Fit:
+    """The `Fit` of a fit that raised: the start's pose, score 0, `failed`."""
+    return Fit(np.asarray(R, float), np.asarray(t, float), 0.0, 0.0, 0, False, failed=True)
 
 
 def apply_twist(R: np.ndarray, t: np.ndarray, twist: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

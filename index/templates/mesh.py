@@ -7,6 +7,7 @@ from __future__ import annotations
 import io
 import json
 import logging
+import re
 import threading
 import weakref
 from functools import partial
@@ -67,6 +68,8 @@ def load_mesh(
         raise MeshError(f"unsupported mesh format {file_type!r}; use {FORMATS_TEXT}")
     if file_type == "gltf":
         _self_contained(data)
+    if file_type == "ply":
+        _whole_ply(data)
     if max_input_faces is not None:
         _refuse(mesh_limits.declared(data, file_type), max_input_faces, "declares")
     try:
@@ -90,6 +93,30 @@ def load_mesh(
     if check_size and (problem := size_problem(diameter(mesh), units)):
         raise MeshError(problem)
     return mesh
+
+
+def _whole_ply(data: bytes) -> None:
+    """A PLY cut short, said so before trimesh trips on it (a `KeyError: 'y'` of a header cut between its
+    properties, a mesh "with no faces" of an ASCII body cut in half): the header must end (`end_header`),
+    and an ASCII body must hold a line for each vertex and face it declares. A binary body's length is
+    trimesh's own check ("PLY is unexpected length")."""
+    if not data.startswith(b"ply"):
+        return  # not a PLY at all: trimesh says what it is not
+    end = data.find(b"end_header")
+    if end < 0:
+        raise MeshError("the PLY is cut short: its header never ends (no end_header); send the whole file")
+    header = data[:end].decode("ascii", "replace")
+    if "format ascii" not in header:
+        return
+    counts = [(m.group(1), int(m.group(2))) for m in re.finditer(r"^element\s+(\S+)\s+(\d+)", header, re.M)]
+    declared = sum(n for _, n in counts)
+    lines = sum(1 for line in data[end:].splitlines()[1:] if line.strip())
+    if lines < declared:
+        what = ", ".join(f"{name} {n:,}" for name, n in counts)
+        raise MeshError(
+            f"the PLY is cut short: its header declares {what} ({declared:,} lines), its body holds "
+            f"{lines:,}; send the whole file"
+        )
 
 
 def _self_contained(data: bytes) -> None:

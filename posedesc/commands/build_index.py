@@ -48,6 +48,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--inplane-max", type=float, default=None,
                    help="in-plane range +-, degrees (>= 180: the whole turn; default as the service)")  # fmt: skip
     p.add_argument("--level", type=int, default=3, help="template viewpoints: icosphere level (3 = 301)")
+    p.add_argument("--name", action="append", default=[], metavar="FILE=NAME",
+                   help="the name a mesh file is registered under (its file name without the extension, or "
+                   "the whole file name), e.g. obj_000001=ape; repeat for each; default: the file's stem")  # fmt: skip
     p.add_argument("--max-faces", type=int, default=200_000, help="meshes above this are simplified")
 
 
@@ -60,12 +63,15 @@ def run(args: argparse.Namespace) -> int:
     from index.templates.register import TemplateConfig, register
     from index.templates.render import RenderWorker
     from index.templates.windows import DIAMETER_KEY, WINDOW_KEY
+    from service.pipeline.query import untextured
+    from service.routes.objects import SHAPE_ONLY
 
     if not args.meshes.is_dir():
         raise UserError(f"--meshes {args.meshes}: not a folder")
     files = sorted(f for f in args.meshes.iterdir() if f.suffix.lstrip(".").lower() in MESH_FORMATS)
     if not files:
         raise UserError(f"no meshes ({FORMATS_TEXT}) in {args.meshes}")
+    names = _names(args.name, files)
     embedders = load_models(args.models)
     try:
         store = open_store(args.store, args.data_dir, store_keys(embedders))
@@ -79,14 +85,15 @@ def run(args: argparse.Namespace) -> int:
     try:
         with ThreadPoolExecutor(2) as pool:
             for f in tqdm(files, desc="register", unit="mesh", disable=None):
-                if f.stem in present:
-                    tqdm.write(f"{f.name}: {f.stem} is already in the store, skipped")
+                name = names.get(f, f.stem)
+                if name in present:
+                    tqdm.write(f"{f.name}: {name} is already in the store, skipped")
                     continue
                 try:
                     mesh = load_mesh(f, units=args.units, max_faces=args.max_faces, check_size=True)
                     reg = register(
                         mesh,
-                        f.stem,
+                        name,
                         args.symmetry,
                         worker=worker,
                         embedders=embedders,
@@ -97,8 +104,10 @@ def run(args: argparse.Namespace) -> int:
                     added += 1
                     extra = reg.record.extra
                     tqdm.write(
-                        f"{f.name}: {f.stem}, diameter_mm {extra[DIAMETER_KEY]}, window_mm {extra[WINDOW_KEY]}"
+                        f"{f.name}: {name}, diameter_mm {extra[DIAMETER_KEY]}, window_mm {extra[WINDOW_KEY]}"
                     )
+                    if untextured(reg.record):  # as POST /objects warns
+                        tqdm.write(f"{f.name}: warning: {SHAPE_ONLY}")
                 except MeshError as e:
                     failed.append(f"{f.name}: {e}")
     finally:
@@ -111,3 +120,24 @@ def run(args: argparse.Namespace) -> int:
         f"({len(present)} already there, {len(failed)} unusable); models {', '.join(sorted(embedders))}"
     )
     return 1 if failed else 0  # the usable ones are in; the status says not all were
+
+
+def _names(given: list[str], files: list[Path]) -> dict[Path, str]:
+    """The `--name FILE=NAME` pairs, by file; refuses (one line) a pair that names no mesh of the folder,
+    a file named twice, or two files given one name."""
+    by_key = {k: f for f in files for k in (f.name, f.stem)}
+    out: dict[Path, str] = {}
+    for pair in given:
+        key, sep, name = pair.partition("=")
+        if not sep or not key or not name.strip():
+            raise UserError(f"--name {pair!r}: write FILE=NAME, e.g. obj_000001=ape")
+        if key not in by_key:
+            raise UserError(f"--name {pair!r}: no mesh {key!r} in the folder")
+        f = by_key[key]
+        if f in out:
+            raise UserError(f"--name: {f.name} is named twice")
+        out[f] = name.strip()
+    taken = list(out.values())
+    if len(set(taken)) < len(taken):
+        raise UserError("--name: two meshes given one name")
+    return out

@@ -44,7 +44,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="colour images (PNG or JPEG; a 16-bit PNG is depth), or folders of them (BOP: rgb/ and depth/)",
     )
     p.add_argument("--data-dir", type=Path, required=True, help="the service's data dir (registered objects)")
-    p.add_argument("--models", type=Path, default=Path("models"), help="models folder (default: models)")
+    p.add_argument("--models", type=Path, default=Path("models"), help="models folder")
     p.add_argument("--out", type=Path, default=Path("out/recognize"), help="folder for the answers")
     p.add_argument(
         "--depth", type=Path, help="the depth of the one frame given (16-bit PNG, or float .npy/TIFF)"
@@ -78,6 +78,8 @@ def run(args: argparse.Namespace) -> int:
     try:
         for f in tqdm(frames, desc="frames", unit="frame", disable=len(frames) == 1 or None):
             name = (f.rgb or f.depth).stem  # type: ignore[union-attr]
+            if len(frames) == 1:  # no bar for one frame: a line, so that the wait is never silent
+                say(f"answering {f.rgb or f.depth} ...")
             fx, fy, cx, cy = f.camera if f.camera else (None, None, None, None)
             q = Query(
                 f.rgb.read_bytes() if f.rgb else None,
@@ -210,8 +212,16 @@ def _state(args: argparse.Namespace):
     settings = Settings(data_dir=args.data_dir, models_dir=args.models, demo_objects=False)
     if not args.models.is_dir():
         raise UserError(f"no such models folder: {args.models}")
+    say(f"loading the models of {args.models} and the objects of {args.data_dir} ...")
     state = load_state(settings, load_models(args.models, settings.threads))
-    if not state.store.snapshot.objects:
+    objects = state.store.snapshot.objects
+    if not objects:
         raise UserError(f"{args.data_dir} holds no registered object: register some (POST /objects)")
+    say(f"{len(objects)} objects registered: {', '.join(sorted(o.name for o in objects.values()))[:200]}")
     state.ready.set()
     return state
+
+
+def say(line: str) -> None:
+    """A progress line on stderr (stdout holds the result)."""
+    print(line, file=sys.stderr, flush=True)

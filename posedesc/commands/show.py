@@ -35,7 +35,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("answers", type=Path, nargs="+", help="/recognize answers as JSON files, one per query")
     p.add_argument("--data-dir", type=Path, required=True, help="the service's data dir (its meshes)")
-    p.add_argument("--out", type=Path, help="the PNG to write (default: FRAME's name + -answers.png)")
+    p.add_argument(
+        "--out",
+        type=Path,
+        help="the PNG to write (default: FRAME's name + -answers.png in the current folder, never FRAME's)",
+    )
     camera_arguments(p, " (a patch: none)")
     p.add_argument("--draw-k", type=int, default=1, help="answers of each JSON to draw, best first")
     p.add_argument("--window-mm", type=float, default=200.0, help="a patch's window (the shipped models')")
@@ -64,7 +68,8 @@ def run(args: argparse.Namespace) -> int:
         image, K = patch_view(image, PatchSpec(size=w, window_mm=args.window_mm), distance)
     meshes = StoredMeshes(args.data_dir)
     drawn = [(meshes.get(oid, a.name), a) for oid, a in answers]
-    out = args.out or args.frame.with_name(f"{args.frame.stem}-answers.png")
+    # in the current folder: the input's may be a checkout or a dataset, which a picture must not dirty
+    out = args.out or Path(f"{args.frame.stem}-answers.png")
     write_png(out, draw_answers(image, drawn, K))
     print(out)
     return 0

@@ -75,9 +75,11 @@ def reported(x: Detection, min_confidence: float | None, at: Floors) -> bool:
     then, from a colour proposal, its confidence at least `at.confidence`, from depth, accepted by the
     model's open-set verdict (the verdict alone accepted nearly every colour proposal: ten a frame where no
     registered object was)."""
+    fit = x.result.fits[0] if x.result.fits else None
+    if fit is not None and fit.failed:  # an error is never an answer, whatever is asked
+        return False
     if min_confidence is not None:
         return x.confidence >= min_confidence
-    fit = x.result.fits[0] if x.result.fits else None
     if fit is not None and fit.score < (at.part_fit if x.proposal.source == DEPTH_PART else at.depth_fit):
         return False
     ceiling, distance = at.colour_distance, x.colour_distance

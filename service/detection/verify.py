@@ -10,6 +10,7 @@ the validation frames: `Settings.detect_shift`). A verified answer's box is its 
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -18,9 +19,11 @@ from index.draw import project
 from index.store import Snapshot
 from service.detection.found import Detection, Frame, Proposal
 from service.detection.report import confidence
-from service.errors import ApiError
+from service.errors import ApiError, NothingMeasured
 from service.pipeline.query import Query
 from service.state import AppState
+
+log = logging.getLogger("service")
 
 
 @dataclass(frozen=True)
@@ -78,7 +81,11 @@ class Verify:
             return None
         try:
             result = self.state.pipelines[d.modality](at, d, seen)
-        except ApiError:  # nothing measurable there (an empty depth patch): not an object
+        except NothingMeasured:  # nothing measurable there (an empty depth patch): not an object
+            return None
+        except ApiError:  # any other refusal of a query the service made itself is a failure: counted
+            log.exception("verifying the proposal at (%.1f, %.1f) failed; it is not reported", p.u, p.v)
+            self.state.metrics.failed("verify")
             return None
         if not result.matches:
             return None
@@ -112,7 +119,11 @@ class Verify:
                 r = self.state.screens[d.modality](
                     replace(q, u=u, v=v, distance_mm=distance, k=1), d, snapshot
                 )
-            except ApiError:  # no depth there
+            except NothingMeasured:  # no depth there
+                seen[key] = (-1.0, 0.0)
+            except ApiError:  # a failure, not a place without an object: counted, and nothing there
+                log.exception("screening (%.1f, %.1f) failed", u, v)
+                self.state.metrics.failed("screen")
                 seen[key] = (-1.0, 0.0)
             else:
                 seen[key] = (

@@ -25,7 +25,7 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
-from service.errors import ApiError
+from service.errors import ApiError, NothingMeasured
 
 #: Beyond this no depth camera of the kind the service is for measures (a Kinect: ~0.5 to 4.5 m).
 FARTHEST_MM = 10_000.0
@@ -124,7 +124,7 @@ def _check(distance_mm: float, depth_scale: float, problem: Callable[[float], st
         return
     k = next((k for k in DECADES if problem(distance_mm * 10.0**k) is None), None)
     what = f"the depth at the centre says {distance_mm:.0f} mm (at depth_scale={depth_scale:g}), {why}"
-    raise ApiError(422, _message(what, depth_scale, k))
+    raise NothingMeasured(_message(what, depth_scale, k))
 
 
 def suggested_scale(depth_scale: float, k: int) -> float:

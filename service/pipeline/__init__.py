@@ -39,7 +39,7 @@ readers know: `patch` = cut + mask, `rerank` = local + sweep + refine (when the 
 from __future__ import annotations
 
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import replace
 
 from index.features.embed import Embedder
@@ -76,9 +76,15 @@ class Pipeline:
 
     @classmethod
     def build(
-        cls, settings: Settings, embedder: Embedder, templates: TemplateConfig, shapes: Shapes | None = None
+        cls,
+        settings: Settings,
+        embedder: Embedder,
+        templates: TemplateConfig,
+        shapes: Shapes | None = None,
+        on_failure: Callable[[str], None] | None = None,
     ) -> Pipeline:
-        """The model's stages at these settings; `shapes`: the objects' fit models (None: no pose fit)."""
+        """The model's stages at these settings; `shapes`: the objects' fit models (None: no pose fit);
+        `on_failure`: told the stage's name when a stage fails inside (the pose fit)."""
         made = (stage.build(settings, embedder, templates) for stage in STAGES)
         fit = (
             None
@@ -89,6 +95,7 @@ class Pipeline:
                 settings.depth_rerank,
                 settings.detect_depth_rerank,
                 settings.depth_refine,
+                on_failure,
             )
         )
         return cls(tuple(s for s in made if s is not None), settings, judged(settings, embedder), fit)

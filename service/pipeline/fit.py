@@ -22,7 +22,7 @@ import numpy as np
 from index.draw import DrawMesh, MeshCache
 from index.refine.colour import ColourModel, fit_colour
 from index.refine.depth import DepthModel, Outline, fit_depth, outline_of
-from index.refine.fit import Fit
+from index.refine.fit import Fit, failed_at
 from service.pipeline.answer import Result
 from service.pipeline.context import Context, Decoded, Query
 
@@ -103,6 +103,8 @@ class PoseFit:
     detect_rerank: int = 0
     #: of the re-ordered answers, this many best (after the coarse look) fitted fully (`Settings.depth_refine`)
     refine: int = 3
+    #: called with the stage's name when a fit raises (the service's `Metrics.failed`: counted in /metrics)
+    on_failure: Callable[[str], None] | None = None
 
     def reordered(self, q: Query) -> int:
         return self.detect_rerank if q.estimated else self.rerank
@@ -126,7 +128,8 @@ class PoseFit:
         for i, m in enumerate(result.matches[:count]):
             fit = self.tried(q, d, K, m.object_id, *result.pose(i))
             before = result.fits[i] if i < len(result.fits) else None
-            if fit is None or (before is not None and before.moved and not fit.moved):
+            failed = fit is not None and fit.failed
+            if not failed and (fit is None or (before is not None and before.moved and not fit.moved)):
                 fit = before  # the coarse look's pose stands when the full fit fails or finds nothing better
             fits.append(fit)
         fitted = replace(result, fits=fits + list(result.fits[count:]))
@@ -165,12 +168,16 @@ class PoseFit:
         t0: np.ndarray,
         coarse: bool = False,
     ) -> Fit | None:
-        """`fit`, None when it fails: a fit only improves an answer, one that fails leaves it where it was."""
+        """`fit`; when it raises, logged, counted (`on_failure`) and answered `failed_at` the start: the
+        answer keeps its template's pose, and whatever is judged by its fit (a detection's depth-fit floor,
+        the re-ordering) takes it as explaining nothing. An error is never evidence for an answer."""
         try:
             return self.fit(q, d, K, object_id, R0, t0, coarse)
         except Exception:
             log.exception("the pose fit of object %d failed; its answer keeps its template's pose", object_id)
-            return None
+            if self.on_failure is not None:
+                self.on_failure("fit")
+            return failed_at(R0, t0)
 
     def fit(
         self,

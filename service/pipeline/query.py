@@ -17,7 +17,7 @@ from index.features.embed import Embedder
 from index.features.patches import PatchSpec, crops, patch_camera
 from index.store import ObjectRecord, TemplateStore
 from index.templates.register import TEXTURED_KEY, TemplateConfig
-from service.errors import ApiError
+from service.errors import ApiError, NothingMeasured
 from service.inputs.camera import undistorted
 from service.inputs.depth_units import check_frame_distance, check_given_distance, check_patch_distance
 from service.inputs.images import read_depth, read_rgb
@@ -198,8 +198,8 @@ def cut(
         if depths is not None and depth is not None:
             depths[unturned] = depth
     if depths is not None and not (depths[0] > 0).any():
-        raise ApiError(
-            422, f"the depth patch is all zero: no depth was measured around the object{UNITS_HINT}"
+        raise NothingMeasured(
+            f"the depth patch is all zero: no depth was measured around the object{UNITS_HINT}"
         )
     if depths is not None and q.distance_mm is not None:  # a measured distance agrees by construction
         s = spec.size
@@ -243,7 +243,7 @@ def _depth_at(depth: np.ndarray, K: np.ndarray, u: float, v: float, r: int = 7) 
     win = depth[max(0, iv - r) : iv + r + 1, max(0, iu - r) : iu + r + 1]
     valid = win[win > 0]
     if valid.size == 0:
-        raise ApiError(422, f"no depth around the centre ({u:g}, {v:g}){UNITS_HINT}; or send distance_mm")
+        raise NothingMeasured(f"no depth around the centre ({u:g}, {v:g}){UNITS_HINT}; or send distance_mm")
     ray = np.linalg.inv(K) @ np.array([u, v, 1.0])
     return float(np.median(valid) * np.linalg.norm(ray))
 
@@ -276,8 +276,7 @@ def _scale(q: Query) -> float:
 
 def _measured(distance: float) -> float:
     if not MIN_DISTANCE_MM <= distance <= MAX_DISTANCE_MM:
-        raise ApiError(
-            422,
+        raise NothingMeasured(
             f"the depth at the centre says {distance:.3g} mm, outside {MIN_DISTANCE_MM:g} to "
             f"{MAX_DISTANCE_MM:g} mm: is depth_scale right?",
         )

@@ -64,3 +64,23 @@ def test_a_symmetry_that_is_not_one_is_refused_in_one_line(tmp_path, capsys):
     assert code == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert "unknown symmetry 'box'; use one of none, 180, full, flip, 180+flip, full+flip" in err[-1]
+
+
+def test_build_index_names_meshes_and_warns_of_a_shape_only_one(tmp_path, posedesc_models, l_shape, capsys):
+    import trimesh
+
+    meshes = tmp_path / "meshes"
+    meshes.mkdir()
+    bare = trimesh.Trimesh(l_shape.vertices, l_shape.faces)  # no colours: shape only
+    bare.export(meshes / "obj_000001.ply")
+    data = tmp_path / "data"
+    base = ["build-index", "--meshes", str(meshes), "--data-dir", str(data), "--models", str(posedesc_models)]
+    assert main([*base, "--name", "obj_000002=ape"]) == 2  # names a mesh the folder does not hold
+    assert "no mesh 'obj_000002'" in capsys.readouterr().err
+    assert main([*base, "--name", "obj_000001"]) == 2
+    assert "write FILE=NAME" in capsys.readouterr().err
+    assert main([*base, "--level", "1", "--name", "obj_000001.ply=ape"]) == 0
+    out = capsys.readouterr().out
+    assert "obj_000001.ply: ape," in out and "warning: the mesh has no colours" in out
+    (rec,) = Store(data, store_keys(load_models(posedesc_models))).snapshot.objects.values()
+    assert rec.name == "ape"

@@ -21,9 +21,9 @@ K = np.array([[572.4, 0.0, 325.3], [0.0, 573.6, 242.0], [0.0, 0.0, 1.0]])
 VIEWS = ((View(40.0, 30.0, 0.0, 600.0), (220.0, 250.0)), (View(130.0, 50.0, 30.0, 700.0), (450.0, 200.0)))
 
 
-def posedesc(*args: str) -> subprocess.CompletedProcess:
+def posedesc(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess:
     exe = Path(sys.executable).parent / "posedesc"
-    return subprocess.run([str(exe), *args], capture_output=True, text=True, timeout=300)
+    return subprocess.run([str(exe), *args], capture_output=True, text=True, timeout=300, cwd=cwd)
 
 
 def intrinsics() -> list[str]:
@@ -95,13 +95,16 @@ def test_show_draws_every_answer_on_the_frame(answered, tmp_path):
     assert r.returncode == 0 and (one != cv2.imread(str(out))).any()
 
 
-def test_show_draws_a_patch_upscaled(answered, tmp_path):
+def test_show_draws_a_patch_upscaled_into_the_current_folder_never_the_inputs(answered, tmp_path):
     frame, answers, data, rgb = answered
-    patch = tmp_path / "patch.png"
+    (tmp_path / "inputs").mkdir()
+    (tmp_path / "here").mkdir()
+    patch = tmp_path / "inputs" / "patch.png"
     cv2.imwrite(str(patch), np.full((64, 64, 3), 90, np.uint8))
-    r = posedesc("show", str(patch), str(answers[0]), "--data-dir", str(data))
+    r = posedesc("show", str(patch), str(answers[0]), "--data-dir", str(data), cwd=tmp_path / "here")
     assert r.returncode == 0, r.stderr
-    drawn = cv2.imread(str(tmp_path / "patch-answers.png"))
+    assert sorted(p.name for p in (tmp_path / "inputs").iterdir()) == ["patch.png"]  # left as it was
+    drawn = cv2.imread(str(tmp_path / "here" / "patch-answers.png"))
     assert drawn.shape == (PATCH_DRAW_PX, PATCH_DRAW_PX, 3) and (drawn != 90).any()
 
 

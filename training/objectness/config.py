@@ -58,3 +58,12 @@ class ObjectnessConfig:
     )
     #: objects treated as never seen: their annotations removed and their pixels neither target nor background
     holdout: tuple[int, ...] = ()
+    #: what is pasted: "shapes" (`cfg.shapes` procedural shapes) or "catalogue" (pybullet's 1,000
+    #: `random_urdfs`, then procedural shapes up to `cfg.shapes` objects: `training/objectness/catalogue.py`)
+    objects: str = "shapes"
+    #: the frames' annotated objects: "target" (learned as objects) or "held" (every one neither target nor
+    #: background, as `holdout` for all: the network never learns the dataset's objects)
+    real_objects: str = "target"
+    #: share of pastes that are background: a render's silhouette filled with another part of the crop
+    #: (a pasted outline alone is not an object)
+    negative_paste: float = 0.0

@@ -73,17 +73,29 @@ def load_frames(root: Path, split: str, scene: int = 2) -> list[Frame]:
 
 
 def shape_renders(cfg: ObjectnessConfig, cache_dir: Path) -> dict[str, np.ndarray]:
-    """Procedural shapes rendered at random poses and lights, cached: rgb (N, S, S, 3) uint8, mask
-    (N, S, S) bool, extent (N,) px of the diameter at the render's scale (the window is RENDER_WINDOW)."""
-    path = cache_dir / f"shapes-{cfg.shapes}x{cfg.shape_views}-{cfg.seed}-{RENDER_SIZE}.npz"
+    """The objects to paste (`cfg.objects`: procedural shapes, or the catalogue of
+    `training/objectness/catalogue.py`) rendered at random poses and lights, cached: rgb (N, S, S, 3) uint8,
+    mask (N, S, S) bool, extent (N,) px of the diameter at the render's scale (the window is RENDER_WINDOW)."""
+    kind = "shapes" if cfg.objects == "shapes" else "catalogue"
+    path = cache_dir / f"{kind}-{cfg.shapes}x{cfg.shape_views}-{cfg.seed}-{RENDER_SIZE}.npz"
     if path.is_file():
         with np.load(path) as z:
             return {k: z[k] for k in z.files}
     rng = np.random.default_rng(cfg.seed + 1)
+    paths: list[Path] = []
+    if kind == "catalogue":
+        from training.objectness.catalogue import catalogue  # noqa: PLC0415  # pybullet: catalogue runs only
+
+        paths = catalogue()
     renderer = Renderer(size=RENDER_SIZE, window_mm=RENDER_WINDOW_MM, max_faces=20000)
     rgb, mask, extent = [], [], []
-    for _ in tqdm(range(cfg.shapes), desc="render shapes", unit="shape"):
-        mesh = random_shape(rng)
+    for i in tqdm(range(cfg.shapes), desc=f"render {kind}", unit="object"):
+        if kind == "catalogue":
+            from training.objectness.catalogue import catalogue_object  # noqa: PLC0415
+
+            mesh = catalogue_object(paths, i, rng)
+        else:
+            mesh = random_shape(rng)
         diam = diameter(mesh)
         views = [
             View(
@@ -96,6 +108,8 @@ def shape_renders(cfg: ObjectnessConfig, cache_dir: Path) -> dict[str, np.ndarra
         ]
         for v in views:  # one light each: render() lights a whole call alike
             t = renderer.render(mesh, [v], lighting=_random_lighting(rng))
+            if not (t.depth[0] > 0).any():
+                continue  # nothing in the window (cannot happen at 1 m for 300 mm, but never paste nothing)
             rgb.append(t.rgb[0])
             mask.append(t.depth[0] > 0)
             extent.append(RENDER_SIZE * diam / RENDER_WINDOW_MM)
@@ -126,19 +140,29 @@ def _paste(
     cu: float,
     cv: float,
     rng: np.random.Generator,
+    negative: bool = False,
 ) -> tuple[np.ndarray, float]:
     """Pastes a random shape render with its origin at (cu, cv) and its window `window` px; returns the
-    pasted-on image and the mask of the shape in it. Shape: img (C, C, 3) uint8."""
+    mask of the shape in the image and its extent. `negative`: the silhouette filled with another part of
+    the image instead (an outline with no object's shading: background). Shape: img (C, C, 3) uint8."""
     k = int(rng.integers(len(shapes["rgb"])))
     f = window / RENDER_WINDOW
     side = max(3, int(round(RENDER_SIZE * f)))
     f = side / RENDER_SIZE
-    rgb = cv2.resize(colour_jitter(shapes["rgb"][k], rng, 1.0), (side, side), interpolation=cv2.INTER_AREA)
+    c = img.shape[0]
+    if negative:
+        sx, sy = (int(rng.integers(0, max(1, c - side + 1))) for _ in range(2))
+        rgb: np.ndarray = np.zeros((side, side, 3), np.uint8)
+        part = img[sy : sy + side, sx : sx + side]
+        rgb[: part.shape[0], : part.shape[1]] = part
+    else:
+        rgb = cv2.resize(
+            colour_jitter(shapes["rgb"][k], rng, 1.0), (side, side), interpolation=cv2.INTER_AREA
+        )
     m = cv2.resize(shapes["mask"][k].astype(np.uint8), (side, side), interpolation=cv2.INTER_NEAREST) > 0
     # the render's origin is its centre pixel ((S - 1) / 2); place it at (cu, cv)
     x0 = int(round(cu - (side - 1) / 2))
     y0 = int(round(cv - (side - 1) / 2))
-    c = img.shape[0]
     ax0, ay0, ax1, ay1 = max(0, x0), max(0, y0), min(c, x0 + side), min(c, y0 + side)
     full = np.zeros(img.shape[:2], bool)
     if ax1 <= ax0 or ay1 <= ay0:
@@ -157,7 +181,7 @@ def make_sample(
     """One random training crop: a real train frame scaled and cropped, shapes pasted, colours jittered."""
     fr = frames[int(rng.integers(len(frames)))]
     objs = fr.objects
-    held = np.isin(fr.ids, cfg.holdout)
+    held = np.isin(fr.ids, cfg.holdout) | (cfg.real_objects == "held")
     scrambled = rng.random() < cfg.scrambled
     seen = np.nonzero((objs[:, 4] >= cfg.min_visib) & ~held)[0]
     c = cfg.crop
@@ -201,17 +225,24 @@ def make_sample(
     if scrambled:  # no object survives its tiles being shuffled: every real cell is background
         img = _shuffled_tiles(img, rng)
         rows = []
-    for _ in range(int(rng.integers(cfg.paste[0], cfg.paste[1] + 1))):
+    decoys = np.zeros((c, c), bool)  # negative pastes: background wherever they are
+    n_paste = int(rng.integers(cfg.paste[0], cfg.paste[1] + 1))
+    # decoys first: what fills them is then never a pasted object
+    for negative in sorted((rng.random() < cfg.negative_paste for _ in range(n_paste)), reverse=True):
         win = math.exp(rng.uniform(*np.log(cfg.paste_px)))
         pu, pv = rng.uniform(-0.1, 1.1) * c, rng.uniform(-0.1, 1.1) * c
-        m, ext = _paste(img, shapes, win, pu, pv, rng)
+        m, ext = _paste(img, shapes, win, pu, pv, rng, negative)
         for r in rows:  # an object whose origin the shape now covers counts as hidden
             iu, iv = int(round(r[0])), int(round(r[1]))
             if 0 <= iu < c and 0 <= iv < c and m[iv, iu]:
                 r[4] = 0.0
-        rows.append([pu, pv, win, ext, 1.0, PASTED])
+        if negative:
+            decoys |= m
+        else:
+            decoys &= ~m
+            rows.append([pu, pv, win, ext, 1.0, PASTED])
     if rng.random() < 0.5:  # a mirrored object is still an object
-        img, real = img[:, ::-1], real[:, ::-1]
+        img, real, decoys = img[:, ::-1], real[:, ::-1], decoys[:, ::-1]
         for r in rows:
             r[0] = c - 1 - r[0]
     img = colour_jitter(np.ascontiguousarray(img), rng, 1.0)
@@ -223,6 +254,11 @@ def make_sample(
         unknown = (
             cv2.resize(real.astype(np.float32), (c // STRIDE, c // STRIDE), interpolation=cv2.INTER_AREA) > 0
         )
+        if decoys.any():  # a decoy's cells are known background
+            cells = cv2.resize(
+                decoys.astype(np.float32), (c // STRIDE, c // STRIDE), interpolation=cv2.INTER_AREA
+            )
+            unknown &= ~(cells > 0.5)
     return Sample(img, *_targets(np.array(rows, np.float64).reshape(-1, 6), cfg, unknown))
 
 

@@ -66,7 +66,10 @@ def validate(net: ObjectnessNet, frames: list[Frame], cfg: ObjectnessConfig, lim
     net.eval()
     run = torch_runner(net)
     # the checkpoint is chosen on the objects it may know: a held-out object's recall is measured after
-    seen = {int(i) for f in frames for i in f.ids} - set(cfg.holdout)
+    # (with every real object held, all are new: the network is chosen on objects it never saw)
+    seen = {int(i) for f in frames for i in f.ids}
+    if cfg.real_objects != "held":
+        seen -= set(cfg.holdout)
     pairs = [
         (propose_with(run, f.rgb, cfg.levels, STRIDE, cfg.reference_px, limit), f.truths(only=seen))
         for f in frames

@@ -125,3 +125,21 @@ def test_meshes_simplified_at_once_in_threads_are_each_their_own():
             together = list(pool.map(lambda m: simplify(m, 1500), meshes))
             for a, b in zip(alone, together, strict=True):
                 assert np.array_equal(a.faces, b.faces) and np.allclose(a.vertices, b.vertices)
+
+
+@pytest.mark.parametrize("encoding", ["ascii", "binary_little_endian"])
+def test_a_ply_cut_short_is_said_to_be_cut_short(tmp_path, l_shape, encoding):
+    """Wherever a PLY is cut (in its header, between two properties, in its body), the refusal says that
+    it is cut short, never what the parser tripped on (`KeyError: 'y'`) nor "no faces"."""
+    whole = trimesh.exchange.ply.export_ply(l_shape, encoding="ascii" if encoding == "ascii" else "binary")
+    end = whole.index(b"end_header")
+    cuts = [40, whole.index(b"property float y") + 5, end - 3, end + 11, end + 40, len(whole) // 2]
+    for cut in cuts:
+        (tmp_path / "cut.ply").write_bytes(whole[:cut])
+        with pytest.raises(MeshError) as e:
+            load_mesh(tmp_path / "cut.ply")
+        said = str(e.value)
+        assert "cut short" in said or "unexpected length" in said, (cut, said)
+        assert "KeyError" not in said and "IndexError" not in said
+    (tmp_path / "whole.ply").write_bytes(whole)
+    assert len(load_mesh(tmp_path / "whole.ply").faces) == len(l_shape.faces)

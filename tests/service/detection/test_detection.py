@@ -87,6 +87,32 @@ def test_a_depth_frame_is_searched_whole(client, l_frame):
     assert x0 - 1 <= cols.min() and cols.max() <= x1 + 1 and y0 - 1 <= rows.min() and rows.max() <= y1 + 1
 
 
+def failures(client, stage: str) -> float:
+    for line in client.get("/metrics").text.splitlines():
+        if line.startswith(f'posedesc_pipeline_failures_total{{stage="{stage}"}}'):
+            return float(line.split()[-1])
+    return 0.0
+
+
+def test_a_verification_that_fails_is_counted_and_reports_nothing(client, l_frame, monkeypatch):
+    """A refusal of a query the service made itself is a failure, not "nothing there": logged, counted in
+    /metrics, and the proposal it concerns is not reported (it never widens what is)."""
+    import service.pipeline as pipeline
+    from service.errors import ApiError
+
+    def broken(self, *args, **kwargs):
+        raise ApiError(422, "a fault injected into the verification")
+
+    before = failures(client, "screen") + failures(client, "verify")
+    monkeypatch.setattr(pipeline.Pipeline, "__call__", broken)
+    data = {**CAMERA, "min_confidence": "0"}
+    r = client.post("/recognize", files={"depth": ("d.png", depth_png(l_frame[1]))}, data=data)
+    assert r.status_code == 200, r.text
+    assert r.json()["detections"] == []
+    # (a depth segment is screened first: the screening's failure is the first counted)
+    assert failures(client, "screen") + failures(client, "verify") > before
+
+
 def test_a_frame_with_a_centre_has_no_detections(client, l_frame):
     data = {**CAMERA, "u": str(UV[0]), "v": str(UV[1])}
     r = client.post("/recognize", files={"depth": ("d.png", depth_png(l_frame[1]))}, data=data)

@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
-from index.refine.fit import Fit
+from index.refine.fit import Fit, failed_at
 from service.detection.found import DEPTH_PART, Detection, Proposal
 from service.detection.report import Floors, floors, reported
 from service.pipeline.answer import Result
@@ -41,6 +43,17 @@ def test_a_pose_the_depth_does_not_bear_out_is_not_reported():
         detection("depth", 0.9, None), None, Floors(0.4, 0.2)
     )  # not fitted: nothing to bear it out
     assert reported(detection("depth", 0.9, 0.1), None, Floors(0.4, 0.0))  # no depth in the frame: no floor
+
+
+def test_a_detection_whose_fit_failed_is_never_reported():
+    """A fit that raised (`index.refine.fit.failed_at`) is not "no fit": it rejects its detection, whatever
+    the floors or `min_confidence`, so that an error never widens what is reported."""
+    x = detection("depth", 0.9, None)
+    failed = replace(x, result=replace(x.result, fits=[failed_at(np.eye(3), np.zeros(3))]))
+    assert reported(x, None, Floors(0.4, 0.2))  # not fitted at all: passes
+    for at in (Floors(0.4, 0.2), Floors(0.4, 0.0), Floors(0.0)):
+        assert not reported(failed, None, at)
+    assert not reported(failed, 0.0, Floors(0.4, 0.2))
 
 
 def test_the_other_floors_still_apply_and_min_confidence_replaces_them_all():

@@ -206,7 +206,15 @@ def test_a_fit_that_fails_leaves_the_answer_at_its_template(client, shot, monkey
     def broken(*args, **kwargs):
         raise FloatingPointError("a degenerate outline")
 
+    def failures() -> float:
+        for line in client.get("/metrics").text.splitlines():
+            if line.startswith('posedesc_pipeline_failures_total{stage="fit"}'):
+                return float(line.split()[-1])
+        return 0.0
+
+    before = failures()
     monkeypatch.setattr(fit, "fit_colour", broken)  # a fault injected where a mesh could make one
     m = best(client, {"rgb": ("f.png", png(shot["rgb"]))}, distance_mm="600")
     assert m["name"] == "ell" and m["refined"] is False
     assert (m["azimuth"], m["elevation"], m["inplane"]) == tuple(m["template"].values())
+    assert failures() == before + 1  # logged and counted: /metrics says the pipeline failed inside
