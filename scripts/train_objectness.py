@@ -49,6 +49,9 @@ def _train(args: argparse.Namespace) -> int:
         shape_views=args.shape_views,
         real_objects=args.real_objects,
         negative_paste=args.negative_paste,
+        photo_share=args.photo_share,
+        harmonise=args.harmonise,
+        select_by=args.select_by,
         paste=tuple(int(x) for x in args.paste.split(",")),  # type: ignore[arg-type]  # two ints
     )
     args.out.mkdir(parents=True, exist_ok=True)
@@ -168,6 +171,9 @@ def main(argv: list[str] | None = None) -> int:
         help="held: the frames' annotated objects are never learned (neither target nor background)",
     )
     t.add_argument("--negative-paste", type=float, default=names["negative_paste"])
+    t.add_argument("--photo-share", type=float, default=names["photo_share"])
+    t.add_argument("--harmonise", type=float, default=names["harmonise"])
+    t.add_argument("--select-by", choices=("window", "extent"), default=names["select_by"])
     t.add_argument("--paste", default=",".join(map(str, names["paste"])), help="pastes a crop: min,max")
     t.add_argument("--init", type=Path, help="a checkpoint (best.pt) whose head this run goes on training")
     e = sub.add_parser("export")

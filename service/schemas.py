@@ -49,7 +49,9 @@ class MatchOut(BaseModel):
         "(-180, 180]: the template's in-plane angle plus the query turn it was found on"
     )
     distance: float = Field(
-        description="L2 distance, smaller is closer: between descriptors, or with re-ranking (RERANK) between the local features the answers were ordered by"
+        description="L2 distance, smaller is closer: between descriptors, or with re-ranking (RERANK) between "
+        "the local features. The order of `matches` is by the final score: with depth and a centre the "
+        "nearest answers are fitted and re-ordered by the depth they explain, so it need not grow down the list"
     )
     confidence: float | None = Field(
         None,
@@ -148,7 +150,8 @@ class RecognizeOut(BaseModel):
     )
 
     matches: list[MatchOut] = Field(
-        description="the k nearest distinct (object, viewpoint) answers, nearest first: the in-plane "
+        description="the k best distinct (object, viewpoint) answers, best first (nearest first, but with "
+        "depth and a centre, re-ordered by the depth each explains at its fitted pose): the in-plane "
         "variants of a viewpoint count once, at their nearest"
     )
     best: MatchOut | None = Field(

@@ -223,5 +223,7 @@ def _state(args: argparse.Namespace):
 
 
 def say(line: str) -> None:
-    """A progress line on stderr (stdout holds the result)."""
-    print(line, file=sys.stderr, flush=True)
+    """A progress line on stderr (stdout holds the result) when it is a terminal, as tqdm's bars: a
+    script reading stderr gets the one-line error alone."""
+    if sys.stderr.isatty():
+        print(line, file=sys.stderr, flush=True)

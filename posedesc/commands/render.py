@@ -7,11 +7,13 @@ as POST /objects refuses it.
 `--patches DIR` writes what a user can send to `POST /recognize` as it is, from a few views of the mesh
 (`QUERY_VIEWS`) before a plain wall, in a Kinect-like camera (LineMOD's intrinsics, 640 x 480), for each
 view NN: `query-NN-rgb.png` and `query-NN-depth.png` (16-bit, mm), the whole frame; `query-NN-patch-rgb.png`
-and `query-NN-patch-depth.png`, the patch the service cuts from that frame (`index.features.patches.crops`, the
-model's window at the object's distance); and `query-NN.json`: `form`, the frame's form fields (fx, fy,
-cx, cy, u, v, distance_mm), `pose`, the truth (azimuth, elevation, inplane, and BOP's R, t in the frame's
-camera), `files`, and `patch` (its size, window and the distance it was cut at; its pose is the same view
-on the patch camera's optical axis).
+and `query-NN-patch-depth.png`, the patch the service cuts from that frame (`index.features.patches.crops`)
+through the window the service registers the mesh with (`index.templates.windows.window_class` of its
+diameter: 200 mm for objects of 100-280 mm, sqrt(2) steps beyond), the views' distances scaled with it; and
+`query-NN.json`: `form`, the frame's form fields (fx, fy, cx, cy, u, v, distance_mm), `pose`, the truth
+(azimuth, elevation, inplane, and BOP's R, t in the frame's camera), `files`, and `patch` (its size, window
+and the distance it was cut at, and `form`: the fields to send with the patch, its `window_mm` among them;
+its pose is the same view on the patch camera's optical axis).
 """
 
 from __future__ import annotations
@@ -45,6 +47,9 @@ QUERY_VIEWS = (
 )
 #: a plain wall behind the object (mm from the camera; a dark grey), so the depth has a background
 WALL_MM, WALL_RGB = 1500.0, (60, 60, 60)
+#: the shipped models' window: the views' distances and the wall are for an object of its class, and
+#: scaled with the object's window for others
+MODEL_WINDOW_MM = 200.0
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -59,7 +64,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--level", type=int, default=3, help="icosphere subdivisions: 3 = 301 views, 4 = 1241")
     p.add_argument("--distance-mm", type=float, default=400.0, help="camera distance, mm (LineMOD's)")
     p.add_argument("--units", choices=UNITS, default="mm", help="units of the mesh file")
-    p.add_argument("--window-mm", type=float, default=200.0, help="side of the metric patch window")
+    p.add_argument(
+        "--window-mm",
+        type=float,
+        help="side of the metric window, mm (default: the templates' 200; the query patches' the one the "
+        "service registers the mesh with)",
+    )
     p.add_argument("--inplane-step", type=float, default=0.0, help="in-plane step, degrees (0: none)")
     p.add_argument("--inplane-max", type=float, default=45.0, help="in-plane range +-, degrees")
     p.add_argument("--noisy", action="store_true", help="pass the templates through the sensor model")
@@ -74,21 +84,32 @@ def run(args: argparse.Namespace) -> int:
         raise UserError("say where to write: --out DIR (templates), --patches DIR (query files), or both")
     if not 0 <= args.level <= 5:
         raise UserError("--level must be between 0 and 5")
-    if args.distance_mm <= 0 or args.window_mm <= 0:
+    if args.distance_mm <= 0 or (args.window_mm is not None and args.window_mm <= 0):
         raise UserError("--distance-mm and --window-mm must be positive")
     try:  # the check of POST /objects: a mesh whose units make it too small or large to show is refused
         mesh = load_mesh(args.mesh, units=args.units, check_size=True)
     except MeshError as e:
         raise UserError(f"{args.mesh}: {e}") from None
-    renderer = Renderer(window_mm=args.window_mm)
-    try:
-        if args.patches is not None:
-            write_queries(renderer, mesh, args.patches, args.mesh.name)
-            print(f"{len(QUERY_VIEWS)} queries of {args.mesh.name} -> {args.patches}")
-        if args.out is not None:
+    if args.patches is not None:
+        from index.templates.mesh import diameter
+        from index.templates.windows import window_class
+
+        window = args.window_mm or window_class(diameter(mesh), MODEL_WINDOW_MM)
+        queries = Renderer(window_mm=window)
+        try:
+            write_queries(queries, mesh, args.patches, args.mesh.name)
+        finally:
+            queries.close()
+        print(
+            f"{len(QUERY_VIEWS)} queries of {args.mesh.name} -> {args.patches} (patches: window_mm {window:g})"
+        )
+    if args.out is not None:
+        args.window_mm = args.window_mm or MODEL_WINDOW_MM
+        renderer = Renderer(window_mm=args.window_mm)
+        try:
             write_templates(renderer, mesh, args)
-    finally:
-        renderer.close()
+        finally:
+            renderer.close()
     return 0
 
 
@@ -131,7 +152,8 @@ def write_templates(renderer: Renderer, mesh: trimesh.Trimesh, args: argparse.Na
 
 
 def write_queries(renderer: Renderer, mesh: trimesh.Trimesh, out: Path, mesh_name: str) -> None:
-    """The query files of `QUERY_VIEWS` (module docstring), the patch cut with the renderer's window."""
+    """The query files of `QUERY_VIEWS` (module docstring), the patch cut with the renderer's window, the
+    views' distances and the wall's scaled with it."""
     import cv2
     import trimesh
 
@@ -145,18 +167,19 @@ def write_queries(renderer: Renderer, mesh: trimesh.Trimesh, out: Path, mesh_nam
     wall.visual = trimesh.visual.ColorVisuals(
         wall, vertex_colors=np.tile([*WALL_RGB, 255], (len(wall.vertices), 1))
     )
+    scale = spec.window_mm / MODEL_WINDOW_MM
+    views = [(az, el, roll, round(dist * scale, 1), u, v) for az, el, roll, dist, u, v in QUERY_VIEWS]
+    wall_mm = WALL_MM * scale
     frames = []
-    for az, el, roll, dist, u, v in QUERY_VIEWS:
+    for az, el, roll, dist, u, v in views:
         R, t = view_to_pose(View(az, el, roll, dist), ray=np.linalg.inv(K) @ np.array([u, v, 1.0]))
-        scene = [(mesh, R, t), (wall, np.eye(3), np.array([0.0, 0.0, WALL_MM + 5.0]))]  # its face at WALL_MM
+        scene = [(mesh, R, t), (wall, np.eye(3), np.array([0.0, 0.0, wall_mm + 5.0]))]  # its face at wall_mm
         rgb, depth = renderer.render_frame(scene, K, *FRAME_SIZE)
-        if not (depth[depth > 0] < WALL_MM - 1.0).any():
+        if not (depth[depth > 0] < wall_mm - 1.0).any():
             raise UserError(f"{mesh_name}: {INVISIBLE}")
         frames.append((rgb, depth, R, t))
     out.mkdir(parents=True, exist_ok=True)
-    for i, ((az, el, roll, dist, u, v), (rgb, depth, R, t)) in enumerate(
-        zip(QUERY_VIEWS, frames, strict=True)
-    ):
+    for i, ((az, el, roll, dist, u, v), (rgb, depth, R, t)) in enumerate(zip(views, frames, strict=True)):
         stem = f"query-{i:02d}"
         patch_rgb, patch_depth = crops(rgb, depth, K, (u, v), dist, spec, (0.0,))
         assert patch_rgb is not None and patch_depth is not None  # both were given
@@ -189,7 +212,12 @@ def write_queries(renderer: Renderer, mesh: trimesh.Trimesh, out: Path, mesh_nam
             "R": [round(float(x), 6) for x in R.ravel()],
             "t": [round(float(x), 3) for x in t],
         }
-        patch = {"size": spec.size, "window_mm": spec.window_mm, "distance_mm": dist}
+        patch = {
+            "size": spec.size,
+            "window_mm": spec.window_mm,
+            "distance_mm": dist,
+            "form": {"window_mm": spec.window_mm, "distance_mm": dist},  # what to send with the patch
+        }
         body = {"mesh": mesh_name, "form": form, "pose": pose, "files": files, "patch": patch}
         (out / f"{stem}.json").write_text(json.dumps(body, indent=1))
 

@@ -149,11 +149,27 @@ class Pipeline:
 def classes(q: Query, d: Decoded, snapshot: Snapshot) -> list[tuple[float | None, frozenset[int] | None]]:
     """The windows a query is cut through (None: the model's) and the objects each searches (None: all):
     one per window class of the snapshot's objects for a query with a centre, the model's window first;
-    one window for all when there is one class (or none), or for a patch, which spans the model's window."""
+    one window for all when there is one class (or none). A patch spans one window (`Query.window_mm`, the
+    model's by default) and is compared with the objects registered through it alone: a patch of another
+    window against their templates is another object's view, named with a confidence it has not earned.
+    Refused (422) when no registered object has the patch's window."""
     model = d.embedder.info.window_mm
-    if not any(getattr(q, f) is not None for f in FRAME_FIELDS):
-        return [(None, None)]
     by = window_classes(snapshot.objects, model)
+    if not any(getattr(q, f) is not None for f in FRAME_FIELDS):
+        want = model if q.window_mm is None else q.window_mm
+        if not by or list(by) == [want]:
+            return [(None if want == model else want, None)]
+        ids = next((ids for w, ids in by.items() if abs(w - want) <= 0.01), None)
+        if ids is None:
+            held = ", ".join(f"{w:g}" for w in sorted(by))
+            raise ApiError(
+                422,
+                f"the patch spans a {want:g} mm window (window_mm), which no registered object has: "
+                f"registered objects' windows are {held} mm (each object's window_mm in GET /objects); cut "
+                "the patch through its object's window and send that window_mm, or send the whole frame "
+                "with its camera and the object's centre",
+            )
+        return [(None if want == model else want, ids)]
     if len(by) <= 1:
         window = next(iter(by), model)
         return [(None if window == model else window, None)]

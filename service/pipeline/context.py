@@ -43,6 +43,9 @@ class Query:
     #: OpenCV's distortion coefficients of the frame (`service.inputs.camera`): its images are undistorted
     #: first, and u, v are already the undistorted frame's
     dist: tuple[float, ...] | None = None
+    #: a patch: the metric side of the window it spans, mm (None: the model's); only the objects registered
+    #: with that window are searched (`service.pipeline.classes`)
+    window_mm: float | None = None
 
     @property
     def camera(self) -> np.ndarray | None:

@@ -155,7 +155,9 @@ class Cut:
         c, d = self.config, ctx.decoded
         spec = c.spec if ctx.window_mm is None else replace(c.spec, window_mm=ctx.window_mm)
         q = replace(ctx.query, depth_scale=d.depth_scale)  # the unit checks name the scale read with
-        p = cut(q, d.rgb, d.depth, spec, c.offsets, patch_distance_mm=c.patch_distance_mm)
+        # a patch of another window stands as far as its templates were rendered: scaled with the window
+        far = c.patch_distance_mm * spec.window_mm / c.spec.window_mm
+        p = cut(q, d.rgb, d.depth, spec, c.offsets, patch_distance_mm=far)
         return replace(ctx, patches=p, described=p)
 
 

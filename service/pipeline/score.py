@@ -102,7 +102,10 @@ class QueryCuts:
         spec = replace(d.embedder.info.spec, window_mm=window)
         # undoes each roll: the object upright
         q = replace(q, depth_scale=d.depth_scale)
-        p = cut(q, d.rgb, d.depth, spec, rolls, patch_distance_mm=self._patch_mm)
+        far = (
+            self._patch_mm * window / d.embedder.info.window_mm
+        )  # as `Cut`: a patch's, scaled with its window
+        p = cut(q, d.rgb, d.depth, spec, rolls, patch_distance_mm=far)
         keep = None
         if mask is not None:
             keep = np.stack([turn_masks(mask[1][None], r - mask[0], spec)[0] for r in rolls])

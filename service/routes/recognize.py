@@ -136,6 +136,18 @@ async def recognize_form(
             examples=["572.4 0 325.3 0 573.6 242.0 0 0 1"],
         ),
     ] = None,
+    window_mm: Annotated[
+        float | None,
+        Form(
+            gt=0,
+            le=10_000,
+            allow_inf_nan=False,
+            description="a patch: the side of the metric window it spans at the object's distance, mm "
+            "(default: the model's, 200). Each object is registered with a window that follows its size "
+            "(`window_mm` in GET /objects); a patch is compared with the objects of its window only, and "
+            "refused when none has it",
+        ),
+    ] = None,
     dist_coeffs: Annotated[
         str | None,
         Form(
@@ -152,6 +164,12 @@ async def recognize_form(
         if any(x is not None for x in (fx, fy, cx, cy)):
             raise ApiError(422, "send the camera once: cam_K, or fx, fy, cx and cy")
         fx, fy, cx, cy = intrinsics(cam_K)
+    if window_mm is not None and any(x is not None for x in (fx, fy, cx, cy)):
+        raise ApiError(
+            422,
+            "window_mm is a patch's: a frame sent with its camera is cut through each registered object's "
+            "window by the service; leave window_mm out",
+        )
     dist = None if dist_coeffs is None else coefficients(dist_coeffs)
     if dist is not None and None not in (fx, fy, cx, cy) and u is not None and v is not None:
         K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
@@ -171,6 +189,7 @@ async def recognize_form(
         max_detections,
         min_confidence,
         dist=dist,
+        window_mm=window_mm,
     )
     return RecognizeForm(rgb, depth, fields)
 
@@ -181,17 +200,20 @@ RecognizeFormDep = Annotated[RecognizeForm, Depends(recognize_form)]
 @router.post(
     "/recognize",
     response_model=RecognizeOut,
-    summary="The k nearest distinct poses of a patch, or of the object at (u, v) in a full frame",
+    summary="Which registered objects an image shows and how each sits: a patch, the object at (u, v) of a "
+    "frame, or every object of a whole frame",
     description=(
         "Send `rgb` (PNG/JPEG) and/or `depth` (16-bit PNG, mm x `depth_scale`): the modality picks the "
-        "model. Either a square patch already centred on the object and spanning the model's metric "
-        "window, or a full frame with intrinsics `fx`, `fy`, `cx`, `cy` and the object's centre `u`, `v` "
-        "(pixels, where the object's origin projects). `distance_mm` is the distance from the camera "
+        "model. Either a square patch already centred on the object and spanning a metric window (the "
+        "model's, or `window_mm`: the objects of that window are searched), or a full frame with intrinsics "
+        "`fx`, `fy`, `cx`, `cy` and the object's centre `u`, `v` (pixels, where the object's origin "
+        "projects), or a whole frame with its intrinsics and no centre: every registered object found in it "
+        "(`detections`). `distance_mm` is the distance from the camera "
         "centre to the object's origin along the ray through (u, v) (‖t‖ of a BOP pose); a colour-only "
         "frame needs it. With depth and no `distance_mm`, the service measures the surface at (u, v) and "
         "cuts the patch there; each answer then puts the origin behind that surface by its template's "
         "offset (how far the origin of that object lies behind the surface seen from that viewpoint). The answer holds `k` distinct (object, viewpoint) "
-        "matches, nearest first, each with its azimuth, elevation and estimated in-plane angle (roll, "
+        "matches, best first (with depth, re-ordered by the depth each explains), each with its azimuth, elevation and estimated in-plane angle (roll, "
         "counter-clockwise in the image, in (-180, 180]; 0 when the templates are upright only) and its pose "
         "in the camera as BOP writes it: `R` (model to camera, row-major) and `t` (mm) along the ray through "
         "(u, v) at the object's origin: `distance_mm` when sent, else the measured surface plus the answer's "

@@ -126,3 +126,46 @@ def test_bad_input_is_one_line(registered, tmp_path, args, said):
     )
     assert done.returncode == 2 and said in done.stderr and "Traceback" not in done.stderr, done.stderr
     assert len(done.stderr.strip().splitlines()) == 1
+
+
+def test_one_frame_in_a_terminal_says_what_it_loads_and_answers(registered, tmp_path):
+    """In a terminal one frame is never answered in silence: what is loaded, what is registered, which
+    frame is being answered (to a pipe, stderr stays for the one-line error alone)."""
+    import os
+    import pty
+
+    data, queries = registered
+    q = json.loads((queries / "query-00.json").read_text())
+    at = [
+        f"--{k.replace('_', '-')}={q['form'][k]}" for k in ("fx", "fy", "cx", "cy", "u", "v", "distance_mm")
+    ]
+    exe = Path(sys.executable).parent / "posedesc"
+    frame = queries / "query-00-rgb.png"
+    args = [
+        str(exe),
+        "recognize",
+        str(frame),
+        "--data-dir",
+        str(data),
+        "--out",
+        str(tmp_path),
+        "--no-draw",
+        *at,
+    ]
+    controller, terminal = pty.openpty()
+    done = subprocess.run(args, stderr=terminal, stdout=subprocess.PIPE, cwd=ROOT, timeout=600)
+    os.close(terminal)
+    said = b""
+    while True:
+        try:
+            chunk = os.read(controller, 4096)
+        except OSError:
+            break
+        if not chunk:
+            break
+        said += chunk
+    os.close(controller)
+    text = said.decode()
+    assert done.returncode == 0
+    assert "loading the models of" in text and "1 objects registered: part" in text
+    assert f"answering {frame} ..." in text

@@ -110,7 +110,8 @@ def test_the_own_object_example(server, tmp_path):
     code = code.replace("http://localhost:8000", server.url).replace("out/queries", queries)
     r = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stdout[-2000:] + r.stderr
-    answered, truth = r.stdout.splitlines()
+    answered, truth, patch = r.stdout.splitlines()
     assert answered.startswith("part "), r.stdout  # the query of the part is answered the part
     assert truth.startswith("true: ["), r.stdout
+    assert patch == "part", r.stdout  # and so is its patch, sent with its window
     assert names(server) == DEMO  # deleted again

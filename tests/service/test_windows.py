@@ -103,3 +103,29 @@ def test_after_a_restart_each_keeps_its_window_and_is_recognised_in_a_frame(
             r = c.post("/recognize", files={"rgb": ("f.png", png(rgb))}, data=fields)
             assert r.status_code == 200, r.text
             assert r.json()["best"]["name"] == name, (name, [m["name"] for m in r.json()["matches"]])
+
+
+def test_a_patch_is_compared_with_the_objects_of_its_window_only(data_dir, shipped_rgb, registered, frames):
+    """A patch spans one window (`window_mm`, the model's by default): it is searched among the objects
+    registered through that window, and refused, naming the windows there are, when none has it."""
+    import numpy as np
+    from service_helpers import K
+
+    from index.features.patches import PatchSpec, crops
+
+    rgb, _ = frames["small"]
+    spec = PatchSpec(size=64, window_mm=50.0)
+    patch = crops(rgb, None, K, UV, VIEWS["small"].distance, spec, [0.0])[0]
+    assert patch is not None
+    with TestClient(create_app(service_settings(data_dir, shipped_rgb, level=2))) as c:
+        wait_ready(c)
+        files = {"rgb": ("p.png", png(np.ascontiguousarray(patch[0])))}
+        r = c.post("/recognize", files=files, data={"window_mm": "50", "k": "3"})
+        assert r.status_code == 200, r.text
+        assert {m["name"] for m in r.json()["matches"]} == {"small"}  # the 50 mm window's objects alone
+        r = c.post("/recognize", files=files, data={"k": "3"})  # the model's window: the L's class
+        assert r.status_code == 200 and {m["name"] for m in r.json()["matches"]} == {"L"}
+        r = c.post("/recognize", files=files, data={"window_mm": "70"})
+        assert r.status_code == 422 and "50, 200, 1131.37 mm" in r.json()["detail"], r.text
+        r = c.post("/recognize", files={"rgb": ("f.png", png(rgb))}, data=frame_fields(UV, window_mm=50))
+        assert r.status_code == 422 and "window_mm is a patch's" in r.json()["detail"], r.text

@@ -10,6 +10,7 @@ loaded, scaled to a random diameter, and painted per piece: a plain colour, a pr
 
 from __future__ import annotations
 
+from contextlib import suppress
 from pathlib import Path
 
 import numpy as np
@@ -47,6 +48,25 @@ def _noise(mesh: trimesh.Trimesh, rng: np.random.Generator) -> trimesh.Trimesh:
     return mesh
 
 
+def photo_paint(mesh: trimesh.Trimesh, photo: np.ndarray, rng: np.random.Generator) -> trimesh.Trimesh:
+    """The mesh's vertices coloured from a photograph (H, W, 3) uint8 projected along a random axis and
+    stretched over a random part of it: the colours and grain of real surfaces (wood, paper, cloth,
+    print), not a render's flat paint."""
+    v = mesh.vertices
+    axes = np.linalg.qr(rng.normal(size=(3, 3)))[0][:, :2]
+    uv = v @ axes
+    uv = (uv - uv.min(axis=0)) / np.maximum(np.ptp(uv, axis=0), 1e-9)
+    h, w = photo.shape[:2]
+    side = rng.uniform(0.1, 0.5) * min(h, w)  # px of the photo across the object
+    x0, y0 = rng.uniform(0, w - side), rng.uniform(0, h - side)
+    cols = np.clip((x0 + uv[:, 0] * side).astype(int), 0, w - 1)
+    rows = np.clip((y0 + uv[:, 1] * side).astype(int), 0, h - 1)
+    rgb = photo[rows, cols].astype(np.float64)
+    colours = np.concatenate([rgb, np.full((len(v), 1), 255.0)], axis=1).astype(np.uint8)
+    mesh.visual = trimesh.visual.ColorVisuals(mesh, vertex_colors=colours)
+    return mesh
+
+
 def load_painted(path: Path, rng: np.random.Generator, diameter_mm: tuple[float, float]) -> trimesh.Trimesh:
     """One `random_urdfs` mesh, its pieces subdivided (so that a texture shows) and painted, scaled to a
     random diameter in mm and centred on its bounding box."""
@@ -77,13 +97,22 @@ def load_painted(path: Path, rng: np.random.Generator, diameter_mm: tuple[float,
 
 
 def catalogue_object(
-    paths: list[Path], index: int, rng: np.random.Generator, diameter_mm: tuple[float, float] = (40.0, 300.0)
+    paths: list[Path],
+    index: int,
+    rng: np.random.Generator,
+    diameter_mm: tuple[float, float] = (40.0, 300.0),
+    photos: list[np.ndarray] | None = None,
+    photo_share: float = 0.5,
 ) -> trimesh.Trimesh:
     """Object `index` of the catalogue: the `random_urdfs` mesh of that index, or past their end a
-    procedural shape (`index.templates.shapes.random_shape`)."""
+    procedural shape (`index.templates.shapes.random_shape`); with `photos`, `photo_share` of them
+    coloured from one (`photo_paint`) instead of painted."""
+    mesh = None
     if index < len(paths):
-        try:
-            return load_painted(paths[index], rng, diameter_mm)
-        except ValueError:  # a few of the 1,000 are degenerate: a procedural shape stands in
-            pass
-    return random_shape(rng, diameter_mm)
+        with suppress(ValueError):  # a few of the 1,000 are degenerate: a procedural shape stands in
+            mesh = load_painted(paths[index], rng, diameter_mm)
+    if mesh is None:
+        mesh = random_shape(rng, diameter_mm)
+    if photos and rng.random() < photo_share:
+        mesh = photo_paint(mesh, photos[int(rng.integers(len(photos)))], rng)
+    return mesh

@@ -67,3 +67,11 @@ class ObjectnessConfig:
     #: share of pastes that are background: a render's silhouette filled with another part of the crop
     #: (a pasted outline alone is not an object)
     negative_paste: float = 0.0
+    #: share of catalogue objects coloured from a photograph (the train frames outside their annotated
+    #: objects' boxes) instead of painted
+    photo_share: float = 0.0
+    #: share of pastes whose colours are pulled part of the way (up to 40 %) to the mean of what they cover
+    harmonise: float = 0.0
+    #: what picks the checkpoint: "window" (the recall with the window read from the network) or "extent"
+    #: (the window read from the extent and the object's true diameter, as the service reads it)
+    select_by: str = "window"

@@ -72,12 +72,37 @@ def load_frames(root: Path, split: str, scene: int = 2) -> list[Frame]:
     return out
 
 
-def shape_renders(cfg: ObjectnessConfig, cache_dir: Path) -> dict[str, np.ndarray]:
+def photos_of(frames: list[Frame], rng: np.random.Generator, n: int = 200) -> list[np.ndarray]:
+    """`n` crops (96-256 px) of the frames that overlap none of their annotated objects' boxes (a window
+    around each origin): real surfaces, no annotated object in them. Fewer when the frames hold fewer."""
+    out: list[np.ndarray] = []
+    for _ in range(n * 20):
+        if len(out) >= n:
+            break
+        fr = frames[int(rng.integers(len(frames)))]
+        h, w = fr.rgb.shape[:2]
+        side = int(rng.integers(96, 257))
+        x0, y0 = int(rng.integers(0, w - side)), int(rng.integers(0, h - side))
+        hit = False
+        for u, v, win, *_ in fr.objects:
+            r = win / 2
+            if u + r > x0 and u - r < x0 + side and v + r > y0 and v - r < y0 + side:
+                hit = True
+                break
+        if not hit:
+            out.append(fr.rgb[y0 : y0 + side, x0 : x0 + side].copy())
+    return out
+
+
+def shape_renders(
+    cfg: ObjectnessConfig, cache_dir: Path, photos: list[np.ndarray] | None = None
+) -> dict[str, np.ndarray]:
     """The objects to paste (`cfg.objects`: procedural shapes, or the catalogue of
     `training/objectness/catalogue.py`) rendered at random poses and lights, cached: rgb (N, S, S, 3) uint8,
     mask (N, S, S) bool, extent (N,) px of the diameter at the render's scale (the window is RENDER_WINDOW)."""
     kind = "shapes" if cfg.objects == "shapes" else "catalogue"
-    path = cache_dir / f"{kind}-{cfg.shapes}x{cfg.shape_views}-{cfg.seed}-{RENDER_SIZE}.npz"
+    photo = f"-photo{cfg.photo_share:g}" if kind == "catalogue" and cfg.photo_share > 0 else ""
+    path = cache_dir / f"{kind}-{cfg.shapes}x{cfg.shape_views}-{cfg.seed}-{RENDER_SIZE}{photo}.npz"
     if path.is_file():
         with np.load(path) as z:
             return {k: z[k] for k in z.files}
@@ -93,7 +118,7 @@ def shape_renders(cfg: ObjectnessConfig, cache_dir: Path) -> dict[str, np.ndarra
         if kind == "catalogue":
             from training.objectness.catalogue import catalogue_object  # noqa: PLC0415
 
-            mesh = catalogue_object(paths, i, rng)
+            mesh = catalogue_object(paths, i, rng, photos=photos, photo_share=cfg.photo_share)
         else:
             mesh = random_shape(rng)
         diam = diameter(mesh)
@@ -141,6 +166,7 @@ def _paste(
     cv: float,
     rng: np.random.Generator,
     negative: bool = False,
+    harmonise: float = 0.0,
 ) -> tuple[np.ndarray, float]:
     """Pastes a random shape render with its origin at (cu, cv) and its window `window` px; returns the
     mask of the shape in the image and its extent. `negative`: the silhouette filled with another part of
@@ -170,6 +196,9 @@ def _paste(
     sub_m = m[ay0 - y0 : ay1 - y0, ax0 - x0 : ax1 - x0]
     sub_rgb = rgb[ay0 - y0 : ay1 - y0, ax0 - x0 : ax1 - x0]
     region = img[ay0:ay1, ax0:ax1]
+    if not negative and sub_m.any() and rng.random() < harmonise:  # the scene's light and white balance
+        shift = region.reshape(-1, 3).mean(axis=0) - sub_rgb[sub_m].mean(axis=0)
+        sub_rgb = np.clip(sub_rgb + rng.uniform(0.0, 0.4) * shift, 0, 255).astype(np.uint8)
     img[ay0:ay1, ax0:ax1] = np.clip(soft_edges(sub_rgb, region, sub_m, rng), 0, 255).astype(np.uint8)
     full[ay0:ay1, ax0:ax1] = sub_m
     return full, float(shapes["extent"][k]) * f
@@ -231,7 +260,7 @@ def make_sample(
     for negative in sorted((rng.random() < cfg.negative_paste for _ in range(n_paste)), reverse=True):
         win = math.exp(rng.uniform(*np.log(cfg.paste_px)))
         pu, pv = rng.uniform(-0.1, 1.1) * c, rng.uniform(-0.1, 1.1) * c
-        m, ext = _paste(img, shapes, win, pu, pv, rng, negative)
+        m, ext = _paste(img, shapes, win, pu, pv, rng, negative, cfg.harmonise)
         for r in rows:  # an object whose origin the shape now covers counts as hidden
             iu, iv = int(round(r[0])), int(round(r[1]))
             if 0 <= iu < c and 0 <= iv < c and m[iv, iu]:

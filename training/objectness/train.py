@@ -20,7 +20,7 @@ from index.features.objectness import INPUT, OUTPUT, WINDOW_MM, propose_with
 from training.objectness.config import STRIDE, ObjectnessConfig
 from training.objectness.model import ObjectnessNet, Scored, centre_loss, regression_loss
 from training.objectness.recall import recall
-from training.objectness.samples import Frame, load_frames, make_sample, shape_renders
+from training.objectness.samples import Frame, load_frames, make_sample, photos_of, shape_renders
 
 log = logging.getLogger(__name__)
 
@@ -82,9 +82,10 @@ def validate(net: ObjectnessNet, frames: list[Frame], cfg: ObjectnessConfig, lim
     }
 
 
-def score_of(figures: dict) -> float:
-    """What picks the checkpoint: the tight and the loose recall in the top 20, averaged."""
-    w = figures["window"]
+def score_of(figures: dict, by: str = "window") -> float:
+    """What picks the checkpoint: the tight and the loose recall in the top 20, averaged; `by` "window" or
+    "extent" (`ObjectnessConfig.select_by`)."""
+    w = figures[by]
     return (w["w/16, 6%"]["top20"] + w["w/8, 12%"]["top20"]) / 2
 
 
@@ -99,7 +100,8 @@ def train(
     out.mkdir(parents=True, exist_ok=True)
     train_frames, val_frames = load_frames(data, "train"), load_frames(data, "val")
     log.info("%d train frames, %d val frames", len(train_frames), len(val_frames))
-    shapes = shape_renders(cfg, cache_dir)
+    photos = photos_of(train_frames, np.random.default_rng(cfg.seed + 3)) if cfg.photo_share > 0 else None
+    shapes = shape_renders(cfg, cache_dir, photos)
     net = ObjectnessNet(cfg.width)
     if init is not None:
         net.head.load_state_dict(torch.load(init, map_location="cpu", weights_only=False)["head"])
@@ -132,7 +134,7 @@ def train(
             running.append(loss.item())
             if step % cfg.val_every == 0 or time.perf_counter() - t0 >= budget:
                 figures = validate(net, val_frames, cfg)
-                score = score_of(figures)
+                score = score_of(figures, cfg.select_by)
                 entry = {
                     "step": step,
                     "minutes": round((time.perf_counter() - t0) / 60, 2),

@@ -11,7 +11,7 @@ from service_helpers import ply_bytes, png, service_settings, wait_ready
 
 from service.main import create_app
 
-RECOGNIZE = "rgb, depth, depth_scale, fx, fy, cx, cy, u, v, distance_mm, k, max_detections, min_confidence, cam_K, dist_coeffs"
+RECOGNIZE = "rgb, depth, depth_scale, fx, fy, cx, cy, u, v, distance_mm, k, max_detections, min_confidence, cam_K, window_mm, dist_coeffs"
 
 
 @pytest.fixture(scope="module")
