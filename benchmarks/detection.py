@@ -49,11 +49,7 @@ KINECT_FRAME = 3  # the one frame of lmo-depth
 #: the service's settings of a detection, reported with the figures
 DETECT_SETTINGS = (
     "detect_proposals",
-    "detect_shift",
     "detect_depth_shift",
-    "detect_grids",
-    "detect_scale",
-    "detect_screens",
     "detect_screen_rerank",
     "threads",
     "detect_threads",

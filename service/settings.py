@@ -105,11 +105,6 @@ class Settings(BaseSettings):
         3, ge=1, le=50, description="of the answers `depth_rerank` re-orders, this many best fitted fully, then "
         "re-ordered again",
     )  # fmt: skip
-    # YCB-V whole frames, RGB-D (video 0001): 5 took recall 0.725 -> 0.80, precision 0.75 -> 0.71, and the
-    # frame's median 0.68 -> 1.27 s (5 fits for each of up to 30 proposals): over issue 37's 1 s
-    detect_depth_rerank: int = Field(
-        0, ge=0, le=20, description="a frame without u and v, with depth: `depth_rerank` for each place verified",
-    )  # fmt: skip
     # 1: the best answer, the one a user acts on (and each detection's); more costs a fit each
     pose_fit: int = Field(
         1, ge=0, le=100, description="refine the pose of this many best answers over all six degrees of "
@@ -217,13 +212,6 @@ class Settings(BaseSettings):
         2, ge=1, le=16, description="a frame without u and v: the objectness network's threads and the "
         "places verified at once (1: one core)",
     )  # fmt: skip
-    # The objectness network proposes any object, registered or not: with this above `detect_proposals`,
-    # this many are each screened once at their centre and the best `detect_proposals` of them by that
-    # screening's confidence times their score are verified (docs/experiments.md)
-    detect_looked: int = Field(
-        0, ge=0, le=500, description="a frame without u and v: colour proposals looked at once each before "
-        "the best detect_proposals are verified (0 or at most detect_proposals: none looked at)",
-    )  # fmt: skip
     detect_by_extent: bool = Field(
         False, description="a frame without u and v, colour: each place is also verified at the distance "
         "its extent gives each registered size class (objects the objectness network never saw)",
@@ -236,34 +224,16 @@ class Settings(BaseSettings):
         le=500,
         description="a frame without u and v, with depth: how many depth segments are verified",
     )
-
-    # A proposal's centre and distance are a few px and per cent off, and the re-ranking's cells are 4 px
-    # of a 64 px patch: the verifier named the right object on 97 % of validation instances at their true
-    # centre and distance and 39 % a window's eighth and 12 % off (docs/experiments.md). A depth segment's
-    # centre is its surface's, not the origin's projection: it is screened around its centre first, and
-    # verified where the screening was most confident (the real Kinect frame: 4 of 6 instances found
-    # against 1 of 6). The objectness network's centres are the origin's, and the pose fit moves a verified
-    # detection's centre and distance: screening them too lost on the validation frames (w/12: AP50 0.731,
-    # within 20 deg 45.2 %, 1.36 s a frame against 0.844, 53.0 %, 0.62 s at their centres; docs/experiments.md)
-    detect_shift: float = Field(
-        0.0, ge=0, le=0.5, description="a frame without u and v: each colour proposal is screened at a 3 x 3 "
-        "grid of centres this share of its window's side apart (0: verified at its centre)",
-    )  # fmt: skip
+    # A depth segment's centre is its surface's, not the origin's projection: it is screened around its
+    # centre first and verified where the screening was most confident (the real Kinect frame: 4 of 6
+    # instances found against 1 of 6). The objectness network's centres are the origin's, and the pose fit
+    # moves a verified detection: screening colour proposals too lost on the validation frames (w/12: AP50
+    # 0.731, within 20 deg 45.2 %, 1.36 s a frame against 0.844, 53.0 %, 0.62 s at their centres), and the
+    # settings that did so left the service (docs/experiments.md)
     detect_depth_shift: float = Field(
         1 / 12, ge=0, le=0.5, description="a frame without u and v, with depth: each depth segment is screened "
         "at a 3 x 3 grid of centres this share of its extent apart (0: verified at its centre)",
     )  # fmt: skip
-    detect_grids: int = Field(
-        1, ge=1, le=4, description="a frame without u and v: grids screened, each around the best of the "
-        "last with half its step",
-    )  # fmt: skip
-    detect_scale: float = Field(
-        1.0, ge=1, le=2, description="a frame without u and v, colour: each proposal is also screened this "
-        "factor nearer and farther at the centre found (1: at the distance the proposal gives only)",
-    )  # fmt: skip
-    detect_screens: int = Field(
-        40, ge=1, le=200, description="a frame without u and v: screenings each proposal may take"
-    )
     # Chosen on the 20 validation frames (115 instances at least half visible, docs/experiments.md), colour,
     # the shipped models: 0.4 reported 3.9 detections a frame, 0.91 of them right (recall 0.62), the best
     # F1; 0.3: 5.0 a frame, 0.76 right (0.65); 0.5: 3.1, 0.97 (0.52)

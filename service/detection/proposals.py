@@ -100,8 +100,9 @@ class Propose:
 
     @classmethod
     def build(cls, settings: Settings, colour: Colour | None) -> Propose:
-        limit = max(settings.detect_proposals, settings.detect_looked)  # `Verify.looked` keeps the best
-        return cls(colour, limit, settings.detect_depth_proposals, settings.detect_by_extent)
+        return cls(
+            colour, settings.detect_proposals, settings.detect_depth_proposals, settings.detect_by_extent
+        )
 
     def __call__(self, frame: Frame) -> Frame:
         windows = window_classes(frame.snapshot.objects, frame.d.embedder.info.window_mm)

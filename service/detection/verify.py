@@ -28,55 +28,36 @@ log = logging.getLogger("service")
 
 @dataclass(frozen=True)
 class Verify:
-    """Every proposal of the frame verified (`Settings.detect_shift` and `detect_depth_shift`, `detect_grids`,
-    `detect_scale`, `detect_screens`: the screening's grid step as a share of a colour proposal's side and of
-    a depth segment's, its grids, its scale factor and how many screenings one proposal may take)."""
+    """Every proposal of the frame verified: a colour proposal at its own centre and distance, a depth
+    segment where the screening is most confident on a 3 x 3 grid of centres `depth_shift` of its extent
+    apart (`Settings.detect_depth_shift`). Screening colour proposals too (a grid, a second finer grid, the
+    distance nearer and farther), and screening more of them to verify the best, lost on the validation
+    frames and left the service (docs/experiments.md)."""
 
     state: AppState
-    shift: float
-    grids: int
-    scale: float
-    screens: int
-    keep: int = 0  # colour proposals kept after one look each (`looked`); 0: all are verified
     depth_shift: float = 0.0
     name: str = "verify"
 
     @classmethod
     def build(cls, state: AppState) -> Verify:
-        s = state.settings
-        keep = s.detect_proposals if s.detect_looked > s.detect_proposals else 0
-        grid = (s.detect_shift, s.detect_grids, s.detect_scale, s.detect_screens)
-        return cls(state, *grid, keep=keep, depth_shift=s.detect_depth_shift)
+        return cls(state, depth_shift=state.settings.detect_depth_shift)
 
     def __call__(self, frame: Frame) -> Frame:
-        screened: dict[Proposal, dict] = {p: {} for p in frame.proposals}
-        proposals = self.looked(frame, screened) if self.keep else frame.proposals
         # each place on its own (`Settings.detect_threads` at once), answered in the proposals' order
-        found = self.state.verifier.map(lambda p: self.verify(frame, p, screened[p]), proposals)
+        found = self.state.verifier.map(lambda p: self.verify(frame, p), frame.proposals)
         return replace(frame, detections=tuple(x for x in found if x is not None))
-
-    def looked(self, frame: Frame, screened: dict[Proposal, dict]) -> tuple[Proposal, ...]:
-        """The proposals worth verifying: every depth one, and the best `keep` colour ones by the screening's
-        confidence at their centre times their score. The network proposes any object, registered or not;
-        one screening each says which look like a registered one (`Settings.detect_looked`)."""
-        colour = [p for p in frame.proposals if p.source == "colour"]
-        if len(colour) <= self.keep:
-            return frame.proposals
-        looks = {p: self.screen(frame, self.seen(frame, p), p.u, p.v, p, screened[p]) for p in colour}
-        best = set(sorted(colour, key=lambda p: -max(looks[p][0], 0.0) * p.score)[: self.keep])
-        return tuple(p for p in frame.proposals if p.source != "colour" or p in best)
 
     @staticmethod
     def seen(frame: Frame, p: Proposal) -> Snapshot:
         """The objects a proposal is verified against (a colour proposal's distance holds for one class)."""
         return frame.snapshot if p.objects is None else frame.snapshot.within(p.objects)
 
-    def verify(self, frame: Frame, p: Proposal, screened: dict | None = None) -> Detection | None:
-        """The verifier's answer at a proposal: screened at its shifts (`centred`), then the whole pipeline
-        cut at the best of them; None when nothing there can be answered. `screened`: screenings made."""
+    def verify(self, frame: Frame, p: Proposal) -> Detection | None:
+        """The verifier's answer at a proposal: the whole pipeline cut where `centred` says; None when
+        nothing there can be answered."""
         d, K = frame.d, frame.K
         seen = self.seen(frame, p)
-        at = self.centred(frame, seen, p, {} if screened is None else screened)
+        at = self.centred(frame, seen, p)
         if at is None:
             return None
         try:
@@ -131,51 +112,31 @@ class Verify:
                 )
         return seen[key]
 
-    def centred(self, frame: Frame, snapshot: Snapshot, p: Proposal, seen: dict) -> Query | None:
-        """Where around the proposal the screening pipeline is most confident: a 3 x 3 grid of centres
-        `shift` (a depth segment: `depth_shift`) of its side apart around the proposal's (and, for `grids` >
-        1, grids of half the step around the best), then (a colour proposal) its distance nearer and farther
-        by `scale`; at most `screens` screenings (`seen`: those made already). With nothing to screen (no
-        step, no scale, not looked at), the proposal's own centre, unscreened: the whole pipeline decides.
-        None when nothing there can be answered (outside the frame, no depth there)."""
+    def centred(self, frame: Frame, snapshot: Snapshot, p: Proposal) -> Query | None:
+        """Where the proposal is verified: a colour proposal (or with no step) at its own centre and
+        distance, unscreened (the whole pipeline decides, its pose fit moves it); a depth segment at the
+        best of a 3 x 3 grid of centres `depth_shift` of its extent apart, by the screening pipeline's
+        confidence. None when nothing there can be answered (outside the frame, no depth there)."""
         q, d = frame.q, frame.d
         w, h = d.size
-        side = p.box[2] - p.box[0]  # the proposal's window (colour) or the segment's extent (depth), px
-        step = (self.shift if p.source == "colour" else self.depth_shift) * side
-        log_d = None if p.distance_mm is None else float(np.log(p.distance_mm))
-        if step <= 0 and (log_d is None or self.scale <= 1) and not seen:  # nothing to screen: its centre
-            if not (0 <= p.u < w and 0 <= p.v < h):
-                return None
-            return replace(q, u=p.u, v=p.v, distance_mm=p.distance_mm, estimated=True)
-
-        def score(u: float, v: float, log_d: float | None) -> tuple[float, float] | None:
-            key = (round(u, 1), round(v, 1), round(log_d, 4) if log_d is not None else 0.0)
-            if key not in seen and (not (0 <= u < w and 0 <= v < h) or len(seen) >= self.screens):
-                return None
-            return self.screen(frame, snapshot, u, v, p, seen, log_d)
-
-        u, v = p.u, p.v
-        best = score(u, v, log_d)
-        if best is None:
+        step = (0.0 if p.source == "colour" else self.depth_shift) * (p.box[2] - p.box[0])
+        if not (0 <= p.u < w and 0 <= p.v < h):  # a place off the frame is skipped by this check
             return None
-        for _ in range(self.grids if step > 0 else 0):  # 3 x 3 around the best so far, each step halved
-            grid = [(u + i * step, v + j * step) for i in (-1, 0, 1) for j in (-1, 0, 1) if i or j]
-            for gu, gv in grid:
-                s = score(gu, gv, log_d)
-                if s is not None and s > best:
-                    best, cu, cv = s, gu, gv
-                    u, v = cu, cv
-            step /= 2
-        if log_d is not None and self.scale > 1:  # then nearer and farther, at the centre found
-            centre_log = log_d
-            for dl in (np.log(self.scale), -np.log(self.scale)):
-                s = score(u, v, centre_log + dl)
-                if s is not None and s > best:
-                    best, log_d = s, centre_log + dl
+        if step <= 0:
+            return replace(q, u=p.u, v=p.v, distance_mm=p.distance_mm, estimated=True)
+        seen: dict = {}
+        # its own centre first, then the grid row by row: the first of equals stays
+        grid = [(i, j) for i in (-1, 0, 1) for j in (-1, 0, 1) if i or j]
+        places = [(p.u, p.v)] + [(p.u + i * step, p.v + j * step) for i, j in grid]
+        scored = [
+            (self.screen(frame, snapshot, u, v, p, seen), u, v)
+            for u, v in places
+            if 0 <= u < w and 0 <= v < h
+        ]
+        best, u, v = max(scored, key=lambda x: x[0])  # ties: the first, the segment's own centre
         if best[0] < 0:
             return None
-        distance = None if log_d is None else float(np.exp(log_d))
-        return replace(q, u=u, v=v, distance_mm=distance, estimated=True)
+        return replace(q, u=u, v=v, distance_mm=p.distance_mm, estimated=True)
 
 
 def _box(

@@ -93,9 +93,8 @@ class Pipeline:
                 settings.pose_fit,
                 shapes,
                 settings.depth_rerank,
-                settings.detect_depth_rerank,
-                settings.depth_refine,
-                on_failure,
+                refine=settings.depth_refine,
+                on_failure=on_failure,
             )
         )
         return cls(tuple(s for s in made if s is not None), settings, judged(settings, embedder), fit)

@@ -97,8 +97,9 @@ class PoseFit:
 
     count: int
     shapes: Shapes
-    #: with depth, this many best answers fitted and re-ordered by what they explain (`Settings.depth_rerank`;
-    #: a detection's verification, its centre estimated: `Settings.detect_depth_rerank`)
+    #: with depth, this many best answers fitted and re-ordered by what they explain (`Settings.depth_rerank`);
+    #: a detection's verification (its centre estimated) re-orders none: five fits for each of up to 30 places
+    #: doubled a YCB-V frame's time (docs/service.md)
     rerank: int = 0
     detect_rerank: int = 0
     #: of the re-ordered answers, this many best (after the coarse look) fitted fully (`Settings.depth_refine`)

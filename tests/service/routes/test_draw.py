@@ -99,4 +99,6 @@ def test_bad_input_is_a_json_422(client, shot, files, data, message):
 
 def test_the_misnamed_field_message_lists_draw_k_last(client, shot):
     r = client.post("/recognize/draw", files={"rgb": ("f.png", png(shot))}, data={"image": "x"})
-    assert r.json()["detail"].endswith("k, max_detections, min_confidence, cam_K, window_mm, dist_coeffs, draw_k")
+    assert r.json()["detail"].endswith(
+        "k, max_detections, min_confidence, cam_K, window_mm, dist_coeffs, draw_k"
+    )
