@@ -25,8 +25,10 @@ line in `stages`."""
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 from typing import Protocol
 
+from index.store import Snapshot
 from index.templates.windows import window_classes
 from service.detection.agree import Agree
 from service.detection.found import Detection, Found, Frame, Proposal
@@ -38,7 +40,7 @@ from service.detection.stand import Stand
 from service.detection.verify import Verify
 from service.errors import ApiError
 from service.inputs.depth_units import check_scene_depth
-from service.pipeline.query import Decoded, Query, decode
+from service.pipeline.query import Decoded, Query, decode, untextured
 from service.recognition import answerable
 from service.state import AppState
 
@@ -78,6 +80,30 @@ def stages(state: AppState) -> tuple[Stage, ...]:
     )
 
 
+#: the stages run on each part of the store apart (`by_model`): propose, verify, agree, stand
+STAGES_APART = 4
+
+
+def by_model(state: AppState, d: Decoded) -> list[tuple[Decoded, Snapshot]]:
+    """The frame's images and the part of the store each model searches: the whole store with the model of
+    the frame's modality; but an RGB-D frame of a store holding shape-only and textured objects has its
+    shape-only ones found by the depth model, as when every object is shape-only (`decode`): the colour of
+    a grey render matches no real surface, and adding colour to a frame must never lose what its depth
+    alone finds. Costs a second pass (its proposals verified twice) for such stores only."""
+    snapshot = state.store.snapshot
+    depth = state.embedders.get("depth")
+    if d.modality != "rgbd" or depth is None or not state.settings.shape_only_depth:
+        return [(d, snapshot)]
+    bare = frozenset(oid for oid, rec in snapshot.objects.items() if untextured(rec))
+    if not bare or len(bare) == len(snapshot.objects):
+        return [(d, snapshot)]
+    textured = frozenset(snapshot.objects) - bare
+    return [
+        (d, snapshot.within(textured)),
+        (replace(d, modality="depth", embedder=depth), snapshot.within(bare)),
+    ]
+
+
 def detect(state: AppState, q: Query) -> Found:
     """The registered objects in the frame of `q` (a frame with fx, fy, cx, cy and no u, v): at most
     `q.max_detections`, each with a confidence of at least `q.min_confidence` (None: `report.reported`)."""
@@ -113,14 +139,20 @@ def detect_decoded(state: AppState, q: Query, d: Decoded, decode_s: float = 0.0)
         check_scene_depth(d.depth, focal, windows or [model], d.embedder.info.spec.size, d.depth_scale)
     at = floors(state.settings, d.depth is not None)
     floor = at.confidence if q.min_confidence is None else q.min_confidence
-    frame = Frame(q, d, K, state.store.snapshot, floor)
     ms: dict[str, float] = {"decode": decode_s}
-    proposals = 0
-    for stage in stages(state):
+    steps = stages(state)
+    # each part of the store found by its own model, up to `stand`; then merged and reported together
+    frames = [Frame(q, dp, K, snap, floor) for dp, snap in by_model(state, d)]
+    for stage in steps[:STAGES_APART]:
+        t = time.perf_counter()
+        frames = [stage(fr) for fr in frames]
+        ms[stage.name] = time.perf_counter() - t
+    proposals = max(len(fr.proposals) for fr in frames)
+    frame = replace(frames[0], detections=tuple(x for fr in frames for x in fr.detections))
+    for stage in steps[STAGES_APART:]:
         t = time.perf_counter()
         frame = stage(frame)
         ms[stage.name] = time.perf_counter() - t
-        proposals = proposals or len(frame.proposals)
     ms["total"] = time.perf_counter() - t0 + decode_s
     return Found(
         frame.detections,

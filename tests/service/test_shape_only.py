@@ -53,6 +53,38 @@ def test_rgbd_frames_of_shape_only_objects_are_answered_by_the_depth_model(
         assert np.isfinite(again.json()["matches"][0]["distance"])
 
 
+def test_beside_textured_objects_an_rgbd_frames_shape_only_objects_are_found_by_the_depth_model(
+    tmp_path, posedesc_models, renderer, l_shape
+):
+    """Adding colour never loses what depth alone finds: with a textured object registered too, a whole
+    RGB-D frame's shape-only objects are searched by the depth model (`service.detection.by_model`), the
+    textured ones by the RGB-D model, and the detections of both reported together."""
+    from service.detection import by_model
+    from service.pipeline.query import Query, decode
+
+    part = shape_only_part()
+    rgb, depth = frame(renderer, part, VIEW, UV, wall_mm=1500.0)
+    files = {"rgb": ("f.png", png(rgb)), "depth": ("d.png", depth_png(depth))}
+    whole = {k: v for k, v in frame_fields(UV, min_confidence=0).items() if k not in ("u", "v")}
+    with TestClient(create_app(service_settings(tmp_path, posedesc_models, level=1))) as c:
+        wait_ready(c)
+        ids = {"part": register(c, part, "part")["object_id"], "L": register(c, l_shape, "L")["object_id"]}
+        state = c.app.state.posedesc
+        q = Query(png(rgb), depth_png(depth), None, *(float(whole[k]) for k in ("fx", "fy", "cx", "cy")))
+        passes = by_model(state, decode(state, q))
+        assert [(d.modality, set(s.objects)) for d, s in passes] == [
+            ("rgbd", {ids["L"]}),
+            ("depth", {ids["part"]}),
+        ]
+        r = c.post("/recognize", files=files, data=whole)
+        assert r.status_code == 200, r.text
+        # (the test models are untrained: at confidence 0 the L is reported too, wherever it is named)
+        near = [x for x in r.json()["detections"] if np.hypot(x["u"] - UV[0], x["v"] - UV[1]) < 30]
+        assert any(x["best"]["name"] == "part" for x in near), r.json()["detections"]
+        alone = c.post("/recognize", files={"depth": files["depth"]}, data=whole)  # depth alone finds it too
+        assert any(x["best"]["name"] == "part" for x in alone.json()["detections"])
+
+
 def test_in_colour_a_shape_only_objects_distances_carry_the_handicap(
     tmp_path, posedesc_models, renderer, l_shape
 ):
