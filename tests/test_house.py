@@ -165,3 +165,20 @@ def test_one_concept_a_module_and_small_rooms():
         if n > MAX_MODULES:
             crowded[str(folder.relative_to(ROOT))] = n
     assert crowded == {}
+
+
+def test_one_word_one_thing():
+    """No two classes of index/ and service/ share a name, and there is one box IoU
+    (`index.geometry.boxes.iou`): a word that means two things is read as the wrong one."""
+    seen: dict[str, list[str]] = {}
+    functions: dict[str, list[str]] = {}
+    for path in [p for pkg in ("index", "service", "evaluation") for p in (ROOT / pkg).rglob("*.py")]:
+        tree = ast.parse(path.read_text())
+        for node in tree.body:
+            where = str(path.relative_to(ROOT))
+            if isinstance(node, ast.ClassDef) and path.parts[len(ROOT.parts)] in ("index", "service"):
+                seen.setdefault(node.name, []).append(where)
+            if isinstance(node, ast.FunctionDef):
+                functions.setdefault(node.name, []).append(where)
+    assert {k: v for k, v in seen.items() if len(v) > 1} == {}
+    assert functions.get("iou") == ["index/geometry/boxes.py"]

@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from index.data.bop import Instance
+from index.geometry.boxes import iou
 from index.geometry.pose_error import rotation_error
 from index.geometry.symmetry import Symmetry
 
@@ -91,16 +92,6 @@ class Truth:
 def xywh_box(b: Sequence[float]) -> Box:
     """BOP's [x, y, w, h] as (x0, y0, x1, y1)."""
     return (float(b[0]), float(b[1]), float(b[0] + b[2]), float(b[1] + b[3]))
-
-
-def iou(a: Box, b: Box) -> float:
-    w = min(a[2], b[2]) - max(a[0], b[0])
-    h = min(a[3], b[3]) - max(a[1], b[1])
-    if w <= 0 or h <= 0:
-        return 0.0
-    inter = w * h
-    union = (a[2] - a[0]) * (a[3] - a[1]) + (b[2] - b[0]) * (b[3] - b[1]) - inter
-    return inter / union if union > 0 else 0.0
 
 
 @dataclass(frozen=True)

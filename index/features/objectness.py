@@ -62,7 +62,7 @@ SUPPRESS_RATIO = 1.5
 
 
 @dataclass(frozen=True)
-class Proposal:
+class Peak:
     """A place where the network sees an object's origin. Pixel units of the frame given to `propose`."""
 
     u: float
@@ -73,7 +73,7 @@ class Proposal:
 
 
 class Seen(Protocol):
-    """A colour proposal as the objectness network gives it (`Proposal`, or any object alike): the centre
+    """A colour proposal as the objectness network gives it (`Peak`, or any object alike): the centre
     (px), the side of the object's model window there (px) and its score."""
 
     @property
@@ -132,7 +132,7 @@ def level_input(rgb: np.ndarray, scale: float) -> tuple[np.ndarray, float, float
 
 def decode(
     cells: np.ndarray, sx: float, sy: float, stride: int, reference_px: float, min_score: float = MIN_SCORE
-) -> list[Proposal]:
+) -> list[Peak]:
     """The peaks (3 x 3 local maxima over `min_score`) of one level's output, in frame pixels."""
     score = np.ascontiguousarray(cells[0], np.float32)
     peaks = (score >= cv2.dilate(score, np.ones((3, 3), np.uint8))) & (score >= min_score)
@@ -146,18 +146,18 @@ def decode(
     window = reference_px * np.exp(cells[3, i, j]) / s
     extent = reference_px * np.exp(cells[4, i, j]) / s
     return [
-        Proposal(float(a), float(b), float(c), float(d), float(e))
+        Peak(float(a), float(b), float(c), float(d), float(e))
         for a, b, c, d, e in zip(u, v, window, score[i, j], extent, strict=True)
     ]
 
 
-def suppress(proposals: Sequence[Proposal], limit: int) -> list[Proposal]:
+def suppress(proposals: Sequence[Peak], limit: int) -> list[Peak]:
     """One proposal per object, best first: each peak joins the best one before it that is the same object
     (`SUPPRESS_RADIUS`, `SUPPRESS_RATIO`) or leads a new one. A proposal keeps its leader's score and the
     score-weighted mean of its members' centres and (log) sizes: one object seen at several levels gives
     several estimates, and their mean is nearer the truth than the best-scored one (on the validation
     frames, +5 points of objects within w/16 and 6 %)."""
-    groups: list[list[Proposal]] = []
+    groups: list[list[Peak]] = []
     for p in sorted(proposals, key=lambda p: -p.score):
         for g in groups:
             k = g[0]
@@ -171,7 +171,7 @@ def suppress(proposals: Sequence[Proposal], limit: int) -> list[Proposal]:
     return [_fused(g) for g in groups]
 
 
-def _fused(group: Sequence[Proposal]) -> Proposal:
+def _fused(group: Sequence[Peak]) -> Peak:
     if len(group) == 1:
         return group[0]
     w = np.array([p.score for p in group], np.float64)
@@ -179,7 +179,7 @@ def _fused(group: Sequence[Proposal]) -> Proposal:
     u, v, lw, le = (
         np.array([[p.u, p.v, np.log(p.window_px), np.log(p.extent_px)] for p in group]).T @ w
     ).tolist()
-    return Proposal(u, v, float(np.exp(lw)), group[0].score, float(np.exp(le)))
+    return Peak(u, v, float(np.exp(lw)), group[0].score, float(np.exp(le)))
 
 
 def propose_with(
@@ -190,9 +190,9 @@ def propose_with(
     reference_px: float,
     limit: int = 30,
     min_score: float = MIN_SCORE,
-) -> list[Proposal]:
+) -> list[Peak]:
     """`propose` with any runner of the network (training validates its torch module through this)."""
-    found: list[Proposal] = []
+    found: list[Peak] = []
     for s in levels:
         x, sx, sy = level_input(rgb, s)
         if min(x.shape[2:]) < PAD_TO:
@@ -203,7 +203,7 @@ def propose_with(
 
 def propose(
     net: ObjectnessNet, rgb: np.ndarray, limit: int = 30, levels: Sequence[float] | None = None
-) -> list[Proposal]:
+) -> list[Peak]:
     """Up to `limit` proposals in a frame of any size, best first. Shape: rgb (H, W, 3) uint8."""
     if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
         raise ValueError(f"propose takes an (H, W, 3) uint8 RGB frame, not {rgb.shape} {rgb.dtype}")

@@ -105,7 +105,7 @@ class Snapshot(ABC):
         variants: int = 1,
         most: int = 8192,
         weights: Mapping[int, float] | None = None,
-    ) -> Found:
+    ) -> Nearest:
         """The k best distinct (object, viewpoint) answers to one query described by Q descriptors (Q, D):
         the query cut Q times, turned by `offsets` (Q,) degrees (`index.features.patches.crop`'s in-plane, undone
         roll; default 0). A template of in-plane θ found for a turn by o says the object is rolled θ + o,
@@ -117,7 +117,7 @@ class Snapshot(ABC):
         object's in colour, `Settings.shape_handicap`); the distances returned are the descriptors'."""
         size = self.size(model)
         if size == 0 or k <= 0:
-            return Found(self.objects, np.zeros(0, int), np.zeros((0, 3)), np.zeros(0))
+            return Nearest(self.objects, np.zeros(0, int), np.zeros((0, 3)), np.zeros(0))
         q = np.ascontiguousarray(queries, np.float32)
         q = q.reshape(len(q), -1) if q.ndim > 1 else q.reshape(1, -1)
         offsets = np.zeros(len(q)) if offsets is None else np.asarray(offsets, float)
@@ -135,7 +135,7 @@ class Snapshot(ABC):
             n = min(size, most, 2 * n)
         inplane = np.asarray(wrap_degrees(poses[best, 2].astype(float) + offsets[turn[best]]), float)
         poses = np.column_stack([poses[best, :2].astype(float), inplane])
-        return Found(self.objects, oid[best], poses, np.sqrt(np.maximum(d[best].astype(float), 0.0)))
+        return Nearest(self.objects, oid[best], poses, np.sqrt(np.maximum(d[best].astype(float), 0.0)))
 
 
 def _weighed(d2: np.ndarray, oid: np.ndarray, weights: Mapping[int, float] | None) -> np.ndarray:
@@ -146,7 +146,7 @@ def _weighed(d2: np.ndarray, oid: np.ndarray, weights: Mapping[int, float] | Non
     return d2 * np.array([weights.get(int(o), 1.0) for o in ids])[at] ** 2
 
 
-class Found(Sequence[Match]):
+class Nearest(Sequence[Match]):
     """`Snapshot.answers` as arrays: object ids (k,), poses (k, 3) (azimuth, elevation and the in-plane
     the query's turn gives), descriptor distances (k,); each a `Match` when read. The re-ranking reads the
     keys and rolls of its 400 candidates from the arrays (`keys`, `rolls`), and only the answers returned

@@ -17,7 +17,7 @@ The stages, in order (`stages`), each a module of this package with one call on 
 - `merge` (`merge.Merge`): one instance found twice (boxes overlapping) reported once, the more confident;
 - `report` (`report.Report`): the confidence a detection needs (`report.confidence`, `report.reported`) and
   at most `max_detections`;
-- `mask` (`mask.Mask`): each reported object's silhouette at its pose, as COCO's RLE.
+- `mask` (`mask.Silhouettes`): each reported object's silhouette at its pose, as COCO's RLE.
 
 `timings_ms`: `decode`, then each stage by its name, and `total`. Adding a stage is a new module and one
 line in `stages`."""
@@ -32,7 +32,7 @@ from index.store import Snapshot
 from index.templates.windows import window_classes
 from service.detection.agree import Agree
 from service.detection.found import Detection, Found, Frame, Proposal
-from service.detection.mask import Mask
+from service.detection.mask import Silhouettes
 from service.detection.merge import Merge
 from service.detection.proposals import Propose
 from service.detection.report import Report, floors, reported
@@ -57,7 +57,7 @@ __all__ = [
 ]
 
 
-class Stage(Protocol):
+class FrameStage(Protocol):
     """One step of the detection: a frame in, the frame with the step's work done out."""
 
     @property
@@ -66,7 +66,7 @@ class Stage(Protocol):
     def __call__(self, frame: Frame) -> Frame: ...
 
 
-def stages(state: AppState) -> tuple[Stage, ...]:
+def stages(state: AppState) -> tuple[FrameStage, ...]:
     """The detection's stages at the state's settings, in order."""
     s = state.settings
     return (
@@ -76,7 +76,7 @@ def stages(state: AppState) -> tuple[Stage, ...]:
         Stand.build(state),
         Merge.build(s),
         Report.build(s),
-        Mask.build(state),
+        Silhouettes.build(state),
     )
 
 

@@ -71,7 +71,7 @@ SUNK_TOLERANCE = 2.5
 
 
 @dataclass(frozen=True)
-class Proposal:
+class Segment:
     """A candidate object. u, v: where its centre projects (px); distance_mm: camera to the centre;
     box: x0, y0, x1, y1 px of its visible surface; score: higher is more object-like (0..1); part: a part
     of a segment larger than any object looked for (`largest_mm`), a guess at where one object ends."""
@@ -140,7 +140,7 @@ def depth_proposals(
     limit: int = 30,
     largest_mm: float | None = None,
     scene: DepthScene | None = None,
-) -> list[Proposal]:
+) -> list[Segment]:
     """Candidate objects in a depth frame, best first, at most `limit`.
 
     depth: (H, W) mm, 0 (or not finite) = no measurement; K: (3, 3) OpenCV intrinsics. An object's size
@@ -447,7 +447,7 @@ def _parts(frame: _Frame, large: list[tuple[np.ndarray, float]]) -> list[np.ndar
     return out
 
 
-def _distinct(found: _Found, limit: int) -> list[Proposal]:
+def _distinct(found: _Found, limit: int) -> list[Segment]:
     """The best `limit` proposals, dropping any that repeats a better one: its box overlapping with IoU
     above SAME_IOU and its centre within a quarter of its box's side."""
     x0, y0, x1, y1 = found.box.T
@@ -468,7 +468,7 @@ def _distinct(found: _Found, limit: int) -> list[Proposal]:
             if len(kept) == limit:
                 break
     return [
-        Proposal(
+        Segment(
             float(uv[i, 0]),
             float(uv[i, 1]),
             float(found.distance[i]),

@@ -17,14 +17,14 @@ from service.state import AppState
 
 
 @dataclass(frozen=True)
-class Mask:
+class Silhouettes:
     """A mask for every detection reported (only those: a frame's masks cost a silhouette each)."""
 
     state: AppState
     name: str = "mask"
 
     @classmethod
-    def build(cls, state: AppState) -> Mask:
+    def build(cls, state: AppState) -> Silhouettes:
         return cls(state)
 
     def __call__(self, frame: Frame) -> Frame:

@@ -13,6 +13,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from index.geometry.boxes import iou
 from index.templates.windows import object_diameter
 from service.detection.found import Detection, Frame
 from service.settings import Settings
@@ -43,15 +44,6 @@ class Merge:
         objects = frame.snapshot.objects
         diameters = {o: d for o, rec in objects.items() if (d := object_diameter(rec.extra)) is not None}
         return replace(frame, detections=tuple(suppress(ordered, self.iou, diameters)))
-
-
-def iou(a: Sequence[float], b: Sequence[float]) -> float:
-    """Intersection over union of two boxes (x0, y0, x1, y1)."""
-    ix = max(0.0, min(a[2], b[2]) - max(a[0], b[0]))
-    iy = max(0.0, min(a[3], b[3]) - max(a[1], b[1]))
-    inter = ix * iy
-    union = (a[2] - a[0]) * (a[3] - a[1]) + (b[2] - b[0]) * (b[3] - b[1]) - inter
-    return inter / union if union > 0 else 0.0
 
 
 def suppress(

@@ -7,7 +7,7 @@ the store's snapshot as it found it and runs the model's own onnxruntime session
 (`STAGES`), each a module of this package with one call and one frozen config built from the settings:
 
 - `cut` (`query.Cut`): the query cut once per turn (`query_turns`) from a frame or a patch;
-- `mask` (`mask.Mask`, models with a mask): what is not the object made black and empty;
+- `mask` (`mask.QueryMask`, models with a mask): what is not the object made black and empty;
 - `embed`, `search` (`search.Embed`, `search.Search`): the descriptors, the store's nearest answers;
 - `local` (`rerank.Rerank`), `sweep` (`sweep.Sweep`), `refine` (`refine.Refine`), for models with
   local features: the re-ranking by the local score (`score.LocalScore`), the roll sweep and the
@@ -50,7 +50,7 @@ from service.errors import ApiError
 from service.pipeline.answer import Result, answer, judged
 from service.pipeline.context import Context, Stage
 from service.pipeline.fit import PoseFit, Shapes, first
-from service.pipeline.mask import Mask
+from service.pipeline.mask import QueryMask
 from service.pipeline.query import FRAME_FIELDS, Cut, Decoded, Query
 from service.pipeline.refine import Refine
 from service.pipeline.rerank import Rerank
@@ -60,7 +60,7 @@ from service.settings import Settings
 
 #: every stage in its order; each class's `build(settings, embedder, templates)` makes it for a model, or
 #: None when the model or the settings leave it out
-STAGES = (Cut, Mask, Embed, Search, Rerank, Sweep, Refine)
+STAGES = (Cut, QueryMask, Embed, Search, Rerank, Sweep, Refine)
 
 #: timing keys kept as the sums of stages, for readers of the times before the stages were split
 SUMS: Mapping[str, tuple[str, ...]] = {"patch": ("cut", "mask"), "rerank": ("local", "sweep", "refine")}

@@ -16,14 +16,14 @@ from service.pipeline.query import Decoded, Patches
 from service.settings import Settings
 
 
-class Mask:
+class QueryMask:
     """The patches of the query's turns masked (`foreground`); in a pipeline only for a model with a mask.
     Nothing to configure: the model's mask decides."""
 
     name = "mask"
 
     @classmethod
-    def build(cls, settings: Settings, embedder: Embedder, templates: TemplateConfig) -> Mask | None:
+    def build(cls, settings: Settings, embedder: Embedder, templates: TemplateConfig) -> QueryMask | None:
         return cls() if embedder.has_mask else None
 
     def __call__(self, ctx: Context) -> Context:

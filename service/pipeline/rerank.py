@@ -9,7 +9,7 @@ from dataclasses import dataclass, replace
 
 from index.features.embed import Embedder
 from index.store import Match, local_key
-from index.store.search import Found
+from index.store.search import Nearest
 from index.templates.register import TemplateConfig
 from service.pipeline.context import Context, Key, Ranked
 from service.pipeline.score import LocalScore, QueryCuts, ScoreConfig
@@ -25,8 +25,8 @@ def reranks(settings: Settings, embedder: Embedder) -> bool:
 
 def keys_and_rolls(matches: Sequence[Match]) -> tuple[list[Key], list[float]]:
     """Each match's viewpoint as its local features are found (`local_key`) and its roll to 1e-3 degrees:
-    read from the search's arrays (`index.store.search.Found`) when it gave them."""
-    if isinstance(matches, Found):
+    read from the search's arrays (`index.store.search.Nearest`) when it gave them."""
+    if isinstance(matches, Nearest):
         return matches.keys(), matches.rolls()
     keys = [local_key(m.object_id, m.azimuth, m.elevation) for m in matches]
     return keys, [round(m.inplane, 3) for m in matches]

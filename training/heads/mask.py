@@ -177,7 +177,7 @@ def validation_set(data: TrainingData, split: str = "val") -> tuple[np.ndarray, 
     return np.stack(xs), np.stack(ms)
 
 
-def iou(logits: np.ndarray, masks: np.ndarray) -> np.ndarray:
+def mask_iou(logits: np.ndarray, masks: np.ndarray) -> np.ndarray:
     """Intersection over union of each predicted mask (logits > 0) with the true one. Shape: (N,)."""
     pred = logits.reshape(masks.shape) > 0
     inter = (pred & masks).sum(axis=(1, 2))
@@ -224,7 +224,7 @@ def train_mask(
 
     def checkpoint(loss: float) -> None:
         nonlocal best
-        score = float(iou(predict(net, val_x), val_m).mean()) if len(val_x) else 0.0
+        score = float(mask_iou(predict(net, val_x), val_m).mean()) if len(val_x) else 0.0
         rec = {"step": step, "minutes": round(elapsed / 60, 2), "loss": loss, "val_iou": score}
         log.info("mask %s", rec)
         print(json.dumps(rec), flush=True)

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from index.data.bop import Instance
-from index.features.objectness import WINDOW_MM, Proposal
+from index.features.objectness import WINDOW_MM, Peak
 
 
 @dataclass(frozen=True)
@@ -30,7 +30,7 @@ def truth_of(inst: Instance, diameter_mm: float) -> Truth:
 
 
 def hit_rank(
-    proposals: Sequence[Proposal], t: Truth, centre: float, scale: float, by_extent: bool = False
+    proposals: Sequence[Peak], t: Truth, centre: float, scale: float, by_extent: bool = False
 ) -> int | None:
     """The rank (0 = best) of the first proposal within `centre` * window of the truth's origin whose
     window is within `scale` (relative) of the truth's; None if none is. `by_extent`: the window read from
@@ -51,7 +51,7 @@ TOLERANCES = (("w/16, 6%", 1 / 16, 0.06), ("w/8, 12%", 1 / 8, 0.12), ("w/4, 25%"
 
 
 def recall(
-    frames: Sequence[tuple[Sequence[Proposal], Sequence[Truth]]], by_extent: bool = False
+    frames: Sequence[tuple[Sequence[Peak], Sequence[Truth]]], by_extent: bool = False
 ) -> dict[str, dict[str, float]]:
     """Share of the truths with a hit among the top k proposals of their frame, per tolerance and k."""
     n = sum(len(ts) for _, ts in frames)

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from evaluation.baselines.linemod_frames import LineModFrames, suppress, window_sizes
-from evaluation.detect.score import iou
+from index.geometry.boxes import iou
 from index.geometry.pose import View, view_to_pose
 from index.geometry.pose_error import rotation_error
 from tests.evaluation.conftest import K, make_mug

@@ -10,11 +10,11 @@ from evaluation.detect.score import (
     Hit,
     Truth,
     average_precision,
-    iou,
     match,
     scores,
     xywh_box,
 )
+from index.geometry.boxes import iou
 from index.geometry.pose import roll_rotation
 
 F = (2, 0)  # scene 2, frame 0

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from index.data.bop import BopDataset
-from index.features.objectness import ObjectnessNet, Proposal, decode, level_input, propose, suppress
+from index.features.objectness import ObjectnessNet, Peak, decode, level_input, propose, suppress
 from training.objectness.recall import Truth, hit_rank, recall, truth_of
 
 ROOT = Path(__file__).resolve().parents[3]
@@ -113,10 +113,10 @@ def test_a_level_is_padded_to_the_deepest_stride() -> None:
 
 
 def test_suppression_merges_one_object_seen_at_two_levels_and_keeps_neighbours() -> None:
-    a = Proposal(100, 100, 120, 0.9, 100)
-    same = Proposal(104, 98, 130, 0.6, 110)  # another level's peak of the same object
-    beside = Proposal(100 + 0.5 * 120, 100, 120, 0.7, 100)  # an object half a window away
-    bigger = Proposal(102, 100, 240, 0.5, 200)  # same place, twice the window: another object
+    a = Peak(100, 100, 120, 0.9, 100)
+    same = Peak(104, 98, 130, 0.6, 110)  # another level's peak of the same object
+    beside = Peak(100 + 0.5 * 120, 100, 120, 0.7, 100)  # an object half a window away
+    bigger = Peak(102, 100, 240, 0.5, 200)  # same place, twice the window: another object
     merged, b, big = suppress([same, beside, a, bigger], limit=10)
     assert (b, big) == (beside, bigger)
     # the leader's score, the members' score-weighted centre and (geometric) sizes
@@ -131,13 +131,13 @@ def test_suppression_merges_one_object_seen_at_two_levels_and_keeps_neighbours()
 
 def test_recall_counts_a_hit_only_within_both_tolerances() -> None:
     t = Truth(200, 100, 160, 120, 150)
-    near = Proposal(200 + 160 / 20, 100, 160 * 1.05, 0.9, 120 * 1.05)  # w/20 off, 5 % larger
-    loose = Proposal(200 + 160 / 10, 100, 160, 0.8, 120)  # w/10 off
-    far = Proposal(400, 300, 160, 0.95, 120)
+    near = Peak(200 + 160 / 20, 100, 160 * 1.05, 0.9, 120 * 1.05)  # w/20 off, 5 % larger
+    loose = Peak(200 + 160 / 10, 100, 160, 0.8, 120)  # w/10 off
+    far = Peak(400, 300, 160, 0.95, 120)
     assert hit_rank([far, near], t, 1 / 16, 0.06) == 1
     assert hit_rank([far, loose], t, 1 / 16, 0.06) is None
     assert hit_rank([far, loose], t, 1 / 8, 0.12) == 1
     r = recall([([far, loose], [t]), ([near], [t])])
     assert r["w/16, 6%"]["top5"] == 0.5 and r["w/8, 12%"]["top5"] == 1.0
     # by extent: the window is read from the extent and the true diameter (120 px * 200 / 150 = 160)
-    assert hit_rank([Proposal(200, 100, 999, 0.5, 120)], t, 1 / 16, 0.06, by_extent=True) == 0
+    assert hit_rank([Peak(200, 100, 999, 0.5, 120)], t, 1 / 16, 0.06, by_extent=True) == 0

@@ -14,7 +14,7 @@ from index.data.bop import BopDataset
 from index.geometry.sensor import SensorModel, plane_depth, support_plane
 from service.detection.depth_segments import (
     VISIBLE_SHARE,
-    Proposal,
+    Segment,
     depth_proposals,
     depth_scene,
     largest_visible,
@@ -141,7 +141,7 @@ def test_proposal_fields_are_plain_floats():
     depth = np.zeros((H, W), np.float32)
     depth[200:260, 300:360] = 800.0
     (p,) = depth_proposals(depth, K)
-    assert isinstance(p, Proposal) and all(
+    assert isinstance(p, Segment) and all(
         type(c) is float for c in (p.u, p.v, p.distance_mm, p.score, *p.box)
     )
     assert 300 <= p.u <= 360 and 200 <= p.v <= 260 and p.box == (300.0, 200.0, 359.0, 259.0)
@@ -170,7 +170,7 @@ def test_touching_objects_larger_than_any_registered_one_are_proposed_in_parts(r
         px = np.array([_project(R @ v + c) for v in corners])
         boxes.append((*px.min(axis=0), *px.max(axis=0)))
 
-    def found(props: list[Proposal]) -> list[bool]:
+    def found(props: list[Segment]) -> list[bool]:
         """Whether each box has a proposal of its own: centred on it, over its extent."""
         return [
             any(np.hypot(*(np.array([p.u, p.v]) - _project(c))) < 15 and _iou(p.box, b) >= 0.4 for p in props)

@@ -10,8 +10,8 @@ from coco_rle import decode
 from fastapi.testclient import TestClient
 from service_helpers import K, depth_png, frame, png, register, service_settings, wait_ready
 
+from index.geometry.boxes import iou
 from index.geometry.pose import View
-from service.detection.merge import iou
 from service.main import create_app
 
 VIEW = View(azimuth=37.0, elevation=28.0, inplane=0.0, distance=600.0)

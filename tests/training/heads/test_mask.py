@@ -13,8 +13,8 @@ from training.heads import mask as mask_module
 from training.heads.mask import (
     MaskConfig,
     MaskNet,
-    iou,
     load_mask,
+    mask_iou,
     mask_loss,
     outline_band,
     predict,
@@ -104,8 +104,8 @@ def test_the_head_learns_masks_and_iou_measures_them(shapes, tmp_path):
         strict=True,
     )
     x, m = np.stack(xs), np.stack(ms)
-    learnt = iou(predict(net, x), m).mean()
-    everything = iou(np.ones(m.shape), m).mean()
+    learnt = mask_iou(predict(net, x), m).mean()
+    everything = mask_iou(np.ones(m.shape), m).mean()
     assert learnt > everything + 0.15, (learnt, everything)
 
 
@@ -115,7 +115,7 @@ def test_iou_of_known_masks():
     m[1, :, :1] = True
     logits = np.where(m, 1.0, -1.0)
     logits[1, 0, 1] = 1.0  # one extra pixel: 4 / 5
-    assert np.allclose(iou(logits, m), [1.0, 0.8])
+    assert np.allclose(mask_iou(logits, m), [1.0, 0.8])
     assert MaskNet(pretrained=False)(torch.zeros(1, 3, 64, 64)).shape == (1, 1, 64, 64)
 
 
