@@ -19,8 +19,8 @@ import numpy as np
 from evaluation.served import register_objects
 from index.data.bop import BopDataset
 from index.features.embed import load_models
+from service.answers import drawing
 from service.pipeline.context import Query
-from service.routes.recognize import drawing
 from service.settings import Settings
 from service.state import AppState, close_state, load_state
 

@@ -98,6 +98,14 @@ class AppState:
         self.surfaces = MeshCache(self._surface, CAPACITY)
         self.mask_meshes = MeshCache(self._mask_mesh, CAPACITY)
 
+    def forget_deleted(self) -> None:
+        """The caches of each object's meshes and models (the fit's, the colours', the masks') cut to the
+        objects registered now: a deleted object's are dropped (ids are never reused)."""
+        registered = set(self.store.snapshot.objects)
+        self.shapes.prune(registered)
+        self.surfaces.prune(registered)
+        self.mask_meshes.prune(registered)
+
     def _mask_mesh(self, object_id: int) -> DrawMesh | None:
         mesh = self.draw_meshes.get(object_id)
         return None if mesh is None else mesh.coarse(MASK_FACES)

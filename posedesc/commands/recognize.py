@@ -68,9 +68,9 @@ def run(args: argparse.Namespace) -> int:
     state = _state(args)
     from tqdm import tqdm
 
+    from service.answers import answer, answer_and_drawing
     from service.errors import ApiError
     from service.pipeline.query import Query
-    from service.routes.recognize import answer, answer_and_drawing
     from service.state import close_state
 
     args.out.mkdir(parents=True, exist_ok=True)

@@ -384,7 +384,7 @@ def test_intrinsics_are_used(client, l_frame):
 
 
 def test_unexpected_errors_are_json_500(client, monkeypatch):
-    import service.routes.recognize as route
+    import service.answers as route
 
     def broken(state, q):
         raise RuntimeError("a bug")

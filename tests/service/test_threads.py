@@ -10,7 +10,7 @@ import faiss
 from fastapi.testclient import TestClient
 from service_helpers import patch_files, service_settings, wait_ready
 
-import service.routes.recognize
+import service.answers
 from service.main import create_app
 from service.state import close_state, load_state
 
@@ -40,13 +40,13 @@ def test_every_pool_thread_uses_the_set_thread_counts(tmp_path, posedesc_models)
 
 def test_recognitions_run_in_those_threads(tmp_path, posedesc_models, monkeypatch):
     n = unlike_the_default()
-    real, seen = service.routes.recognize.recognise, []
+    real, seen = service.answers.recognise, []
 
     def observed(state, q):  # the route's own function, run where the route runs it
         seen.append((threading.current_thread().name, *counts()))
         return real(state, q)
 
-    monkeypatch.setattr(service.routes.recognize, "recognise", observed)
+    monkeypatch.setattr(service.answers, "recognise", observed)
     with TestClient(create_app(service_settings(tmp_path, posedesc_models, threads=n))) as c:
         wait_ready(c)
         for files in patch_files().values():
