@@ -1,0 +1,110 @@
+"""What a new user meets, on a real server (`posedesc serve` on loopback, the shipped models, the demo objects):
+their own mesh registered, its `posedesc render --patches` queries sent as written. Its patches, sent with the
+window the JSON says, are answered as that object and never as another one with confidence; registered
+shape-only beside the textured demo objects, it is found in a whole frame with colour and depth as with
+depth alone; deleted, it is never named again."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+
+import httpx
+import pytest
+import trimesh
+from service_helpers import ROOT, Server
+
+pytestmark = pytest.mark.slow
+
+MODELS = ROOT / "models"
+PART = ROOT / "service" / "examples" / "part.ply"
+
+
+@pytest.fixture(scope="module")
+def server(tmp_path_factory):
+    if not all((MODELS / f"posedesc-{m}.onnx").is_file() for m in ("rgb", "depth", "rgbd")):
+        pytest.skip(f"no shipped models in {MODELS}")
+    env = {"POSEDESC_DEMO_OBJECTS": "true", "POSEDESC_SYNC_SECONDS": "60"}
+    with Server(tmp_path_factory.mktemp("newuser") / "data", MODELS, env) as s:
+        s.wait_ready(timeout=300)
+        yield s
+        s.stop()
+
+
+def queries(mesh_path, out) -> list[dict]:
+    exe = ROOT / ".venv" / "bin" / "posedesc"
+    r = subprocess.run(
+        [str(exe), "render", str(mesh_path), "--patches", str(out)], capture_output=True, text=True
+    )
+    assert r.returncode == 0, r.stderr
+    return [json.loads((out / f"query-{i:02d}.json").read_text()) for i in range(4)]
+
+
+def files(folder, q: dict, *keys: str) -> dict:
+    return {k.removeprefix("patch_"): (q["files"][k], (folder / q["files"][k]).read_bytes()) for k in keys}
+
+
+def test_a_small_part_s_patches_are_answered_through_its_window(server, tmp_path):
+    small = trimesh.load(PART, process=False)
+    small.apply_scale(0.45)  # ~67 mm: a 100 mm window, not the model's 200
+    small.export(tmp_path / "small.ply")
+    r = httpx.post(
+        f"{server.url}/objects",
+        files={"mesh": ("small.ply", (tmp_path / "small.ply").read_bytes())},
+        data={"name": "small-part", "units": "mm", "symmetry": "none"},
+        timeout=120,
+    )
+    assert r.status_code == 201, r.text
+    assert r.json()["window_mm"] == 100.0
+    qs = queries(tmp_path / "small.ply", tmp_path / "q")
+    assert all(q["patch"]["form"]["window_mm"] == 100.0 for q in qs)
+    for q in qs:
+        for keys in (("patch_rgb",), ("patch_depth",), ("patch_rgb", "patch_depth")):
+            a = httpx.post(
+                f"{server.url}/recognize",
+                files=files(tmp_path / "q", q, *keys),
+                data=q["patch"]["form"],
+                timeout=60,
+            ).json()
+            best = a["best"]
+            assert best is None or best["name"] == "small-part" or best["confidence"] < 0.5, (keys, best)
+        right = httpx.post(
+            f"{server.url}/recognize",
+            files=files(tmp_path / "q", q, "patch_depth"),
+            data=q["patch"]["form"],
+            timeout=60,
+        ).json()["best"]
+        assert right is not None and right["name"] == "small-part"
+    httpx.delete(f"{server.url}/objects/{r.json()['object_id']}")
+
+
+def test_a_shape_only_part_beside_textured_objects_is_found_with_colour_as_with_depth(server, tmp_path):
+    mesh = trimesh.load(PART, process=False)
+    bare = trimesh.Trimesh(mesh.vertices, mesh.faces)  # a CAD file: no colours
+    bare.export(tmp_path / "bare.ply")
+    r = httpx.post(
+        f"{server.url}/objects",
+        files={"mesh": ("bare.ply", (tmp_path / "bare.ply").read_bytes())},
+        data={"name": "bare-part", "units": "mm", "symmetry": "none"},
+        timeout=120,
+    )
+    assert r.status_code == 201 and r.json()["textured"] is False, r.text
+    oid = r.json()["object_id"]
+    qs = queries(tmp_path / "bare.ply", tmp_path / "q")
+    camera = {k: qs[0]["form"][k] for k in ("fx", "fy", "cx", "cy")}
+    found = {"rgb+depth": 0, "depth": 0}
+    for q in qs:
+        for kind, keys in (("rgb+depth", ("rgb", "depth")), ("depth", ("depth",))):
+            a = httpx.post(
+                f"{server.url}/recognize", files=files(tmp_path / "q", q, *keys), data=camera, timeout=120
+            ).json()
+            found[kind] += any(d["best"]["name"] == "bare-part" for d in a["detections"])
+    assert found["depth"] >= 3 and found["rgb+depth"] >= found["depth"], found
+    assert httpx.delete(f"{server.url}/objects/{oid}").status_code == 204
+    after = httpx.post(
+        f"{server.url}/recognize",
+        files=files(tmp_path / "q", qs[0], "rgb", "depth"),
+        data=camera,
+        timeout=120,
+    ).json()
+    assert all(d["best"]["name"] != "bare-part" for d in after["detections"])  # deleted: never named again
