@@ -11,7 +11,7 @@ import time
 
 from service.errors import ApiError
 from service.pipeline.answer import Result
-from service.pipeline.query import Decoded, Query, decode
+from service.pipeline.query import Decoded, Query, by_model, decode
 from service.state import AppState
 
 
@@ -34,5 +34,18 @@ def recognise(state: AppState, q: Query) -> Result:
 def recognise_decoded(state: AppState, q: Query, d: Decoded, decode_s: float | None = None) -> Result:
     """From decoded images to the answer, what `recognise` (so the route) runs after `decode`: the
     pipeline of the model the query's modality picked. `posedesc bench` times this call. `decode_s`: the
-    seconds decoding took, reported as `decode` and counted in `total` (omitted when None)."""
-    return state.pipelines[d.modality](q, d, state.store.snapshot, decode_s)
+    seconds decoding took, reported as `decode` and counted in `total` (omitted when None).
+
+    An RGB-D query of a store holding shape-only and textured objects asks each part its own model
+    (`service.pipeline.query.by_model`: the shape-only objects the depth model) and answers with the
+    more confident of the two: an answer the open set accepts before one it rejects, then the higher
+    calibrated confidence of the best match (each model's own calibration)."""
+    parts = by_model(state, d)
+    results = [state.pipelines[dp.modality](q, dp, snapshot, decode_s) for dp, snapshot in parts]
+    return max(results, key=_trust) if len(results) > 1 else results[0]
+
+
+def _trust(result: Result) -> tuple[bool, float]:
+    """How far an answer is to be believed: accepted by the open set, then its best match's confidence."""
+    confidence = result.confidences[0] if result.matches and result.confidences else None
+    return result.reason is None and bool(result.matches), confidence or 0.0

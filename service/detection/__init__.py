@@ -28,7 +28,6 @@ import time
 from dataclasses import replace
 from typing import Protocol
 
-from index.store import Snapshot
 from index.templates.windows import window_classes
 from service.detection.agree import Agree
 from service.detection.found import Detection, Found, Frame, Proposal
@@ -40,7 +39,7 @@ from service.detection.stand import Stand
 from service.detection.verify import Verify
 from service.errors import ApiError
 from service.inputs.depth_units import check_scene_depth
-from service.pipeline.query import Decoded, Query, decode, untextured
+from service.pipeline.query import Decoded, Query, by_model, decode
 from service.recognition import answerable
 from service.state import AppState
 
@@ -82,26 +81,6 @@ def stages(state: AppState) -> tuple[FrameStage, ...]:
 
 #: the stages run on each part of the store apart (`by_model`): propose, verify, agree, stand
 STAGES_APART = 4
-
-
-def by_model(state: AppState, d: Decoded) -> list[tuple[Decoded, Snapshot]]:
-    """The frame's images and the part of the store each model searches: the whole store with the model of
-    the frame's modality; but an RGB-D frame of a store holding shape-only and textured objects has its
-    shape-only ones found by the depth model, as when every object is shape-only (`decode`): the colour of
-    a grey render matches no real surface, and adding colour to a frame must never lose what its depth
-    alone finds. Costs a second pass (its proposals verified twice) for such stores only."""
-    snapshot = state.store.snapshot
-    depth = state.embedders.get("depth")
-    if d.modality != "rgbd" or depth is None or not state.settings.shape_only_depth:
-        return [(d, snapshot)]
-    bare = frozenset(oid for oid, rec in snapshot.objects.items() if untextured(rec))
-    if not bare or len(bare) == len(snapshot.objects):
-        return [(d, snapshot)]
-    textured = frozenset(snapshot.objects) - bare
-    return [
-        (d, snapshot.within(textured)),
-        (replace(d, modality="depth", embedder=depth), snapshot.within(bare)),
-    ]
 
 
 def detect(state: AppState, q: Query) -> Found:

@@ -15,7 +15,7 @@ import numpy as np
 
 from index.features.embed import Embedder
 from index.features.patches import PatchSpec, crops, patch_camera
-from index.store import ObjectRecord, TemplateStore
+from index.store import ObjectRecord, Snapshot, TemplateStore
 from index.templates.register import TEXTURED_KEY, TemplateConfig
 from service.errors import ApiError, NothingMeasured
 from service.inputs.camera import undistorted
@@ -60,6 +60,27 @@ def shape_only(store: TemplateStore) -> bool:
     match nothing but grey renders, and the depth model answers."""
     objects = store.snapshot.objects.values()
     return bool(objects) and all(untextured(rec) for rec in objects)
+
+
+def by_model(state: Loaded, d: Decoded) -> list[tuple[Decoded, Snapshot]]:
+    """The frame's images and the part of the store each model searches: the whole store with the model of
+    the frame's modality; but an RGB-D frame of a store holding shape-only and textured objects has its
+    shape-only ones found by the depth model, as when every object is shape-only (`decode`): the colour of
+    a grey render matches no real surface, and adding colour to a frame must never lose what its depth
+    alone finds. Costs a second pass for such stores only (a whole frame: its proposals verified twice;
+    a centre: `service.recognition.recognise_decoded` keeps the more confident answer)."""
+    snapshot = state.store.snapshot
+    depth = state.embedders.get("depth")
+    if d.modality != "rgbd" or depth is None or not state.settings.shape_only_depth:
+        return [(d, snapshot)]
+    bare = frozenset(oid for oid, rec in snapshot.objects.items() if untextured(rec))
+    if not bare or len(bare) == len(snapshot.objects):
+        return [(d, snapshot)]
+    textured = frozenset(snapshot.objects) - bare
+    return [
+        (d, snapshot.within(textured)),
+        (replace(d, modality="depth", embedder=depth), snapshot.within(bare)),
+    ]
 
 
 def decode(state: Loaded, q: Query) -> Decoded:

@@ -44,7 +44,17 @@ def test_a_catalogue_run_trains_on_random_urdfs_with_every_real_object_held(tmp_
     pytest.importorskip("torch")
     pytest.importorskip("pybullet_data")
     run = tmp_path / "run"
-    args = ["train", "--data", str(lmo), "--out", str(run), "--cache", str(tmp_path / "cache"), "--minutes", "0.2"]
+    args = [
+        "train",
+        "--data",
+        str(lmo),
+        "--out",
+        str(run),
+        "--cache",
+        str(tmp_path / "cache"),
+        "--minutes",
+        "0.2",
+    ]
     args += ["--threads", "1", "--objects", "catalogue", "--shapes", "6", "--shape-views", "1"]
     args += ["--real-objects", "held", "--background", "ignore", "--negative-paste", "0.25", "--paste", "1,6"]
     args += ["--photo-share", "0.6", "--harmonise", "0.5", "--select-by", "extent", "--val-every", "5"]

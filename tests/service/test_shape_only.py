@@ -47,7 +47,9 @@ def test_rgbd_frames_of_shape_only_objects_are_answered_by_the_depth_model(
         assert whole.json()["model"] == "posedesc-depth"
         drawn = c.post("/recognize/draw", files=files, data=frame_fields(UV, k=3))
         assert drawn.status_code == 200 and drawn.content[:4] == b"\x89PNG"
-        register(c, l_shape, "L")  # coloured: the RGB-D model answers again, for both
+        # coloured: the store is mixed, each part asked its own model and the more trusted answer kept
+        # (`service.recognition.recognise_decoded`); with these untrained models, the RGB-D model's
+        register(c, l_shape, "L")
         again = c.post("/recognize", files=files, data=frame_fields(UV, k=3))
         assert again.status_code == 200 and again.json()["model"] == "posedesc-rgbd"
         assert np.isfinite(again.json()["matches"][0]["distance"])
@@ -57,10 +59,9 @@ def test_beside_textured_objects_an_rgbd_frames_shape_only_objects_are_found_by_
     tmp_path, posedesc_models, renderer, l_shape
 ):
     """Adding colour never loses what depth alone finds: with a textured object registered too, a whole
-    RGB-D frame's shape-only objects are searched by the depth model (`service.detection.by_model`), the
+    RGB-D frame's shape-only objects are searched by the depth model (`service.pipeline.query.by_model`), the
     textured ones by the RGB-D model, and the detections of both reported together."""
-    from service.detection import by_model
-    from service.pipeline.query import Query, decode
+    from service.pipeline.query import Query, by_model, decode
 
     part = shape_only_part()
     rgb, depth = frame(renderer, part, VIEW, UV, wall_mm=1500.0)
