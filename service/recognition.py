@@ -11,7 +11,7 @@ import time
 
 from service.errors import ApiError
 from service.pipeline.answer import Result
-from service.pipeline.query import Decoded, Query, by_model, decode
+from service.pipeline.query import Decoded, Query, decode
 from service.state import AppState
 
 
@@ -36,16 +36,8 @@ def recognise_decoded(state: AppState, q: Query, d: Decoded, decode_s: float | N
     pipeline of the model the query's modality picked. `posedesc bench` times this call. `decode_s`: the
     seconds decoding took, reported as `decode` and counted in `total` (omitted when None).
 
-    An RGB-D query of a store holding shape-only and textured objects asks each part its own model
-    (`service.pipeline.query.by_model`: the shape-only objects the depth model) and answers with the
-    more confident of the two: an answer the open set accepts before one it rejects, then the higher
-    calibrated confidence of the best match (each model's own calibration)."""
-    parts = by_model(state, d)
-    results = [state.pipelines[dp.modality](q, dp, snapshot, decode_s) for dp, snapshot in parts]
-    return max(results, key=_trust) if len(results) > 1 else results[0]
-
-
-def _trust(result: Result) -> tuple[bool, float]:
-    """How far an answer is to be believed: accepted by the open set, then its best match's confidence."""
-    confidence = result.confidences[0] if result.matches and result.confidences else None
-    return result.reason is None and bool(result.matches), confidence or 0.0
+    An RGB-D query with a centre of a store holding shape-only and textured objects is answered by the RGB-D
+    model over them all, as before: asked apart (`service.pipeline.query.by_model`, as a whole frame is),
+    its answer would hold one part's objects only, and the two models' confidences are calibrated apart, so
+    neither answer can overrule the other (docs/experiments.md, 2026-12-06)."""
+    return state.pipelines[d.modality](q, d, state.store.snapshot, decode_s)

@@ -67,8 +67,8 @@ def by_model(state: Loaded, d: Decoded) -> list[tuple[Decoded, Snapshot]]:
     the frame's modality; but an RGB-D frame of a store holding shape-only and textured objects has its
     shape-only ones found by the depth model, as when every object is shape-only (`decode`): the colour of
     a grey render matches no real surface, and adding colour to a frame must never lose what its depth
-    alone finds. Costs a second pass for such stores only (a whole frame: its proposals verified twice;
-    a centre: `service.recognition.recognise_decoded` keeps the more confident answer)."""
+    alone finds. Costs a second pass (its proposals verified twice) for such stores only. A query with a
+    centre is not split (`service.recognition.recognise_decoded`)."""
     snapshot = state.store.snapshot
     depth = state.embedders.get("depth")
     if d.modality != "rgbd" or depth is None or not state.settings.shape_only_depth:

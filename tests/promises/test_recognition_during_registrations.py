@@ -86,7 +86,12 @@ def write_until(
 
 
 def test_recognitions_during_registrations_and_deletes(tmp_path, posedesc_models, l_shape):
-    meshes = [random_shape(np.random.default_rng(i)).export(file_type="ply") for i in range(40)]
+    # sized in the model's window class (docs/windows.md): the patches, sent without `window_mm`, are
+    # compared with the objects of the model's window only, so every object is in every answer
+    meshes = [
+        random_shape(np.random.default_rng(i), diameter_mm=(120.0, 260.0)).export(file_type="ply")
+        for i in range(40)
+    ]
     data_dir = tmp_path / "data"
     with Server(data_dir, posedesc_models, env={"POSEDESC_LEVEL": "1"}) as server:
         server.wait_ready()

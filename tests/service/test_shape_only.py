@@ -47,9 +47,7 @@ def test_rgbd_frames_of_shape_only_objects_are_answered_by_the_depth_model(
         assert whole.json()["model"] == "posedesc-depth"
         drawn = c.post("/recognize/draw", files=files, data=frame_fields(UV, k=3))
         assert drawn.status_code == 200 and drawn.content[:4] == b"\x89PNG"
-        # coloured: the store is mixed, each part asked its own model and the more trusted answer kept
-        # (`service.recognition.recognise_decoded`); with these untrained models, the RGB-D model's
-        register(c, l_shape, "L")
+        register(c, l_shape, "L")  # coloured: the RGB-D model answers a centre again, for both
         again = c.post("/recognize", files=files, data=frame_fields(UV, k=3))
         assert again.status_code == 200 and again.json()["model"] == "posedesc-rgbd"
         assert np.isfinite(again.json()["matches"][0]["distance"])
