@@ -15,6 +15,7 @@ SHAPE_HANDICAP = 0.3
 class Settings(BaseSettings):
     model_config = SettingsConfigDict(env_prefix="POSEDESC_", env_file=None, extra="ignore")
 
+    # ---- Store and models: where the objects and the networks live (a deployment's choice) ----
     # The template store: "embedded" (SQLite + FAISS in data_dir, one process) or a Milvus URI as pymilvus
     # takes it (http://host:19530): replicas pointed at one Milvus and one shared data_dir serve one store.
     store: str = Field(
@@ -45,6 +46,8 @@ class Settings(BaseSettings):
         [1.0, 0.7071, 0.5, 0.3536, 0.25], description="the scales a colour frame is searched at by the "
         "objectness network (each a level of the pyramid); empty or null: the model's own",
     )  # fmt: skip
+
+    # ---- Limits: what one request may ask of the machine (bad input gets a 4xx, never the memory) ----
     api_key: SecretStr | None = Field(None, description="when set, POST/DELETE /objects need it (X-API-Key)")
     allow_open_writes: bool = Field(
         False, description="without an API key on a non-loopback address, allow POST/DELETE /objects anyway"
@@ -60,6 +63,8 @@ class Settings(BaseSettings):
     max_k: int = Field(100, gt=0, description="largest k of /recognize")
 
     threads: int = Field(1, ge=1, description="onnxruntime intra-op and FAISS OpenMP threads per call")
+
+    # ---- Recognition: a patch or a centre, each step's size as measured on the validation frames ----
     # In-plane (roll): by default each model's own metadata decides (`index.templates.register.TemplateConfig`):
     # templates over the whole turn for a model trained with roll, upright ones for a legacy model.
     inplane_step: float | None = Field(
@@ -193,6 +198,8 @@ class Settings(BaseSettings):
         50_000, ge=1, description="embedded store, index_kind auto: an IVF index from this many templates"
     )
 
+    # ---- Detection: a frame without a centre (docs/detection.md; the real-depth floors' effect per video:
+    # docs/experiments.md, leave-one-video-out) ----
     # Each proposal costs a run of the pipeline (~30 ms at 8 objects, 2 cores). The objectness network's
     # top 10 held 83 % of the validation instances within w/8 and 12 %, its top 20 83 % too
     # (docs/results/objectness-val.json). Verified at their centres, on the validation frames (recall /
@@ -297,6 +304,7 @@ class Settings(BaseSettings):
         60, ge=1, le=1000, description="a frame without u and v: the answers the screening re-ranks"
     )
 
+    # ---- Registration: how long POST /objects waits, and the demo objects of an empty data dir ----
     sync_seconds: float = Field(2.0, ge=0, description="POST /objects answers 201 within this, else 202")
     demo_objects: bool = Field(True, description="register the built-in demo shapes into an empty data dir")
 
