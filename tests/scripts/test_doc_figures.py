@@ -1,0 +1,51 @@
+"""The figures docs/experiments.md gives for this session's measurements are those of their committed JSONs
+(docs/results/): the patch windows before and after, the rules per video and the thresholds chosen
+leave-one-video-out, the catalogue objectness network's validation."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[2]
+RESULTS = ROOT / "docs" / "results"
+
+
+def experiments() -> str:
+    return " ".join((ROOT / "docs" / "experiments.md").read_text().split())
+
+
+def pct(x: float) -> str:
+    return f"{100 * x:.1f}"
+
+
+def test_the_patch_windows_figures_are_their_jsons() -> None:
+    text = experiments()
+    before = json.loads((RESULTS / "patch-windows-before.json").read_text())["all"]
+    after = json.loads((RESULTS / "patch-windows.json").read_text())["all"]
+    row_before = (
+        f"| {before['right']} / {before['n']} | {before['unknown']} | {before['wrong']} | "
+        f"**{before['confidently wrong']}** |"
+    )
+    row_after = f"| **{after['right']} / {after['n']}** | {after['unknown']} | {after['wrong']} | **{after['confidently wrong']}** |"
+    assert row_before in text and row_after in text
+
+
+def test_the_rules_and_thresholds_by_video_are_their_json() -> None:
+    text = experiments()
+    result = json.loads((RESULTS / "rules-by-video.json").read_text())
+    for name, lovo in result["lovo"].items():
+        chosen, shipped = pct(lovo["mean_f1_left_out"]), pct(lovo["mean_f1_left_out_shipped"])
+        assert f"| {chosen} | **{shipped}** |" in text, name
+    support = next(r for k, r in result["rules"].items() if k.startswith("support"))
+    for video, r in support["videos"].items():
+        p_with, p_without = pct(r["with"]["precision"]), pct(r["without"]["precision"])
+        assert f"| {video} | " in text and (f"{p_with} / {p_without}" in text), video
+
+
+def test_the_catalogue_objectness_figures_are_its_json() -> None:
+    text = experiments()
+    result = json.loads((RESULTS / "objectness-catalogue-val.json").read_text())
+    by_window = pct(result["recall_by_window"]["w/8, 12%"]["top20"])
+    by_extent = pct(result["recall_by_extent_and_true_diameter"]["w/8, 12%"]["top20"])
+    assert f"by window {by_window} %, by extent {by_extent} %" in text
