@@ -253,7 +253,7 @@ class Settings(BaseSettings):
     # validation frames, the most found with at most 0.2 false detections a frame where only objects absent
     # from them are registered (docs/experiments.md): weight 8, allowance 0.15, floor 0.25 found 66.1 %,
     # 90.5 % of what it reported right, 0.10 false a frame (unweighed at 0.4: 61.7 %, 92.2 %, 2.55). With
-    # colour proposals verified at their centres (`detect_shift` 0) the floor again, by the same rule: 0.25
+    # colour proposals verified at their centres the floor again, by the same rule: 0.25
     # 67.0 / 96.3 / 0.0; 0.2 73.0 / 94.4 / 0.0; 0.15 79.1 / 93.8 / 0.10; 0.1 80.9 / 92.1 / 0.55
     detect_colour_weight: float = Field(
         8.0, ge=0, le=100, description="a frame without u and v and without depth: how much a detection's "

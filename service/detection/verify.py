@@ -6,7 +6,7 @@ re-ranking's cells are 4 px of a 64 px patch, so each segment is first screened 
 model's whole pipeline (`AppState.pipelines`) then names the object where the screening was most confident,
 gives its pose and the open-set verdict. A colour proposal (the objectness network's: the origin's
 projection) goes to the whole pipeline at its own centre, whose pose fit moves it (screened too, it lost on
-the validation frames: `Settings.detect_shift`). A verified answer's box is its mesh projected at its pose."""
+the validation frames: docs/experiments.md). A verified answer's box is its mesh projected at its pose."""
 
 from __future__ import annotations
 
@@ -86,19 +86,16 @@ class Verify:
         v: float,
         p: Proposal,
         seen: dict,
-        log_d: float | None = None,
     ) -> tuple[float, float]:
-        """The screening pipeline's (confidence, -distance) of its best answer cut at (u, v) at the distance
-        `exp(log_d)` (default the proposal's), (-1, 0) when nothing is there, remembered in `seen`."""
-        if log_d is None and p.distance_mm is not None:
-            log_d = float(np.log(p.distance_mm))
-        key = (round(u, 1), round(v, 1), round(log_d, 4) if log_d is not None else 0.0)
+        """The screening pipeline's (confidence, -distance) of its best answer cut at (u, v) at the proposal's
+        distance (a depth segment's: none, the depth there measures it), (-1, 0) when nothing is there,
+        remembered in `seen`."""
+        key = (round(u, 1), round(v, 1))
         if key not in seen:
             q, d = frame.q, frame.d
-            distance = None if log_d is None else float(np.exp(log_d))
             try:
                 r = self.state.screens[d.modality](
-                    replace(q, u=u, v=v, distance_mm=distance, k=1), d, snapshot
+                    replace(q, u=u, v=v, distance_mm=p.distance_mm, k=1), d, snapshot
                 )
             except NothingMeasured:  # no depth there
                 seen[key] = (-1.0, 0.0)

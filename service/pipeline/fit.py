@@ -101,14 +101,13 @@ class PoseFit:
     #: a detection's verification (its centre estimated) re-orders none: five fits for each of up to 30 places
     #: doubled a YCB-V frame's time (docs/service.md)
     rerank: int = 0
-    detect_rerank: int = 0
     #: of the re-ordered answers, this many best (after the coarse look) fitted fully (`Settings.depth_refine`)
     refine: int = 3
     #: called with the stage's name when a fit raises (the service's `Metrics.failed`: counted in /metrics)
     on_failure: Callable[[str], None] | None = None
 
     def reordered(self, q: Query) -> int:
-        return self.detect_rerank if q.estimated else self.rerank
+        return 0 if q.estimated else self.rerank
 
     def considered(self, q: Query, d: Decoded) -> int:
         """How many answers a query needs for this step: k, or `rerank` when its depth re-orders them."""

@@ -44,52 +44,47 @@ def files(folder, q: dict, *keys: str) -> dict:
     return {k.removeprefix("patch_"): (q["files"][k], (folder / q["files"][k]).read_bytes()) for k in keys}
 
 
-def test_a_small_part_s_patches_are_answered_through_its_window(server, tmp_path):
-    small = trimesh.load(PART, process=False)
-    small.apply_scale(0.45)  # ~67 mm: a 100 mm window, not the model's 200
-    small.export(tmp_path / "small.ply")
+def register(server: Server, mesh: trimesh.Trimesh, path, name: str) -> dict:
+    """The mesh written to `path` and registered through POST /objects (mm, no symmetry): its object."""
+    mesh.export(path)
     r = httpx.post(
         f"{server.url}/objects",
-        files={"mesh": ("small.ply", (tmp_path / "small.ply").read_bytes())},
-        data={"name": "small-part", "units": "mm", "symmetry": "none"},
+        files={"mesh": (path.name, path.read_bytes())},
+        data={"name": name, "units": "mm", "symmetry": "none"},
         timeout=120,
     )
     assert r.status_code == 201, r.text
-    assert r.json()["window_mm"] == 100.0
+    return r.json()
+
+
+def test_a_small_part_s_patches_are_answered_through_its_window(server, tmp_path):
+    small = trimesh.load(PART, process=False)
+    small.apply_scale(0.45)  # ~67 mm: a 100 mm window, not the model's 200
+    obj = register(server, small, tmp_path / "small.ply", "small-part")
+    assert obj["window_mm"] == 100.0
     qs = queries(tmp_path / "small.ply", tmp_path / "q")
     assert all(q["patch"]["form"]["window_mm"] == 100.0 for q in qs)
     for q in qs:
+        best = {}
         for keys in (("patch_rgb",), ("patch_depth",), ("patch_rgb", "patch_depth")):
-            a = httpx.post(
+            best[keys] = b = httpx.post(
                 f"{server.url}/recognize",
                 files=files(tmp_path / "q", q, *keys),
                 data=q["patch"]["form"],
                 timeout=60,
-            ).json()
-            best = a["best"]
-            assert best is None or best["name"] == "small-part" or best["confidence"] < 0.5, (keys, best)
-        right = httpx.post(
-            f"{server.url}/recognize",
-            files=files(tmp_path / "q", q, "patch_depth"),
-            data=q["patch"]["form"],
-            timeout=60,
-        ).json()["best"]
+            ).json()["best"]
+            assert b is None or b["name"] == "small-part" or b["confidence"] < 0.5, (keys, b)
+        right = best[("patch_depth",)]
         assert right is not None and right["name"] == "small-part"
-    httpx.delete(f"{server.url}/objects/{r.json()['object_id']}")
+    httpx.delete(f"{server.url}/objects/{obj['object_id']}")
 
 
 def test_a_shape_only_part_beside_textured_objects_is_found_with_colour_as_with_depth(server, tmp_path):
     mesh = trimesh.load(PART, process=False)
     bare = trimesh.Trimesh(mesh.vertices, mesh.faces)  # a CAD file: no colours
-    bare.export(tmp_path / "bare.ply")
-    r = httpx.post(
-        f"{server.url}/objects",
-        files={"mesh": ("bare.ply", (tmp_path / "bare.ply").read_bytes())},
-        data={"name": "bare-part", "units": "mm", "symmetry": "none"},
-        timeout=120,
-    )
-    assert r.status_code == 201 and r.json()["textured"] is False, r.text
-    oid = r.json()["object_id"]
+    obj = register(server, bare, tmp_path / "bare.ply", "bare-part")
+    assert obj["textured"] is False
+    oid = obj["object_id"]
     qs = queries(tmp_path / "bare.ply", tmp_path / "q")
     camera = {k: qs[0]["form"][k] for k in ("fx", "fy", "cx", "cy")}
     found = {"rgb+depth": 0, "depth": 0}

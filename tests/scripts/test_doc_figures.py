@@ -49,3 +49,7 @@ def test_the_catalogue_objectness_figures_are_its_json() -> None:
     by_window = pct(result["recall_by_window"]["w/8, 12%"]["top20"])
     by_extent = pct(result["recall_by_extent_and_true_diameter"]["w/8, 12%"]["top20"])
     assert f"by window {by_window} %, by extent {by_extent} %" in text
+    test = json.loads((RESULTS / "objectness-catalogue-test.json").read_text())  # reported once, on test
+    by_window = pct(test["recall_by_window"]["w/8, 12%"]["top20"])
+    by_extent = pct(test["recall_by_extent_and_true_diameter"]["w/8, 12%"]["top20"])
+    assert test["split"] == "test" and f"by window {by_window} %, by extent {by_extent} %" in text
