@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import functools
 import json
-from decimal import ROUND_HALF_UP, Decimal
+from decimal import ROUND_HALF_EVEN, Decimal
 from pathlib import Path
 from typing import Any
 
@@ -27,16 +27,17 @@ def result(name: str) -> Any:
 
 
 def _rounded(d: Decimal, digits: int) -> str:
-    return str(d.quantize(Decimal(1).scaleb(-digits), ROUND_HALF_UP))
+    return str(d.quantize(Decimal(1).scaleb(-digits), ROUND_HALF_EVEN))
 
 
 def num(x: float, digits: int = 1) -> str:
-    """`x` to `digits` decimals, halves rounded up as a reader rounds the stored figure (0.0455 -> 0.046)."""
+    """`x` to `digits` decimals as written in the JSON (its repr, not the binary float), a half to the even
+    digit as Python's round() does: 0.625 -> '0.62', 0.0455 -> '0.046'."""
     return _rounded(Decimal(repr(x)), digits)
 
 
 def pct(x: float, digits: int = 1) -> str:
-    """A share as the docs write a percentage: 0.7009 -> '70.1', with digits=0 '70'; 0.0455 -> '4.6'."""
+    """A share as the docs write a percentage: 0.7009 -> '70.1', with digits=0 '70'; 0.625 -> '62'."""
     return _rounded(Decimal(repr(x)) * 100, digits)
 
 
