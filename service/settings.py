@@ -125,20 +125,16 @@ class Settings(BaseSettings):
         0.3, ge=0, le=10, description="re-ranking with a query mask: add this times the share of the mask "
         "that a template's silhouette leaves uncovered (0: off)",
     )  # fmt: skip
-    # 5 (residuals clipped at 20 mm, `relief_clip_mm`): chosen on the RGB-D validation
-    # frames sent at five camera rolls among 1, 3, 6, 10 unclipped, 3, 5, 8 clipped at 10 mm, 8, 12 at 6 mm
-    # (docs/experiments.md: +14.8 points within 20 deg; 8 at 10 mm tied, the wider clip kept for real depth)
     # chosen on LM-O's validation frames with YCB-V's 12 shape-only meshes registered beside (docs/experiments.md,
     # "Shape-only meshes beside textured ones")
-    shape_only_depth: bool = Field(
-        True, description="an RGB-D frame while every registered object is shape-only (no colours): answered by "
-        "the depth model (false: by the RGB-D model, whose colour half sees grey renders)",
-    )  # fmt: skip
     shape_handicap: float = Field(
         SHAPE_HANDICAP, ge=0, le=10, description="colour and RGB-D answers: a shape-only object's distance "
         "times 1 + this, in choosing the re-ranking's candidates and in the answer (its grey renders are near "
         "any colour patch: without it, it takes textured objects' names)",
     )  # fmt: skip
+    # 5 (residuals clipped at 20 mm, `relief_clip_mm`): chosen on the RGB-D validation
+    # frames sent at five camera rolls among 1, 3, 6, 10 unclipped, 3, 5, 8 clipped at 10 mm, 8, 12 at 6 mm
+    # (docs/experiments.md: +14.8 points within 20 deg; 8 at 10 mm tied, the wider clip kept for real depth)
     relief_weight: float = Field(
         5.0, ge=0, le=100, description="re-ranking with depth: add this times the distance between the "
         "query's relief and a template's (rms of their cells' depth difference, in windows; 0: off)",
@@ -218,10 +214,6 @@ class Settings(BaseSettings):
     detect_threads: int = Field(
         2, ge=1, le=16, description="a frame without u and v: the objectness network's threads and the "
         "places verified at once (1: one core)",
-    )  # fmt: skip
-    detect_by_extent: bool = Field(
-        False, description="a frame without u and v, colour: each place is also verified at the distance "
-        "its extent gives each registered size class (objects the objectness network never saw)",
     )  # fmt: skip
     # Depth segments rank worse than the network's proposals in clutter (the real Kinect frame: 5 of its 6
     # instances in the first 30 segments, 1 in the first 10; docs/results/depth_proposals.json)
