@@ -85,12 +85,6 @@ class Settings(BaseSettings):
         400, ge=0, le=1000, description="with a model that has local features: re-rank this many nearest "
         "distinct answers by the local similarity of the query turned to each one's roll (0: off)",
     )  # fmt: skip
-    # 10: chosen on validation frames among 0, 5, 10, 20, 40 (docs/experiments.md)
-    roll_refine: int = Field(
-        10, ge=0, le=100, description="re-ranking: compare this many best answers also at the viewpoints "
-        "around theirs and at their roll +- a third of the templates' in-plane step, and keep the pose that "
-        "fits best (0: off)",
-    )  # fmt: skip
     # 150: chosen on the validation frames sent at five camera rolls among 0, 20, 60, 150, 400 (docs/experiments.md:
     # +4.5 points within 20 deg; 400 +4.6 at twice the work)
     roll_sweep: int = Field(
@@ -99,31 +93,18 @@ class Settings(BaseSettings):
     )  # fmt: skip
     # YCB-V video 0000 (real depth, shape-only objects, centre given, the depth model): the first 5 re-ordered
     # by their fits, the right object 53 %; the first 20, each looked at coarsely
-    # (`service.pipeline.fit.COARSE_ITERATIONS`), the best 3 then fitted fully, 95 %: the mug's right pose was
-    # an answer past the fifth (docs/experiments.md). 122 -> 178 ms a query there
+    # (`service.pipeline.fit.COARSE_ITERATIONS`), the best 3 then fitted fully (`fit.DEPTH_REFINE`), 95 %: the
+    # mug's right pose was an answer past the fifth (docs/experiments.md). 122 -> 178 ms a query there
     depth_rerank: int = Field(
         20, ge=0, le=50, description="a frame with depth, its camera and a centre (the pose fit on): this many "
         "best answers are each fitted to the depth (coarsely) and re-ordered by the share of their points it "
         "explains plus their confidence; 0 or 1: not re-ordered",
-    )  # fmt: skip
-    depth_refine: int = Field(
-        3, ge=1, le=50, description="of the answers `depth_rerank` re-orders, this many best fitted fully, then "
-        "re-ordered again",
     )  # fmt: skip
     # 1: the best answer, the one a user acts on (and each detection's); more costs a fit each
     pose_fit: int = Field(
         1, ge=0, le=100, description="refine the pose of this many best answers over all six degrees of "
         "freedom against the frame (a frame sent with its camera): the mesh's outline against the colour "
         "image, or its points against the depth (ICP); 0: off, every pose is a template's",
-    )  # fmt: skip
-    refine_rounds: int = Field(
-        1, ge=1, le=4, description="re-ranking refinement: rounds, each from where the last left the answers "
-        "with the roll's turn halved (a sixth of the in-plane step, a twelfth, ...)",
-    )  # fmt: skip
-    # 0.3: chosen on validation frames among 0, 0.15, 0.3, 0.5, 0.6, 1 (docs/experiments.md)
-    mask_coverage: float = Field(
-        0.3, ge=0, le=10, description="re-ranking with a query mask: add this times the share of the mask "
-        "that a template's silhouette leaves uncovered (0: off)",
     )  # fmt: skip
     # chosen on LM-O's validation frames with YCB-V's 12 shape-only meshes registered beside (docs/experiments.md,
     # "Shape-only meshes beside textured ones")
@@ -132,31 +113,12 @@ class Settings(BaseSettings):
         "times 1 + this, in choosing the re-ranking's candidates and in the answer (its grey renders are near "
         "any colour patch: without it, it takes textured objects' names)",
     )  # fmt: skip
-    # 5 (residuals clipped at 20 mm, `relief_clip_mm`): chosen on the RGB-D validation
+    # 5 (residuals clipped at 20 mm, `service.pipeline.score.RELIEF_CLIP_MM`): chosen on the RGB-D validation
     # frames sent at five camera rolls among 1, 3, 6, 10 unclipped, 3, 5, 8 clipped at 10 mm, 8, 12 at 6 mm
     # (docs/experiments.md: +14.8 points within 20 deg; 8 at 10 mm tied, the wider clip kept for real depth)
     relief_weight: float = Field(
         5.0, ge=0, le=100, description="re-ranking with depth: add this times the distance between the "
         "query's relief and a template's (rms of their cells' depth difference, in windows; 0: off)",
-    )  # fmt: skip
-    # 20: chosen with the weight on validation frames (docs/experiments.md; 10 mm tied), kept wide for real
-    # depth: a real Kinect frame differs from its render by a median absolute 4.2 mm on object pixels
-    # (docs/templates.md)
-    relief_clip_mm: float = Field(
-        20.0, gt=0, le=1000, description="re-ranking with depth: a cell's residual depth counts up to this "
-        "in the relief distance (mm), so an occluder's cell or a depth hole costs at most that",
-    )  # fmt: skip
-    # 6: an icosphere viewpoint's ring of neighbours (5 or 6 at one step; "around": within 1.5 steps,
-    # `service.pipeline.refine.Viewpoints.near`); not tuned on its own, `roll_refine` was chosen with it
-    near_views: int = Field(
-        6, ge=0, le=50, description="re-ranking refinement: the nearest other viewpoints of an answer's "
-        "object compared (within 1.5 neighbour steps)",
-    )  # fmt: skip
-    # 3: an answer's roll is off by up to half the templates' in-plane step; its roll and +- a third of the
-    # step put a candidate within a sixth of the step of any roll there (chosen with `roll_refine`)
-    refine_roll_divisor: int = Field(
-        3, ge=1, le=24, description="re-ranking refinement: an answer's roll is also tried turned by the "
-        "templates' in-plane step divided by this, either way (halved again each further round)",
     )  # fmt: skip
     # A choice, not a measurement (docs/conventions.md): a patch has no camera, its answers are in the patch camera
     # on the optical axis, and a colour patch's object and rotation do not depend on this (the network reads
@@ -316,17 +278,3 @@ def default_store() -> str:
     """The `store` setting (POSEDESC_STORE) alone, for a tool that opens a store without serving
     (`posedesc build-index`): another setting's bad value is no reason for it to fail."""
     return _StoreOnly().store
-
-
-def screening(settings: Settings) -> Settings:
-    """The settings of a detection's screening (`AppState.screens`): the re-ranking of
-    `detect_screen_rerank` answers, no roll sweep, no refinement, no pose fit: where around a proposal the object is
-    centred, before the whole pipeline names it there."""
-    return settings.model_copy(
-        update={
-            "rerank": settings.detect_screen_rerank,
-            "roll_sweep": 0,
-            "roll_refine": 0,
-            "pose_fit": 0,
-        }
-    )

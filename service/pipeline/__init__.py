@@ -86,18 +86,19 @@ class Pipeline:
         """The model's stages at these settings; `shapes`: the objects' fit models (None: no pose fit);
         `on_failure`: told the stage's name when a stage fails inside (the pose fit)."""
         made = (stage.build(settings, embedder, templates) for stage in STAGES)
-        fit = (
-            None
-            if shapes is None or settings.pose_fit == 0
-            else PoseFit(
-                settings.pose_fit,
-                shapes,
-                settings.depth_rerank,
-                refine=settings.depth_refine,
-                on_failure=on_failure,
-            )
-        )
+        fit = PoseFit.build(settings, shapes, on_failure)
         return cls(tuple(s for s in made if s is not None), settings, judged(settings, embedder), fit)
+
+    @classmethod
+    def screening(cls, settings: Settings, embedder: Embedder, templates: TemplateConfig) -> Pipeline:
+        """A detection's screening (`service.detection.verify`: where around a depth segment its object is
+        centred, before the whole pipeline names it there): the same stages up to a shorter re-ranking
+        (`Settings.detect_screen_rerank` answers), no roll sweep, no refinement, no pose fit."""
+        light = settings.model_copy(
+            update={"rerank": settings.detect_screen_rerank, "roll_sweep": 0, "pose_fit": 0}
+        )
+        whole = cls.build(light, embedder, templates)
+        return cls(tuple(s for s in whole.stages if s.name != Refine.name), light, whole.judged)
 
     @property
     def names(self) -> tuple[str, ...]:
