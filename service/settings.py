@@ -1,4 +1,9 @@
-"""The service's settings: one class, read from `POSEDESC_*` environment variables (and `posedesc serve`)."""
+"""The service's settings: one class, read from `POSEDESC_*` environment variables (and `posedesc serve`).
+
+What a deployment may choose differently: where things live, what a request may ask, how much work a
+recognition or a detection does and what it reports. A stage's tuned constants that nobody deploys
+differently live in the stage's module with the measurement that chose them (`service/pipeline/`,
+`service/detection/`); an experiment sets them in its own process."""
 
 from __future__ import annotations
 
@@ -185,33 +190,12 @@ class Settings(BaseSettings):
         le=500,
         description="a frame without u and v, with depth: how many depth segments are verified",
     )
-    # A depth segment's centre is its surface's, not the origin's projection: it is screened around its
-    # centre first and verified where the screening was most confident (the real Kinect frame: 4 of 6
-    # instances found against 1 of 6). The objectness network's centres are the origin's, and the pose fit
-    # moves a verified detection: screening colour proposals too lost on the validation frames (w/12: AP50
-    # 0.731, within 20 deg 45.2 %, 1.36 s a frame against 0.844, 53.0 %, 0.62 s at their centres), and the
-    # settings that did so left the service (docs/experiments.md)
-    detect_depth_shift: float = Field(
-        1 / 12, ge=0, le=0.5, description="a frame without u and v, with depth: each depth segment is screened "
-        "at a 3 x 3 grid of centres this share of its extent apart (0: verified at its centre)",
-    )  # fmt: skip
     # Chosen on the 20 validation frames (115 instances at least half visible, docs/experiments.md), colour,
     # the shipped models: 0.4 reported 3.9 detections a frame, 0.91 of them right (recall 0.62), the best
     # F1; 0.3: 5.0 a frame, 0.76 right (0.65); 0.5: 3.1, 0.97 (0.52)
     detect_floor: float = Field(
         0.4, ge=0, le=1, description="a frame without u and v and without min_confidence: the confidence a "
         "detection from a colour proposal needs to be reported (with depth; or colours not weighed)",
-    )  # fmt: skip
-    # A colour frame's detection confidence times exp(-weight * (the colour distance at its pose less the
-    # allowance)) (`service.detection.agree`), reported at `detect_rgb_floor`. Chosen together on the
-    # validation frames, the most found with at most 0.2 false detections a frame where only objects absent
-    # from them are registered (docs/experiments.md): weight 8, allowance 0.15, floor 0.25 found 66.1 %,
-    # 90.5 % of what it reported right, 0.10 false a frame (unweighed at 0.4: 61.7 %, 92.2 %, 2.55). With
-    # colour proposals verified at their centres the floor again, by the same rule: 0.25
-    # 67.0 / 96.3 / 0.0; 0.2 73.0 / 94.4 / 0.0; 0.15 79.1 / 93.8 / 0.10; 0.1 80.9 / 92.1 / 0.55
-    detect_colour_weight: float = Field(
-        8.0, ge=0, le=100, description="a frame without u and v and without depth: how much a detection's "
-        "confidence falls as the frame's colours at its pose differ from its object's (0: not at all)",
     )  # fmt: skip
     # With depth, the detections are not weighed (a depth proposal is reported on the open-set verdict, not
     # a confidence): one whose colours are farther than this from its object's is not reported. LM-O's
@@ -222,41 +206,23 @@ class Settings(BaseSettings):
         0.25, ge=0, le=2, description="a frame without u and v, with depth, without min_confidence: a "
         "detection whose colours are farther than this from its object's is not reported (2: no ceiling)",
     )  # fmt: skip
-    detect_colour_allowance: float = Field(
-        0.15, ge=0, le=2, description="a colour distance up to this costs a detection nothing (0-2)"
-    )
+    # A colour frame's detection confidence is weighed by its colours (`service.detection.agree`). Chosen with
+    # the weight and the allowance there (the most found at <= 0.2 false detections a frame where only objects
+    # absent from the validation frames are registered; docs/experiments.md): 0.25 then; with colour proposals
+    # verified at their centres, by the same rule (recall / precision / false a frame): 0.25 67.0 / 96.3 /
+    # 0.0; 0.2 73.0 / 94.4 / 0.0; 0.15 79.1 / 93.8 / 0.10; 0.1 80.9 / 92.1 / 0.55
     detect_rgb_floor: float = Field(
         0.15, ge=0, le=1, description="a frame without u and v, without depth and without min_confidence: the "
-        "confidence a detection needs to be reported, its colours weighed (detect_colour_weight > 0)",
+        "confidence a detection needs to be reported, its colours weighed",
     )  # fmt: skip
     # The pose fit's score on depth is the share of the object's visible points the depth explains at the
     # fitted pose (`index.refine.depth.score_of`). Chosen on YCB-V video 0000 (real depth, the shape-only
     # objects registered; docs/experiments.md): 0.2 took precision 0.22 -> 0.37 at recall 0.667 -> 0.650
     detect_depth_fit_floor: float = Field(
         0.2, ge=0, le=1, description="a frame without u and v, with depth, without min_confidence: a detection "
-        "whose pose fitted to the depth explains less than this share of its visible points is not reported",
+        "whose pose fitted to the depth explains less than this share of its visible points is not reported "
+        "(a part of a depth segment: `service.detection.report.PART_FIT_FLOOR`, if higher)",
     )  # fmt: skip
-    # A part of a depth segment larger than any registered object (touching objects that real depth joins)
-    # is a guess at where one object ends. Chosen on YCB-V video 0000 (real depth): its parts, none of them
-    # a registered object there, were named at fits of 0.32-0.55 (quartiles); 0.6 removes 49 of those 50
-    # false detections (LM-O's validation frames: no instance lost; docs/experiments.md)
-    detect_part_fit_floor: float = Field(
-        0.6, ge=0, le=1, description="a frame without u and v, with depth, without min_confidence: "
-        "detect_depth_fit_floor for a detection from a part of a depth segment larger than any registered "
-        "object",
-    )  # fmt: skip
-    # A pose through the table is no object there (`service.detection.stand`): the share of its surface that
-    # may lie deeper below the frame's support than 2.5 times the plane's tolerance (30 mm at 1 m). At 0.01,
-    # every factor from 1.5 to 3.5 times the tolerance dropped 37-41 of YCB-V video 0000's 43 false
-    # detections and none of its 39 right ones; at 0.05, 24-28 (docs/experiments.md, "Poses through the table")
-    detect_sunk_share: float = Field(
-        0.01, ge=0, le=1, description="a frame without u and v, with depth: a detection whose pose puts more "
-        "than this share of its object's surface through the table the frame's objects stand on is dropped "
-        "(1: never)",
-    )  # fmt: skip
-    detect_screen_rerank: int = Field(
-        60, ge=1, le=1000, description="a frame without u and v: the answers the screening re-ranks"
-    )
 
     # ---- Registration: how long POST /objects waits, and the demo objects of an empty data dir ----
     sync_seconds: float = Field(2.0, ge=0, description="POST /objects answers 201 within this, else 202")

@@ -62,6 +62,11 @@ from service.settings import Settings
 #: None when the model or the settings leave it out
 STAGES = (Cut, QueryMask, Embed, Search, Rerank, Sweep, Refine)
 
+#: the answers a detection's screening re-ranks (`Pipeline.screening`). 60: on the validation frames, when
+#: colour proposals were screened too (docs/experiments.md, "The screening, chosen again"): recall 66.1, AP50
+#: 73.1 at 1126 ms of verification a frame; 20 (or 5) 63.5, 71.7 at 1016 ms; none 35.7, 55.5
+SCREEN_RERANK = 60
+
 #: timing keys kept as the sums of stages, for readers of the times before the stages were split
 SUMS: Mapping[str, tuple[str, ...]] = {"patch": ("cut", "mask"), "rerank": ("local", "sweep", "refine")}
 
@@ -93,10 +98,8 @@ class Pipeline:
     def screening(cls, settings: Settings, embedder: Embedder, templates: TemplateConfig) -> Pipeline:
         """A detection's screening (`service.detection.verify`: where around a depth segment its object is
         centred, before the whole pipeline names it there): the same stages up to a shorter re-ranking
-        (`Settings.detect_screen_rerank` answers), no roll sweep, no refinement, no pose fit."""
-        light = settings.model_copy(
-            update={"rerank": settings.detect_screen_rerank, "roll_sweep": 0, "pose_fit": 0}
-        )
+        (`SCREEN_RERANK` answers), no roll sweep, no refinement, no pose fit."""
+        light = settings.model_copy(update={"rerank": SCREEN_RERANK, "roll_sweep": 0, "pose_fit": 0})
         whole = cls.build(light, embedder, templates)
         return cls(tuple(s for s in whole.stages if s.name != Refine.name), light, whole.judged)
 

@@ -8,7 +8,7 @@ from service_helpers import ROOT
 
 from index.features.embed import Embedder
 from index.templates.register import TemplateConfig
-from service.pipeline import Pipeline, refine, timings
+from service.pipeline import SCREEN_RERANK, Pipeline, refine, timings
 from service.settings import Settings
 from service.state import close_state, load_state
 
@@ -52,7 +52,7 @@ def test_a_screening_reranks_fewer_and_neither_sweeps_nor_refines(shipped_rgb):
     s = Settings()
     screen = Pipeline.screening(s, shipped_rgb, TemplateConfig(s.level, 30.0, s.inplane_max))
     assert screen.names == ("cut", "mask", "embed", "search", "local") and screen.fit is None
-    assert screen.settings.rerank == s.detect_screen_rerank
+    assert screen.settings.rerank == SCREEN_RERANK
 
 
 def test_a_model_without_mask_or_local_features_only_cuts_embeds_and_searches(posedesc_models):
