@@ -39,6 +39,8 @@ from index.features.objectness import OBJECTNESS_FILE
 from index.templates.shapes import random_shape
 from index.templates.windows import FILL_HIGH, FILL_LOW, WINDOW_KEY
 from service.detection import detect
+from service.detection.verify import DEPTH_SHIFT
+from service.pipeline import SCREEN_RERANK
 from service.pipeline.query import Query
 from service.settings import Settings
 from service.state import AppState, close_state, load_state
@@ -46,15 +48,10 @@ from service.state import AppState, close_state, load_state
 LMO = ROOT.parent / "shared" / "data" / "lmo"
 LMO_DEPTH = ROOT.parent / "shared" / "data" / "lmo-depth"
 KINECT_FRAME = 3  # the one frame of lmo-depth
-#: the service's settings of a detection, reported with the figures
-DETECT_SETTINGS = (
-    "detect_proposals",
-    "detect_depth_shift",
-    "detect_screen_rerank",
-    "threads",
-    "detect_threads",
-    "objectness_levels",
-)
+#: the service's settings of a detection, reported with the figures (and the stages' constants that steer
+#: the screening, under the names their settings had: `DETECT_CONSTANTS`)
+DETECT_SETTINGS = ("detect_proposals", "threads", "detect_threads", "objectness_levels")
+DETECT_CONSTANTS = {"detect_depth_shift": DEPTH_SHIFT, "detect_screen_rerank": SCREEN_RERANK}
 
 
 @dataclass(frozen=True)
@@ -144,7 +141,7 @@ def run(cfg: DetectConfig, models_dir: Path, level: int = 3, seed: int = 0) -> d
         settings = Settings(
             data_dir=Path(tmp) / "data", demo_objects=False, models_dir=models_dir, level=level
         )
-        out["settings"] = {k: getattr(settings, k) for k in (*DETECT_SETTINGS, "level")}
+        out["settings"] = {k: getattr(settings, k) for k in (*DETECT_SETTINGS, "level")} | DETECT_CONSTANTS
         sizes = tuple(f * embedders["rgb"].info.window_mm for f in cfg.shape_fill)
         things = objects(dataset, max(counts), seed, settings.max_faces, (sizes[0], sizes[1]))
         state = load_state(settings, embedders)

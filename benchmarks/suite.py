@@ -173,24 +173,23 @@ class BenchConfig:
 
 #: the service's settings that change what a recognition does and costs and that no section sets itself
 #: (the sections set the level, index kind, query turns and in-plane templates they measure)
-RECOGNITION_SETTINGS = (
-    "rerank",
-    "roll_sweep",
-    "roll_refine",
-    "refine_rounds",
-    "mask_coverage",
-    "relief_weight",
-    "reject_above",
-    "threads",
-)
+RECOGNITION_SETTINGS = ("rerank", "roll_sweep", "relief_weight", "reject_above", "threads")
 
 
 def recognition_settings() -> dict:
-    """Those settings as every section's service runs with them: the defaults, or POSEDESC_* overrides."""
+    """Those settings as every section's service runs with them (the defaults, or POSEDESC_* overrides),
+    and the stages' constants that change the same (`service.pipeline.refine`, `service.pipeline.score`)."""
+    from service.pipeline import refine, score
     from service.settings import Settings
 
     settings = Settings(demo_objects=False)
-    return {name: _jsonable(getattr(settings, name)) for name in RECOGNITION_SETTINGS}
+    out = {name: _jsonable(getattr(settings, name)) for name in RECOGNITION_SETTINGS}
+    out |= {
+        "roll_refine": refine.ROLL_REFINE,
+        "refine_rounds": refine.REFINE_ROUNDS,
+        "mask_coverage": score.MASK_COVERAGE,
+    }
+    return out
 
 
 def run(cfg: BenchConfig) -> dict:

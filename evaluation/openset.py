@@ -34,9 +34,10 @@ from index.features.embed import Embedder
 from index.store import Match
 from index.templates.render import Renderer
 from service.errors import ApiError
+from service.pipeline.calibration import settings_of
 from service.recognition import recognise
 from service.rejection import LISTED as REJECT_LISTED
-from service.rejection import Calibration, settings_of
+from service.rejection import Calibration
 from service.settings import Settings
 from service.state import AppState, close_state, load_state
 
@@ -50,7 +51,7 @@ class Answers:
     """One row per (registered set, instance): obj (its object), registered (its object was), run (index of
     the registered set), frame and scene; per score kind ("local", "descriptor") the answers' dataset object ids
     (n, LISTED), -1 past the last (a refused query has none) and their distances (n, LISTED), nan past the
-    last. `settings`: what the answers were made with (`service.rejection.settings_of`); `data`: what
+    last. `settings`: what the answers were made with (`service.pipeline.calibration.settings_of`); `data`: what
     the frames were (`evaluation.paper.samples.served_data`)."""
 
     obj: list[int] = field(default_factory=list)

@@ -114,12 +114,7 @@ def evaluate_served(cfg: Config) -> Evaluation:
             )
             seconds["ours"] = time.perf_counter() - t0
             n_templates = state.store.snapshot.models[cfg.modality].size
-            routed = (
-                cfg.modality == "rgbd"
-                and settings.shape_only_depth
-                and "depth" in state.embedders
-                and shape_only(state.store)
-            )
+            routed = cfg.modality == "rgbd" and "depth" in state.embedders and shape_only(state.store)
         finally:
             close_state(state)
 

@@ -110,6 +110,14 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError as e:
         print(f"probe_recognise: --rolls: {e}", file=sys.stderr)
         return 2
+    # the settings ignore a name they do not have: a stage's constant (once a setting) would be tried silently
+    if unknown := sorted(set(overrides) - set(Settings.model_fields)):
+        print(
+            f"probe_recognise: --settings: no such setting: {', '.join(unknown)} (a stage's constant is set "
+            "in the process, e.g. service.pipeline.refine.ROLL_REFINE)",
+            file=sys.stderr,
+        )
+        return 2
     with tempfile.TemporaryDirectory(prefix="posedesc-probe-") as tmp:
         result = probe(args, overrides, args.data_dir or Path(tmp))
     print(json.dumps({k: result[k] for k in ("settings", "objects", "templates", "k1", "stages_median_ms")}))

@@ -8,10 +8,11 @@ picks the value with the best mean F1 on the other two (ties: the shipped value)
 left out: `lovo` in the JSON, beside the shipped value's.
 
 Runs `posedesc evaluate --protocol detect --modality rgbd` (the README's YCB-V detection command, without the
-false-alarm pass) once per video with the shipped settings and once per rule turned off through its setting,
-and the centre-given `--protocol service --modality depth` once per video with and without the depth
-re-ordering's area term (`service.pipeline.fit.EXPLAINED_WEIGHT`, a constant: patched in the process). Writes per
-rule and video the recall, precision, AP50 and BOP AR (detection) or right object and within 20 deg (centre
+false-alarm pass) once per video with the shipped settings and once per rule turned off: through its setting
+(a `POSEDESC_*` variable of the run) or its stage's constant (`module.NAME`, set in the run's process before
+the service is built: `service.detection.stand.SUNK_SHARE`, `service.detection.report.PART_FIT_FLOOR`), and
+the centre-given `--protocol service --modality depth` once per video with and without the depth
+re-ordering's area term (`service.pipeline.fit.EXPLAINED_WEIGHT`, a constant too). Writes per rule and video the recall, precision, AP50 and BOP AR (detection) or right object and within 20 deg (centre
 given) with and without it, and whether it helps every video. Each run's JSON is kept in `--out`; a run whose
 JSON is there is not made again."""
 
@@ -27,25 +28,25 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 VIDEOS = (0, 1, 2)
-#: a rule of the detection: the settings that turn it off, and the video it was chosen on
+SUNK_SHARE = "service.detection.stand.SUNK_SHARE"
+PART_FIT_FLOOR = "service.detection.report.PART_FIT_FLOOR"
+#: a rule of the detection: what turns it off (settings as `POSEDESC_*` variables, constants as `module.NAME`),
+#: and the video it was chosen on
 DETECT_RULES = {
-    "support: a pose through the table is dropped (DETECT_SUNK_SHARE 0.01)": (
-        {"POSEDESC_DETECT_SUNK_SHARE": "1"},
-        "0000",
-    ),
+    "support: a pose through the table is dropped (stand.SUNK_SHARE 0.01)": ({SUNK_SHARE: "1"}, "0000"),
     "depth-fit floor: 20 % of a detection's points explained (DETECT_DEPTH_FIT_FLOOR 0.2)": (
         {"POSEDESC_DETECT_DEPTH_FIT_FLOOR": "0"},
         "0000",
     ),
-    "part floor: 60 % for a part of a segment (DETECT_PART_FIT_FLOOR 0.6)": (
-        {"POSEDESC_DETECT_PART_FIT_FLOOR": "0"},
+    "part floor: 60 % for a part of a segment (report.PART_FIT_FLOOR 0.6)": (
+        {PART_FIT_FLOOR: "0"},
         "0000 (parts themselves: 0002)",
     ),
 }
-#: thresholds swept leave-one-video-out: (setting, values); the shipped value among them
+#: thresholds swept leave-one-video-out: name -> (the setting or constant, its shipped value, the values)
 SWEEPS = {
-    "POSEDESC_DETECT_DEPTH_FIT_FLOOR": ("0.2", ("0.1", "0.2", "0.3", "0.4")),
-    "POSEDESC_DETECT_PART_FIT_FLOOR": ("0.6", ("0.4", "0.5", "0.6", "0.7")),
+    "detect_depth_fit_floor": ("POSEDESC_DETECT_DEPTH_FIT_FLOOR", "0.2", ("0.1", "0.2", "0.3", "0.4")),
+    "detect_part_fit_floor": (PART_FIT_FLOOR, "0.6", ("0.4", "0.5", "0.6", "0.7")),
 }
 AREA = "area term: the depth re-ordering weighs the area a pose explains (EXPLAINED_WEIGHT 0.3)"
 
@@ -65,8 +66,8 @@ def main(argv: list[str] | None = None) -> int:
     table: dict[str, dict] = {}
     for v in videos:
         shipped = _detect(args, v, "shipped", {})
-        for rule, (env, chosen) in DETECT_RULES.items():
-            off = _detect(args, v, _slug(rule), env)
+        for rule, (off_by, chosen) in DETECT_RULES.items():
+            off = _detect(args, v, _slug(rule), off_by)
             row = table.setdefault(rule, {"chosen_on": chosen, "videos": {}})
             row["videos"][f"{v:04d}"] = {"with": _detect_figures(shipped), "without": _detect_figures(off)}
         with_area, without_area = _service(args, v, 0.3), _service(args, v, 0.0)
@@ -114,8 +115,7 @@ def _lovo(args: argparse.Namespace, videos: list[int]) -> dict:
     """Per threshold of `SWEEPS`: each video's figures at each value, and for each video the value the other
     videos choose (best mean F1; ties: the shipped value) with its F1 on the video left out."""
     out: dict[str, dict] = {}
-    for setting, (shipped, values) in SWEEPS.items():
-        name = setting.removeprefix("POSEDESC_").lower()
+    for name, (setting, shipped, values) in SWEEPS.items():
         runs = {  # the shipped value's run is the shipped settings' run
             (v, x): _detect_figures(
                 _detect(args, v, "shipped", {})
@@ -156,10 +156,25 @@ def _slug(rule: str) -> str:
     return rule.split(":")[0].replace(" ", "-")
 
 
-def _detect(args: argparse.Namespace, video: int, name: str, env: dict[str, str]) -> dict:
+def _posedesc(constants: dict[str, float]) -> list[str]:
+    """The `posedesc` command, run by this Python in a process whose stages' constants (`module.NAME`) are set
+    first: the service reads them when it builds its stages."""
+    sets = "".join(
+        f"importlib.import_module({module!r}).{name} = {value!r}; "
+        for module, name, value in ((*k.rsplit(".", 1), v) for k, v in constants.items())
+    )
+    code = f"import importlib, sys; {sets}from posedesc.cli import main; sys.exit(main(sys.argv[1:]))"
+    return [sys.executable, "-c", code]
+
+
+def _detect(args: argparse.Namespace, video: int, name: str, off_by: dict[str, str]) -> dict:
+    """The detection run of a video with `off_by` (settings as `POSEDESC_*` variables, constants as
+    `module.NAME`), read from `--out` when it was made before."""
     out = args.out / f"detect-{name}-{video}.json"
     if not out.is_file():
-        cmd = [str(ROOT / ".venv" / "bin" / "posedesc"), "evaluate", "--dataset", str(args.dataset)]
+        env = {k: v for k, v in off_by.items() if k.startswith("POSEDESC_")}
+        constants = {k: float(v) for k, v in off_by.items() if k not in env}
+        cmd = [*_posedesc(constants), "evaluate", "--dataset", str(args.dataset)]
         cmd += [
             "--scene",
             str(video),
@@ -189,12 +204,8 @@ def _detect_figures(run: dict) -> dict:
 def _service(args: argparse.Namespace, video: int, weight: float) -> dict:
     out = args.out / f"service-depth-area{weight:g}-{video}.json"
     if not out.is_file():
-        code = (
-            "import sys, service.pipeline.fit as f; "
-            f"f.EXPLAINED_WEIGHT = {weight!r}; "
-            "from posedesc.cli import main; sys.exit(main(sys.argv[1:]))"
-        )
-        cmd = [sys.executable, "-c", code, "evaluate", "--dataset", str(args.dataset), "--scene", str(video)]
+        cmd = [*_posedesc({"service.pipeline.fit.EXPLAINED_WEIGHT": weight}), "evaluate"]
+        cmd += ["--dataset", str(args.dataset), "--scene", str(video)]
         cmd += ["--modality", "depth", "--model", str(ROOT / "models" / "posedesc-depth.onnx")]
         cmd += ["--protocol", "service", "--json", str(out)]
         print(shlex.join(cmd), flush=True)

@@ -17,7 +17,7 @@ from service.demo import DEMO_KEY, startup
 from service.deps import host_of, open_writes_refused, public
 from service.inputs.limits import BodyLimit
 from service.metrics import Observe
-from service.rejection import stale
+from service.pipeline.calibration import stale
 from service.routes import health, jobs, objects, page, recognize
 from service.settings import Settings
 from service.state import AppState, close_state, load_state

@@ -15,9 +15,10 @@ re-ranked answers) or "descriptor" (the descriptor distance, without re-ranking)
 - `slope`, `midpoint`: the confidence of an answer with statistic s is 1 / (1 + exp(slope * (s -
   midpoint))), a logistic fit on validation answers of whether the top answer was the right object (half of
   them with the object registered, half with it left out: a 1 in 2 chance that a patch shows an unknown);
-- `settings`: the settings its answers were made with (`settings_of`), and `graph`: the network it was
-  measured on (`Embedder.graph_digest`); `stale` tells the running service when either differs from its
-  own, as the scores then differ from those it was calibrated on.
+- `settings`: the settings (and the stages' constants) its answers were made with
+  (`service.pipeline.calibration.settings_of`), and `graph`: the network it was measured on
+  (`Embedder.graph_digest`); `service.pipeline.calibration.stale` tells the running service when either
+  differs from its own, as the scores then differ from those it was calibrated on.
 
 Example (JSON in the metadata): {"local": {"statistic": "lead", "weight": 1.0, "threshold": 0.6, "slope":
 9.1, "midpoint": 0.5, "frames": "val", "settings": {"rerank": 400, ...}, ...}, "descriptor": {...}}. The
@@ -36,7 +37,6 @@ from functools import lru_cache
 
 from index.features.embed import Embedder
 from index.store import Match
-from index.templates.register import TemplateConfig
 from service.settings import Settings
 
 log = logging.getLogger(__name__)
@@ -50,34 +50,6 @@ STATISTICS = ("distance", "lead")
 #: ("lead": the nearest other object's answer is nearly always among them; 40 is what the calibration's
 #: answers listed, `evaluation.openset.LISTED`)
 LISTED = 40
-
-
-def settings_of(settings: Settings, embedder: Embedder, score: str) -> dict[str, object]:
-    """The settings a `score` kind's answers of this model depend on (`Calibration.settings`): the
-    templates (level, in-plane step and extent, as `index.templates.register.TemplateConfig` makes them for the
-    model), the query's turns, and with "local" the re-ranking's settings; the mask's and the relief's
-    weights only where the model has a mask and depth."""
-    cfg = TemplateConfig(settings.level, settings.inplane_step, settings.inplane_max)
-    step = embedder.info.inplane_step
-    angles = [float(a) for a in cfg.inplane(step)]
-    out: dict[str, object] = {
-        "level": settings.level,
-        "inplane_step": cfg.inplane_spacing(step),
-        "inplane_extent": max(abs(a) for a in angles) if len(angles) > 1 else 0.0,
-        "query_turns": settings.query_turns,
-    }
-    if score == "local":
-        out |= {
-            "rerank": settings.rerank,
-            "roll_sweep": settings.roll_sweep,
-            "roll_refine": settings.roll_refine,
-            "refine_rounds": settings.refine_rounds,
-        }
-        if embedder.has_mask:
-            out["mask_coverage"] = settings.mask_coverage
-        if embedder.modality != "rgb":
-            out["relief_weight"] = settings.relief_weight
-    return out
 
 
 def served_score(settings: Settings, embedder: Embedder) -> str:
@@ -169,38 +141,6 @@ def _parse(text: str, model: str) -> dict[str, Calibration]:
     except (ValueError, TypeError, KeyError, AttributeError) as e:
         log.warning("%s: unusable %s metadata (%s): no rejection", model, REJECT_KEY, e)
         return {}
-
-
-def stale(settings: Settings, embedders: Mapping[str, Embedder]) -> dict[str, str]:
-    """Modality -> how the model's calibration of the score it is served with was made with other settings
-    than `settings` (its threshold and confidences were measured on other scores); models whose
-    calibration matches, or that have none, are not listed."""
-    out = {}
-    for modality, e in sorted(embedders.items()):
-        score = served_score(settings, e)
-        cal = read_calibrations(e.info.extra, e.path.name).get(score)
-        if cal is None:
-            continue
-        if cal.settings is None:
-            out[modality] = f"{e.path.name}: its {score} calibration does not say which settings made it"
-            continue
-        if cal.graph is not None and cal.graph != e.graph_digest:
-            out[modality] = (
-                f"{e.path.name}: its {score} calibration was measured on another network (graph "
-                f"{cal.graph}, this file's {e.graph_digest}): recalibrate (scripts/calibrate_reject.py)"
-            )
-            continue
-        running = settings_of(settings, e, score)
-        differ = [
-            f"{k} {cal.settings.get(k)} (calibrated) != {v} (running)"
-            for k, v in running.items()
-            if cal.settings.get(k) != v
-        ]
-        if differ:
-            out[modality] = (
-                f"{e.path.name}: its {score} calibration was made with other settings: " + ", ".join(differ)
-            )
-    return out
 
 
 @dataclass(frozen=True)

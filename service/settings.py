@@ -1,4 +1,9 @@
-"""The service's settings: one class, read from `POSEDESC_*` environment variables (and `posedesc serve`)."""
+"""The service's settings: one class, read from `POSEDESC_*` environment variables (and `posedesc serve`).
+
+What a deployment may choose differently: where things live, what a request may ask, how much work a
+recognition or a detection does and what it reports. A stage's tuned constants that nobody deploys
+differently live in the stage's module with the measurement that chose them (`service/pipeline/`,
+`service/detection/`); an experiment sets them in its own process."""
 
 from __future__ import annotations
 
@@ -85,12 +90,6 @@ class Settings(BaseSettings):
         400, ge=0, le=1000, description="with a model that has local features: re-rank this many nearest "
         "distinct answers by the local similarity of the query turned to each one's roll (0: off)",
     )  # fmt: skip
-    # 10: chosen on validation frames among 0, 5, 10, 20, 40 (docs/experiments.md)
-    roll_refine: int = Field(
-        10, ge=0, le=100, description="re-ranking: compare this many best answers also at the viewpoints "
-        "around theirs and at their roll +- a third of the templates' in-plane step, and keep the pose that "
-        "fits best (0: off)",
-    )  # fmt: skip
     # 150: chosen on the validation frames sent at five camera rolls among 0, 20, 60, 150, 400 (docs/experiments.md:
     # +4.5 points within 20 deg; 400 +4.6 at twice the work)
     roll_sweep: int = Field(
@@ -99,16 +98,12 @@ class Settings(BaseSettings):
     )  # fmt: skip
     # YCB-V video 0000 (real depth, shape-only objects, centre given, the depth model): the first 5 re-ordered
     # by their fits, the right object 53 %; the first 20, each looked at coarsely
-    # (`service.pipeline.fit.COARSE_ITERATIONS`), the best 3 then fitted fully, 95 %: the mug's right pose was
-    # an answer past the fifth (docs/experiments.md). 122 -> 178 ms a query there
+    # (`service.pipeline.fit.COARSE_ITERATIONS`), the best 3 then fitted fully (`fit.DEPTH_REFINE`), 95 %: the
+    # mug's right pose was an answer past the fifth (docs/experiments.md). 122 -> 178 ms a query there
     depth_rerank: int = Field(
         20, ge=0, le=50, description="a frame with depth, its camera and a centre (the pose fit on): this many "
         "best answers are each fitted to the depth (coarsely) and re-ordered by the share of their points it "
         "explains plus their confidence; 0 or 1: not re-ordered",
-    )  # fmt: skip
-    depth_refine: int = Field(
-        3, ge=1, le=50, description="of the answers `depth_rerank` re-orders, this many best fitted fully, then "
-        "re-ordered again",
     )  # fmt: skip
     # 1: the best answer, the one a user acts on (and each detection's); more costs a fit each
     pose_fit: int = Field(
@@ -116,51 +111,19 @@ class Settings(BaseSettings):
         "freedom against the frame (a frame sent with its camera): the mesh's outline against the colour "
         "image, or its points against the depth (ICP); 0: off, every pose is a template's",
     )  # fmt: skip
-    refine_rounds: int = Field(
-        1, ge=1, le=4, description="re-ranking refinement: rounds, each from where the last left the answers "
-        "with the roll's turn halved (a sixth of the in-plane step, a twelfth, ...)",
-    )  # fmt: skip
-    # 0.3: chosen on validation frames among 0, 0.15, 0.3, 0.5, 0.6, 1 (docs/experiments.md)
-    mask_coverage: float = Field(
-        0.3, ge=0, le=10, description="re-ranking with a query mask: add this times the share of the mask "
-        "that a template's silhouette leaves uncovered (0: off)",
-    )  # fmt: skip
-    # 5 (residuals clipped at 20 mm, `relief_clip_mm`): chosen on the RGB-D validation
-    # frames sent at five camera rolls among 1, 3, 6, 10 unclipped, 3, 5, 8 clipped at 10 mm, 8, 12 at 6 mm
-    # (docs/experiments.md: +14.8 points within 20 deg; 8 at 10 mm tied, the wider clip kept for real depth)
     # chosen on LM-O's validation frames with YCB-V's 12 shape-only meshes registered beside (docs/experiments.md,
     # "Shape-only meshes beside textured ones")
-    shape_only_depth: bool = Field(
-        True, description="an RGB-D frame while every registered object is shape-only (no colours): answered by "
-        "the depth model (false: by the RGB-D model, whose colour half sees grey renders)",
-    )  # fmt: skip
     shape_handicap: float = Field(
         SHAPE_HANDICAP, ge=0, le=10, description="colour and RGB-D answers: a shape-only object's distance "
         "times 1 + this, in choosing the re-ranking's candidates and in the answer (its grey renders are near "
         "any colour patch: without it, it takes textured objects' names)",
     )  # fmt: skip
+    # 5 (residuals clipped at 20 mm, `service.pipeline.score.RELIEF_CLIP_MM`): chosen on the RGB-D validation
+    # frames sent at five camera rolls among 1, 3, 6, 10 unclipped, 3, 5, 8 clipped at 10 mm, 8, 12 at 6 mm
+    # (docs/experiments.md: +14.8 points within 20 deg; 8 at 10 mm tied, the wider clip kept for real depth)
     relief_weight: float = Field(
         5.0, ge=0, le=100, description="re-ranking with depth: add this times the distance between the "
         "query's relief and a template's (rms of their cells' depth difference, in windows; 0: off)",
-    )  # fmt: skip
-    # 20: chosen with the weight on validation frames (docs/experiments.md; 10 mm tied), kept wide for real
-    # depth: a real Kinect frame differs from its render by a median absolute 4.2 mm on object pixels
-    # (docs/templates.md)
-    relief_clip_mm: float = Field(
-        20.0, gt=0, le=1000, description="re-ranking with depth: a cell's residual depth counts up to this "
-        "in the relief distance (mm), so an occluder's cell or a depth hole costs at most that",
-    )  # fmt: skip
-    # 6: an icosphere viewpoint's ring of neighbours (5 or 6 at one step; "around": within 1.5 steps,
-    # `service.pipeline.refine.Viewpoints.near`); not tuned on its own, `roll_refine` was chosen with it
-    near_views: int = Field(
-        6, ge=0, le=50, description="re-ranking refinement: the nearest other viewpoints of an answer's "
-        "object compared (within 1.5 neighbour steps)",
-    )  # fmt: skip
-    # 3: an answer's roll is off by up to half the templates' in-plane step; its roll and +- a third of the
-    # step put a candidate within a sixth of the step of any roll there (chosen with `roll_refine`)
-    refine_roll_divisor: int = Field(
-        3, ge=1, le=24, description="re-ranking refinement: an answer's roll is also tried turned by the "
-        "templates' in-plane step divided by this, either way (halved again each further round)",
     )  # fmt: skip
     # A choice, not a measurement (docs/conventions.md): a patch has no camera, its answers are in the patch camera
     # on the optical axis, and a colour patch's object and rotation do not depend on this (the network reads
@@ -219,10 +182,6 @@ class Settings(BaseSettings):
         2, ge=1, le=16, description="a frame without u and v: the objectness network's threads and the "
         "places verified at once (1: one core)",
     )  # fmt: skip
-    detect_by_extent: bool = Field(
-        False, description="a frame without u and v, colour: each place is also verified at the distance "
-        "its extent gives each registered size class (objects the objectness network never saw)",
-    )  # fmt: skip
     # Depth segments rank worse than the network's proposals in clutter (the real Kinect frame: 5 of its 6
     # instances in the first 30 segments, 1 in the first 10; docs/results/depth_proposals.json)
     detect_depth_proposals: int = Field(
@@ -231,33 +190,12 @@ class Settings(BaseSettings):
         le=500,
         description="a frame without u and v, with depth: how many depth segments are verified",
     )
-    # A depth segment's centre is its surface's, not the origin's projection: it is screened around its
-    # centre first and verified where the screening was most confident (the real Kinect frame: 4 of 6
-    # instances found against 1 of 6). The objectness network's centres are the origin's, and the pose fit
-    # moves a verified detection: screening colour proposals too lost on the validation frames (w/12: AP50
-    # 0.731, within 20 deg 45.2 %, 1.36 s a frame against 0.844, 53.0 %, 0.62 s at their centres), and the
-    # settings that did so left the service (docs/experiments.md)
-    detect_depth_shift: float = Field(
-        1 / 12, ge=0, le=0.5, description="a frame without u and v, with depth: each depth segment is screened "
-        "at a 3 x 3 grid of centres this share of its extent apart (0: verified at its centre)",
-    )  # fmt: skip
     # Chosen on the 20 validation frames (115 instances at least half visible, docs/experiments.md), colour,
     # the shipped models: 0.4 reported 3.9 detections a frame, 0.91 of them right (recall 0.62), the best
     # F1; 0.3: 5.0 a frame, 0.76 right (0.65); 0.5: 3.1, 0.97 (0.52)
     detect_floor: float = Field(
         0.4, ge=0, le=1, description="a frame without u and v and without min_confidence: the confidence a "
         "detection from a colour proposal needs to be reported (with depth; or colours not weighed)",
-    )  # fmt: skip
-    # A colour frame's detection confidence times exp(-weight * (the colour distance at its pose less the
-    # allowance)) (`service.detection.agree`), reported at `detect_rgb_floor`. Chosen together on the
-    # validation frames, the most found with at most 0.2 false detections a frame where only objects absent
-    # from them are registered (docs/experiments.md): weight 8, allowance 0.15, floor 0.25 found 66.1 %,
-    # 90.5 % of what it reported right, 0.10 false a frame (unweighed at 0.4: 61.7 %, 92.2 %, 2.55). With
-    # colour proposals verified at their centres the floor again, by the same rule: 0.25
-    # 67.0 / 96.3 / 0.0; 0.2 73.0 / 94.4 / 0.0; 0.15 79.1 / 93.8 / 0.10; 0.1 80.9 / 92.1 / 0.55
-    detect_colour_weight: float = Field(
-        8.0, ge=0, le=100, description="a frame without u and v and without depth: how much a detection's "
-        "confidence falls as the frame's colours at its pose differ from its object's (0: not at all)",
     )  # fmt: skip
     # With depth, the detections are not weighed (a depth proposal is reported on the open-set verdict, not
     # a confidence): one whose colours are farther than this from its object's is not reported. LM-O's
@@ -268,41 +206,23 @@ class Settings(BaseSettings):
         0.25, ge=0, le=2, description="a frame without u and v, with depth, without min_confidence: a "
         "detection whose colours are farther than this from its object's is not reported (2: no ceiling)",
     )  # fmt: skip
-    detect_colour_allowance: float = Field(
-        0.15, ge=0, le=2, description="a colour distance up to this costs a detection nothing (0-2)"
-    )
+    # A colour frame's detection confidence is weighed by its colours (`service.detection.agree`). Chosen with
+    # the weight and the allowance there (the most found at <= 0.2 false detections a frame where only objects
+    # absent from the validation frames are registered; docs/experiments.md): 0.25 then; with colour proposals
+    # verified at their centres, by the same rule (recall / precision / false a frame): 0.25 67.0 / 96.3 /
+    # 0.0; 0.2 73.0 / 94.4 / 0.0; 0.15 79.1 / 93.8 / 0.10; 0.1 80.9 / 92.1 / 0.55
     detect_rgb_floor: float = Field(
         0.15, ge=0, le=1, description="a frame without u and v, without depth and without min_confidence: the "
-        "confidence a detection needs to be reported, its colours weighed (detect_colour_weight > 0)",
+        "confidence a detection needs to be reported, its colours weighed",
     )  # fmt: skip
     # The pose fit's score on depth is the share of the object's visible points the depth explains at the
     # fitted pose (`index.refine.depth.score_of`). Chosen on YCB-V video 0000 (real depth, the shape-only
     # objects registered; docs/experiments.md): 0.2 took precision 0.22 -> 0.37 at recall 0.667 -> 0.650
     detect_depth_fit_floor: float = Field(
         0.2, ge=0, le=1, description="a frame without u and v, with depth, without min_confidence: a detection "
-        "whose pose fitted to the depth explains less than this share of its visible points is not reported",
+        "whose pose fitted to the depth explains less than this share of its visible points is not reported "
+        "(a part of a depth segment: `service.detection.report.PART_FIT_FLOOR`, if higher)",
     )  # fmt: skip
-    # A part of a depth segment larger than any registered object (touching objects that real depth joins)
-    # is a guess at where one object ends. Chosen on YCB-V video 0000 (real depth): its parts, none of them
-    # a registered object there, were named at fits of 0.32-0.55 (quartiles); 0.6 removes 49 of those 50
-    # false detections (LM-O's validation frames: no instance lost; docs/experiments.md)
-    detect_part_fit_floor: float = Field(
-        0.6, ge=0, le=1, description="a frame without u and v, with depth, without min_confidence: "
-        "detect_depth_fit_floor for a detection from a part of a depth segment larger than any registered "
-        "object",
-    )  # fmt: skip
-    # A pose through the table is no object there (`service.detection.stand`): the share of its surface that
-    # may lie deeper below the frame's support than 2.5 times the plane's tolerance (30 mm at 1 m). At 0.01,
-    # every factor from 1.5 to 3.5 times the tolerance dropped 37-41 of YCB-V video 0000's 43 false
-    # detections and none of its 39 right ones; at 0.05, 24-28 (docs/experiments.md, "Poses through the table")
-    detect_sunk_share: float = Field(
-        0.01, ge=0, le=1, description="a frame without u and v, with depth: a detection whose pose puts more "
-        "than this share of its object's surface through the table the frame's objects stand on is dropped "
-        "(1: never)",
-    )  # fmt: skip
-    detect_screen_rerank: int = Field(
-        60, ge=1, le=1000, description="a frame without u and v: the answers the screening re-ranks"
-    )
 
     # ---- Registration: how long POST /objects waits, and the demo objects of an empty data dir ----
     sync_seconds: float = Field(2.0, ge=0, description="POST /objects answers 201 within this, else 202")
@@ -324,17 +244,3 @@ def default_store() -> str:
     """The `store` setting (POSEDESC_STORE) alone, for a tool that opens a store without serving
     (`posedesc build-index`): another setting's bad value is no reason for it to fail."""
     return _StoreOnly().store
-
-
-def screening(settings: Settings) -> Settings:
-    """The settings of a detection's screening (`AppState.screens`): the re-ranking of
-    `detect_screen_rerank` answers, no roll sweep, no refinement, no pose fit: where around a proposal the object is
-    centred, before the whole pipeline names it there."""
-    return settings.model_copy(
-        update={
-            "rerank": settings.detect_screen_rerank,
-            "roll_sweep": 0,
-            "roll_refine": 0,
-            "pose_fit": 0,
-        }
-    )

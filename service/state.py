@@ -28,7 +28,7 @@ from service.jobs import Jobs
 from service.metrics import Metrics
 from service.pipeline import Pipeline
 from service.pipeline.fit import CAPACITY, Shapes
-from service.settings import Settings, screening
+from service.settings import Settings
 from service.threads import limit_threads, worker_pool
 
 log = logging.getLogger("service")
@@ -136,8 +136,9 @@ class AppState:
         and no roll sweep or refinement, kept as `pipelines` are."""
         built = self._screens
         if built is None or built[0] is not self.settings or built[1] is not self.embedders:
-            light = screening(self.settings)
-            screens = {m: Pipeline.build(light, e, self.templates) for m, e in self.embedders.items()}
+            screens = {
+                m: Pipeline.screening(self.settings, e, self.templates) for m, e in self.embedders.items()
+            }
             self._screens = built = (self.settings, self.embedders, screens)
         return built[2]
 

@@ -18,7 +18,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from index.features.objectness import Colour
-from index.templates.windows import object_diameter, size_classes, window_classes
+from index.templates.windows import object_diameter, window_classes
 from service.detection.depth_segments import DepthScene, depth_proposals, depth_scene, largest_visible
 from service.detection.found import DEPTH_PART, Frame, Proposal
 from service.errors import ApiError
@@ -33,18 +33,14 @@ def propose(
     windows: Mapping[float, frozenset[int]],
     limit: int,
     depth_limit: int,
-    sizes: Mapping[float, frozenset[int]] | None = None,
     largest_mm: float | None = None,
     scene: DepthScene | None = None,
 ) -> list[Proposal]:
     """At most `limit` colour proposals and `depth_limit` depth ones for the decoded frame, best first.
     `windows`: the window classes (mm) among the registered objects, and their objects
     (`index.templates.windows.window_classes`); `colour` None when the service has no objectness model.
-    `sizes` (`index.templates.windows.size_classes`): a colour place is also proposed at the distance its
-    extent gives each size class, for those objects: the network's window is of an object it knows, its
-    extent (the object's projected diameter) holds for one it never saw. `largest_mm`: the largest visible
-    extent a registered object shows (`depth_segments.largest_visible`): a larger depth segment is also
-    proposed in parts. `scene`: the depth's `depth_segments.depth_scene`, when the caller has it."""
+    `largest_mm`: the largest visible extent a registered object shows (`depth_segments.largest_visible`): a
+    larger depth segment is also proposed in parts. `scene`: the depth's `depth_segments.depth_scene`, when the caller has it."""
     out: list[Proposal] = []
     if d.depth is not None:
         out += [
@@ -74,12 +70,6 @@ def propose(
                     Proposal(p.u, p.v, focal * w / p.window_px, box, p.score, "colour", None if one else ids)
                     for w, ids in windows.items()
                 ]
-                extent = getattr(p, "extent_px", None)
-                if sizes and extent:
-                    out += [
-                        Proposal(p.u, p.v, focal * mm / extent, box, p.score, "colour", ids)
-                        for mm, ids in sizes.items()
-                    ]
     return out
 
 
@@ -95,25 +85,19 @@ class Propose:
     colour: Colour | None
     limit: int
     depth_limit: int
-    by_extent: bool = False
     name: str = "propose"
 
     @classmethod
     def build(cls, settings: Settings, colour: Colour | None) -> Propose:
-        return cls(
-            colour, settings.detect_proposals, settings.detect_depth_proposals, settings.detect_by_extent
-        )
+        return cls(colour, settings.detect_proposals, settings.detect_depth_proposals)
 
     def __call__(self, frame: Frame) -> Frame:
         windows = window_classes(frame.snapshot.objects, frame.d.embedder.info.window_mm)
-        sizes = size_classes(frame.snapshot.objects) if self.by_extent else None
         largest, scene = None, None
         if frame.d.depth is not None:
             scene = depth_scene(frame.d.depth, frame.K)
             diameters = (object_diameter(r.extra) for r in frame.snapshot.objects.values())
             largest = largest_visible(d for d in diameters if d is not None)
-        found = propose(
-            frame.d, frame.K, self.colour, windows, self.limit, self.depth_limit, sizes, largest, scene
-        )
+        found = propose(frame.d, frame.K, self.colour, windows, self.limit, self.depth_limit, largest, scene)
         kept = tuple(p for p in found if p.source != "colour" or p.score >= frame.floor)
         return replace(frame, proposals=kept, support=None if scene is None else scene.support)

@@ -71,7 +71,7 @@ def by_model(state: Loaded, d: Decoded) -> list[tuple[Decoded, Snapshot]]:
     centre is not split (`service.recognition.recognise_decoded`)."""
     snapshot = state.store.snapshot
     depth = state.embedders.get("depth")
-    if d.modality != "rgbd" or depth is None or not state.settings.shape_only_depth:
+    if d.modality != "rgbd" or depth is None:
         return [(d, snapshot)]
     bare = frozenset(oid for oid, rec in snapshot.objects.items() if untextured(rec))
     if not bare or len(bare) == len(snapshot.objects):
@@ -94,7 +94,7 @@ def decode(state: Loaded, q: Query) -> Decoded:
     modality = (
         "rgbd" if q.rgb is not None and q.depth is not None else "rgb" if q.rgb is not None else "depth"
     )
-    if modality == "rgbd" and settings.shape_only_depth and "depth" in embedders and shape_only(state.store):
+    if modality == "rgbd" and "depth" in embedders and shape_only(state.store):
         modality = "depth"  # the colour still decoded: drawn on, and checked against the depth's size
     embedder = embedders.get(modality)
     if embedder is None:

@@ -1,7 +1,7 @@
 """The refinement: each of the best re-ranked candidates is also compared at the viewpoints next to its
 own (the object's other templates within about one viewpoint step: `Viewpoints`) and at its roll turned
-by a fraction of the templates' in-plane step either way (`Settings.refine_roll_divisor`), and keeps the
-pose that fits best.
+by a fraction of the templates' in-plane step either way (`REFINE_ROLL_DIVISOR`), and keeps the pose that
+fits best.
 
 Templates sit about 8 deg apart on the sphere (level 3; "around": within 1.5 times that) and 30 deg apart
 in-plane (the shipped model), so an answer's pose is off by up to half of those; the local features of
@@ -21,6 +21,25 @@ from index.templates.register import TemplateConfig
 from service.pipeline.context import Context, Key
 from service.pipeline.rerank import reranks
 from service.settings import Settings
+
+# The refinement's constants (`RefineConfig`), as the validation frames chose them; an experiment replaces
+# them where the pipeline is built (a test's monkeypatch, a script's process), never through the settings.
+#: the best answers refined. 10: chosen on the validation frames among 0, 5, 10, 20, 40 (docs/experiments.md:
+#: 0 53.0, 10 62.6, 20 61.7 % within 20 deg; at five camera rolls 20 against 10 +0.5, interval -0.4 to +1.4)
+ROLL_REFINE = 10
+#: rounds, each from where the last left the answers, the roll's turn halved (a sixth of the in-plane step, a
+#: twelfth, ...). 1: a second round, on the validation frames at five camera rolls with a re-ranking of 400,
+#: made the pose finer (within 5 deg +4.8 points) but not more often within 20 deg (+2.3, interval 0.0 to +4.7)
+#: for 4 ms a query more at 100 objects (docs/experiments.md)
+REFINE_ROUNDS = 1
+#: the nearest other viewpoints of an answer's object compared (within 1.5 neighbour steps). 6: an icosphere
+#: viewpoint's ring of neighbours (5 or 6 at one step; `Viewpoints.near`); not tuned on its own, `ROLL_REFINE`
+#: was chosen with it
+NEAR_VIEWS = 6
+#: an answer's roll is also tried turned by the templates' in-plane step divided by this, either way (halved
+#: again each further round). 3: an answer's roll is off by up to half the step; its roll and +- a third of
+#: the step put a candidate within a sixth of the step of any roll there (chosen with `ROLL_REFINE`)
+REFINE_ROLL_DIVISOR = 3
 
 
 @dataclass(frozen=True)
@@ -75,10 +94,10 @@ class ViewpointTable:
 
 @dataclass(frozen=True)
 class RefineConfig:
-    """`n`: the best candidates refined (`Settings.roll_refine`); `rounds` (`Settings.refine_rounds`),
-    each from where the last left them, the roll's turn halved; `near_views` (`Settings.near_views`);
-    `spacing`: the templates' in-plane step (0: upright only, no turn); the roll's turn in the first round
-    is `spacing` / `roll_divisor` (`Settings.refine_roll_divisor`)."""
+    """`n`: the best candidates refined (`ROLL_REFINE`); `rounds` (`REFINE_ROUNDS`), each from where the last
+    left them, the roll's turn halved; `near_views` (`NEAR_VIEWS`); `spacing`: the templates' in-plane step
+    (0: upright only, no turn); the roll's turn in the first round is `spacing` / `roll_divisor`
+    (`REFINE_ROLL_DIVISOR`)."""
 
     n: int
     rounds: int
@@ -89,8 +108,7 @@ class RefineConfig:
     @classmethod
     def from_settings(cls, settings: Settings, embedder: Embedder, templates: TemplateConfig) -> RefineConfig:
         spacing = templates.inplane_spacing(embedder.info.inplane_step)
-        s = settings
-        return cls(s.roll_refine, s.refine_rounds, s.near_views, spacing, s.refine_roll_divisor)
+        return cls(ROLL_REFINE, REFINE_ROUNDS, NEAR_VIEWS, spacing, REFINE_ROLL_DIVISOR)
 
 
 @dataclass(frozen=True)
@@ -106,7 +124,7 @@ class Refine:
 
     @classmethod
     def build(cls, settings: Settings, embedder: Embedder, templates: TemplateConfig) -> Refine | None:
-        on = reranks(settings, embedder) and settings.roll_refine > 0
+        on = reranks(settings, embedder) and ROLL_REFINE > 0
         return cls(RefineConfig.from_settings(settings, embedder, templates)) if on else None
 
     def __call__(self, ctx: Context) -> Context | None:

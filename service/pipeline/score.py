@@ -45,12 +45,25 @@ from service.pipeline.mask import filled, foreground, masked
 from service.pipeline.query import Decoded, Query, cut
 from service.settings import Settings
 
+# The score's constants (`ScoreConfig`), as the validation frames chose them; an experiment sets them in its
+# own process before the pipelines are built.
+#: `index.features.local.masked_distance`'s weight of the query's mask left outside a template's silhouette.
+#: 0.3: chosen on the validation frames among 0, 0.15, 0.3, 0.5, 0.6, 1 (docs/experiments.md: 0 / 0.3 / 0.6
+#: 64.3 / 69.6 / 68.7 % within 20 deg; at five camera rolls 0.15 +0.4 and 0.5 -0.9 against 0.3, both within
+#: the noise)
+MASK_COVERAGE = 0.3
+#: a cell's residual depth counts up to this in the relief distance (mm), so an occluder's cell or a depth
+#: hole costs at most that. 20: chosen with the weight (`Settings.relief_weight`) on the validation frames
+#: (docs/experiments.md; 10 mm tied), kept wide for real depth: a real Kinect frame differs from its render by
+#: a median absolute 4.2 mm on object pixels (docs/templates.md)
+RELIEF_CLIP_MM = 20.0
+
 
 @dataclass(frozen=True)
 class ScoreConfig:
     """`coverage`: `index.features.local.masked_distance`'s weight of the query's mask left outside a template's
-    silhouette (`Settings.mask_coverage`). `relief`: the weight of `index.features.local.relief_distance` added
-    where both have depth (`Settings.relief_weight`), its residuals clipped at `relief_clip_mm`."""
+    silhouette (`MASK_COVERAGE`). `relief`: the weight of `index.features.local.relief_distance` added where
+    both have depth (`Settings.relief_weight`), its residuals clipped at `relief_clip_mm` (`RELIEF_CLIP_MM`)."""
 
     coverage: float
     relief: float
@@ -58,7 +71,7 @@ class ScoreConfig:
 
     @classmethod
     def from_settings(cls, settings: Settings) -> ScoreConfig:
-        return cls(settings.mask_coverage, settings.relief_weight, settings.relief_clip_mm)
+        return cls(MASK_COVERAGE, settings.relief_weight, RELIEF_CLIP_MM)
 
 
 @dataclass(frozen=True)

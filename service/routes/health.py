@@ -7,7 +7,7 @@ from fastapi.responses import JSONResponse
 from prometheus_client import CONTENT_TYPE_LATEST
 
 from service.deps import StateDep
-from service.rejection import stale
+from service.pipeline.calibration import stale
 from service.schemas import Health, Ready
 
 PROMETHEUS = {"content": {"text/plain": {"schema": {"type": "string"}}}, "description": "Prometheus text"}

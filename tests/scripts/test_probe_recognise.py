@@ -99,3 +99,10 @@ def test_true_mask_replaces_the_first_cut_s_mask_in_whole_or_in_part(script):
     assert not full.mask(one).any()  # once a query: the next cut gets the model's mask
     assert full.size == 64  # the rest is the embedder's
     assert not band.mask(np.zeros((3, 3, 64, 64), np.float32)).any()  # the re-ranking's cuts: the model's
+
+
+def test_a_name_that_is_no_setting_is_refused(tmp_path, capsys, script):
+    """The settings ignore names they do not have: a stage's constant, once a setting, would be tried silently."""
+    probe = script("probe_recognise")
+    assert probe.main(["--dataset", str(tmp_path), "--settings", '{"roll_refine": 20}']) == 2
+    assert "no such setting: roll_refine" in capsys.readouterr().err

@@ -12,7 +12,8 @@ from service_helpers import ROOT, Server, png, register
 
 from index.features.embed import Embedder
 from index.geometry.pose import View
-from service.rejection import Calibration, read_calibrations, served_score, settings_of, stale
+from service.pipeline.calibration import settings_of, stale
+from service.rejection import Calibration, read_calibrations, served_score
 from service.settings import Settings
 
 # A template view of the tests' level (2): the registered object's patch is one of its own templates.

@@ -4,6 +4,8 @@ or the frame searched whole; once a textured object is registered too, by the RG
 
 from __future__ import annotations
 
+import shutil
+
 import numpy as np
 import trimesh
 from fastapi.testclient import TestClient
@@ -122,11 +124,17 @@ def test_in_colour_a_shape_only_objects_distances_carry_the_handicap(
     assert [m["distance"] for m in answers[0.0][1]] == [m["distance"] for m in answers[0.5][1]]
 
 
-def test_the_setting_keeps_the_rgbd_model_for_shape_only_objects(tmp_path, posedesc_models, renderer):
+def test_without_a_depth_model_the_rgbd_model_answers_shape_only_objects(tmp_path, posedesc_models, renderer):
+    """The RGB-D model on shape-only objects (as before the depth model answered them): a models dir without
+    posedesc-depth.onnx."""
     part = shape_only_part()
     rgb, depth = frame(renderer, part, VIEW, UV, wall_mm=1500.0)
     files = {"rgb": ("f.png", png(rgb)), "depth": ("d.png", depth_png(depth))}
-    settings = service_settings(tmp_path, posedesc_models, level=1, shape_only_depth=False)
+    models = tmp_path / "models"
+    models.mkdir()
+    for name in ("posedesc-rgb.onnx", "posedesc-rgbd.onnx"):
+        shutil.copy(posedesc_models / name, models)
+    settings = service_settings(tmp_path / "data", models, level=1)
     with TestClient(create_app(settings)) as c:
         wait_ready(c)
         register(c, part, "part")

@@ -173,7 +173,7 @@ def test_a_detection_through_the_table_is_dropped(client, renderer, l_shape):
     from index.store import Match
     from service.detection.depth_segments import depth_scene
     from service.detection.found import Detection, Frame, Proposal
-    from service.detection.stand import Stand
+    from service.detection.stand import SUNK_SHARE, Stand
     from service.pipeline.answer import Result
 
     tilt = np.deg2rad(40)
@@ -198,7 +198,7 @@ def test_a_detection_through_the_table_is_dropped(client, renderer, l_shape):
     state = client.app.state.posedesc
     frame = Frame(None, None, K, state.store.snapshot, 0.0, support=support, detections=(standing, sunk))
     stand = Stand.build(state)
-    assert stand.share == state.settings.detect_sunk_share
+    assert stand.share == SUNK_SHARE
     assert stand(frame).detections == (standing,)
     assert stand(replace(frame, support=None)).detections == (standing, sunk)
     assert Stand(state, 1.0)(frame).detections == (standing, sunk)  # a share of 1: never dropped

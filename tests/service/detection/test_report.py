@@ -7,8 +7,9 @@ from dataclasses import replace
 import numpy as np
 
 from index.refine.fit import Fit, failed_at
+from service.detection import agree
 from service.detection.found import DEPTH_PART, Detection, Proposal
-from service.detection.report import Floors, floors, reported
+from service.detection.report import PART_FIT_FLOOR, Floors, floors, reported
 from service.pipeline.answer import Result
 from service.settings import Settings
 
@@ -63,14 +64,15 @@ def test_the_other_floors_still_apply_and_min_confidence_replaces_them_all():
     assert not reported(detection("depth", 0.1, 0.9), 0.2, Floors(0.4, 0.2))
 
 
-def test_a_colour_frame_weighed_by_its_colours_has_its_own_floor():
-    s = Settings(
-        detect_floor=0.4, detect_rgb_floor=0.25, detect_depth_fit_floor=0.2, detect_colour_weight=8.0
-    )
+def test_a_colour_frame_weighed_by_its_colours_has_its_own_floor(monkeypatch):
+    s = Settings(detect_floor=0.4, detect_rgb_floor=0.25, detect_depth_fit_floor=0.2)
+    assert agree.COLOUR_WEIGHT == 8.0
     assert floors(s, depth=False) == Floors(0.25, 0.0, None)
     # with depth: a ceiling on the colours, the fit, a higher one for a part of a segment
     assert floors(s, depth=True) == Floors(0.4, 0.2, 0.25, 0.6)
-    unweighed = s.model_copy(update={"detect_colour_weight": 0.0, "detect_colour_ceiling": 2.0})
+    # an experiment without the colour check: its constant set in the process, the ceiling a setting
+    monkeypatch.setattr(agree, "COLOUR_WEIGHT", 0.0)
+    unweighed = s.model_copy(update={"detect_colour_ceiling": 2.0})
     assert floors(unweighed, depth=False) == Floors(0.4, 0.0, None)
     assert floors(unweighed, depth=True).colour_distance is None
 
@@ -83,5 +85,6 @@ def test_a_part_of_a_depth_segment_needs_more_of_it_borne_out():
     assert not reported(detection(DEPTH_PART, 0.9, 0.5), None, at)
     assert reported(detection(DEPTH_PART, 0.9, 0.7), None, at)
     assert reported(detection(DEPTH_PART, 0.9, 0.5), 0.5, at)  # min_confidence replaces the floors
-    low = Settings(detect_depth_fit_floor=0.7, detect_part_fit_floor=0.6)
+    assert PART_FIT_FLOOR == 0.6 and floors(Settings(), depth=True).part_fit == 0.6
+    low = Settings(detect_depth_fit_floor=0.7)
     assert floors(low, depth=True).part_fit == 0.7  # never below a whole segment's

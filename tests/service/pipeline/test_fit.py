@@ -113,7 +113,7 @@ def test_in_colour_only_the_best_answer_is_fitted_by_default(client, shot):
 
 def test_with_depth_the_best_three_of_the_reordered_answers_are_fitted_fully(client, shot):
     """The depth re-ordering looks at the first `depth_rerank` (20) answers coarsely, and fits the best
-    `depth_refine` (3) of them fully: those three come first, each moved off its template by its fit."""
+    `DEPTH_REFINE` (3) of them fully: those three come first, each moved off its template by its fit."""
     files = {"rgb": ("f.png", png(shot["rgb"])), "depth": ("d.png", depth_png(shot["depth"]))}
     r = client.post("/recognize", files=files, data=frame_fields(UV, k="10"))
     assert r.status_code == 200, r.text

@@ -8,7 +8,7 @@ from service_helpers import ROOT
 
 from index.features.embed import Embedder
 from index.templates.register import TemplateConfig
-from service.pipeline import Pipeline, timings
+from service.pipeline import SCREEN_RERANK, Pipeline, refine, timings
 from service.settings import Settings
 from service.state import close_state, load_state
 
@@ -28,7 +28,6 @@ def shipped_rgb() -> Embedder:
     [
         ({}, EVERY),
         ({"roll_sweep": 0}, ("cut", "mask", "embed", "search", "local", "refine")),
-        ({"roll_refine": 0}, ("cut", "mask", "embed", "search", "local", "sweep")),
         ({"rerank": 0}, ("cut", "mask", "embed", "search")),
         # upright templates only: one angle, nothing to sweep
         ({"inplane_step": 0}, ("cut", "mask", "embed", "search", "local", "refine")),
@@ -38,6 +37,22 @@ def test_the_stages_are_those_the_model_and_the_settings_ask_for(shipped_rgb, se
     s = Settings(**settings)
     templates = TemplateConfig(s.level, s.inplane_step if "inplane_step" in settings else 30.0, s.inplane_max)
     assert Pipeline.build(s, shipped_rgb, templates).names == names
+
+
+def test_an_experiment_without_the_refinement_sets_its_constant(shipped_rgb, monkeypatch):
+    """The refinement's constants are the stage's (`service.pipeline.refine`), not settings: an experiment
+    sets them in its process before the pipeline is built."""
+    monkeypatch.setattr(refine, "ROLL_REFINE", 0)
+    s = Settings()
+    names = Pipeline.build(s, shipped_rgb, TemplateConfig(s.level, 30.0, s.inplane_max)).names
+    assert names == ("cut", "mask", "embed", "search", "local", "sweep")
+
+
+def test_a_screening_reranks_fewer_and_neither_sweeps_nor_refines(shipped_rgb):
+    s = Settings()
+    screen = Pipeline.screening(s, shipped_rgb, TemplateConfig(s.level, 30.0, s.inplane_max))
+    assert screen.names == ("cut", "mask", "embed", "search", "local") and screen.fit is None
+    assert screen.settings.rerank == SCREEN_RERANK
 
 
 def test_a_model_without_mask_or_local_features_only_cuts_embeds_and_searches(posedesc_models):

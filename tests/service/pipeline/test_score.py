@@ -17,7 +17,7 @@ from index.features.local import StoredLocal
 from index.geometry.pose import View
 from index.templates.register import register
 from service.pipeline.query import Query, decode
-from service.pipeline.score import LocalScore, QueryCuts, ScoreConfig
+from service.pipeline.score import RELIEF_CLIP_MM, LocalScore, QueryCuts, ScoreConfig
 from service.settings import Settings
 from service.state import close_state, load_state
 
@@ -45,7 +45,7 @@ def _scores(state, q, d, local, poses, coverage: float, relief: float) -> np.nda
     e, s = d.embedder, state.settings
     cuts = QueryCuts(q, d, None, s.patch_distance_mm)
     scorer = LocalScore(
-        ScoreConfig(coverage, relief, s.relief_clip_mm), cuts, local, e.local_grid, e.info.window_mm
+        ScoreConfig(coverage, relief, RELIEF_CLIP_MM), cuts, local, e.local_grid, e.info.window_mm
     )
     return scorer.pairs(poses)
 
@@ -96,7 +96,7 @@ def test_the_scorer_gives_the_reference_formula_once_per_pose(rgbd_state, l_shap
     q = _query(state, l_shape, View(keys[3][1], keys[3][2], 30.0, 400.0))
     d = decode(state, q)
     cuts = QueryCuts(q, d, None, s.patch_distance_mm)
-    config = ScoreConfig(0.3, 5.0, s.relief_clip_mm)
+    config = ScoreConfig(0.3, 5.0, RELIEF_CLIP_MM)
     scorer = LocalScore(config, cuts, local, e.local_grid, e.info.window_mm)
     rolls = [0.0, 30.0, -60.0]
     poses = [(k, rolls[i % 3]) for i, k in enumerate(keys)]

@@ -15,6 +15,7 @@ from service_helpers import ROOT, frame, frame_fields, png, register, service_se
 from index.geometry.pose import View, wrap_degrees
 from index.templates.viewpoints import hemisphere
 from service.main import create_app
+from service.pipeline import refine as refinement
 
 UV = (360.0, 260.0)
 LEVEL = 1  # 16 viewpoints: every query below is at one of them
@@ -108,16 +109,18 @@ def answers_to_rolls(tmp_path_factory, models, renderer, l_shape, t_shape, phis,
     return answers
 
 
-def test_refinement_finds_a_roll_between_templates(tmp_path_factory, shipped_rgb, renderer, l_shape, t_shape):
+def test_refinement_finds_a_roll_between_templates(
+    tmp_path_factory, shipped_rgb, renderer, l_shape, t_shape, monkeypatch
+):
     """Templates every 30°, no query turns: an object rolled 10° (or -50°...) is 10° from the nearest
     template's roll, so without refinement no answer's roll is exact; the refinement compares the best
-    answers at their roll +- 10° too, finds it for many and is never worse than the nearest template."""
+    answers at their roll +- 10° too, finds it for many and is never worse than the nearest template.
+    The refinement's constants are the stage's: set here before each service builds its pipelines."""
     phis = (10.0, -50.0, 100.0, 160.0, -110.0, 40.0, -80.0, 130.0, -170.0, 70.0)  # 10° off a template
     errors: dict[int, list[float]] = {}
     for refine in (0, 5):
-        answers = answers_to_rolls(
-            tmp_path_factory, shipped_rgb, renderer, l_shape, t_shape, phis, roll_refine=refine
-        )
+        monkeypatch.setattr(refinement, "ROLL_REFINE", refine)
+        answers = answers_to_rolls(tmp_path_factory, shipped_rgb, renderer, l_shape, t_shape, phis)
         errors[refine] = []
         for phi, answer in zip(phis, answers, strict=True):
             best = answer["best"] or answer["matches"][0]  # judged unknown or not: the nearest answer
@@ -129,22 +132,17 @@ def test_refinement_finds_a_roll_between_templates(tmp_path_factory, shipped_rgb
     assert max(errors[5]) <= 10.0 + 1e-6 and sum(e < 1e-3 for e in errors[5]) >= 4, errors
 
 
-def test_a_second_round_halves_the_turn(tmp_path_factory, shipped_rgb, renderer, l_shape, t_shape):
+def test_a_second_round_halves_the_turn(
+    tmp_path_factory, shipped_rgb, renderer, l_shape, t_shape, monkeypatch
+):
     """Templates every 30°: an object rolled 15° off a template is 5° from any roll one round reaches
     (the template's, +- 10°); a second round turns by +- 5° from there and can land on it."""
     phis = (15.0, -45.0, 105.0, 165.0, -105.0, 45.0, -75.0, 135.0)  # 15° off a template
     errors: dict[int, list[float]] = {}
+    monkeypatch.setattr(refinement, "ROLL_REFINE", 5)
     for rounds in (1, 2):
-        answers = answers_to_rolls(
-            tmp_path_factory,
-            shipped_rgb,
-            renderer,
-            l_shape,
-            t_shape,
-            phis,
-            roll_refine=5,
-            refine_rounds=rounds,
-        )
+        monkeypatch.setattr(refinement, "REFINE_ROUNDS", rounds)
+        answers = answers_to_rolls(tmp_path_factory, shipped_rgb, renderer, l_shape, t_shape, phis)
         errors[rounds] = []
         for phi, answer in zip(phis, answers, strict=True):
             best = answer["best"]
