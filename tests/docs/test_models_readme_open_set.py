@@ -124,9 +124,9 @@ def test_the_calibrations() -> None:
             f"{pct(1 - filtered[1]['same_object'])} % (rgbd) of the validation patches",
             f"(level {settings['level']}, in-plane {settings['inplane_step']:g} deg over the whole turn for rgb and "
             f"rgbd, query turns {settings['query_turns']}, RERANK {settings['rerank']}, ROLL_SWEEP "
-            f"{settings['roll_sweep']}, ROLL_REFINE {settings['roll_refine']}, refine rounds "
-            f"{settings['refine_rounds']}, MASK_COVERAGE {settings['mask_coverage']:g}, RELIEF_WEIGHT "
-            f"{settings['relief_weight']:g} for rgbd",
+            f"{settings['roll_sweep']}, RELIEF_WEIGHT {settings['relief_weight']:g} for rgbd, and the "
+            f"refinement's and the mask's constants, roll_refine {settings['roll_refine']}, refine rounds "
+            f"{settings['refine_rounds']}, mask_coverage {settings['mask_coverage']:g}:",
             f"(the rgb model's `split_frames`, {len(rgb['frames']['val'])} frames, "
             f"{rgb['calibrations']['local']['n']['unknown']} instances)",
             f"set on the real video ({num(real['threshold'], 3)})",
