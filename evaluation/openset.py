@@ -37,7 +37,7 @@ from service.errors import ApiError
 from service.pipeline.calibration import settings_of
 from service.recognition import recognise
 from service.rejection import LISTED as REJECT_LISTED
-from service.rejection import Calibration
+from service.rejection import Calibration, ColourTerm
 from service.settings import Settings
 from service.state import AppState, close_state, load_state
 
@@ -63,6 +63,9 @@ class Answers:
     distances: dict[str, list[list[float]]] = field(default_factory=dict)
     settings: dict[str, dict[str, object]] = field(default_factory=dict)
     data: str = ""
+    #: per score kind, the best answer's colour distance (`Result.colour_distance`; None: not measured, or
+    #: answers collected before it was kept)
+    colours: dict[str, list[float | None]] = field(default_factory=dict)
 
     @property
     def kinds(self) -> list[str]:
@@ -81,7 +84,14 @@ class Answers:
         keep = ids[:, 0] >= 0
         obj = np.array(self.obj)
         best = dist[:, 0] if statistic is None else best_values(ids, dist, statistic)
+        if statistic is not None and statistic.colour is not None:
+            best = with_colours(best, self.colour_distances(kind), statistic)
         return best[keep], (ids[:, 0] == obj)[keep], np.array(self.registered)[keep], obj[keep]
+
+    def colour_distances(self, kind: str) -> np.ndarray:
+        """The best answers' colour distances, nan where none was measured. Shape: (n,)."""
+        got = self.colours.get(kind) or [None] * len(self.obj)
+        return np.array([np.nan if c is None else c for c in got], float)
 
     def run_of(self, kind: str) -> np.ndarray:
         """Each answered row's registered set (the rows `arrays` keeps)."""
@@ -109,6 +119,21 @@ def best_values(ids: np.ndarray, dist: np.ndarray, statistic: Calibration) -> np
         if listed:
             out[i] = statistic.values(listed[:REJECT_LISTED])[0]
     return out
+
+
+def with_colours(best: np.ndarray, colour: np.ndarray, stat: Calibration) -> np.ndarray:
+    """The best answers' statistics as the service judges them with `stat`'s colour term
+    (`service.rejection.coloured`): plus its weight times the colour distance, on the term's threshold;
+    where no colour was measured the statistic alone is judged on `stat.threshold`, so it is moved by the
+    difference of the two thresholds (the same verdict on the term's scale)."""
+    term = stat.colour
+    assert term is not None
+    return np.where(np.isnan(colour), best - stat.threshold + term.threshold, best + term.weight * colour)
+
+
+def decision_threshold(stat: Calibration) -> float:
+    """What `Answers.arrays`'s statistics are judged on: the colour term's threshold when it has one."""
+    return stat.threshold if stat.colour is None else stat.colour.threshold
 
 
 def score_kinds(embedder: Embedder) -> list[str]:
@@ -197,16 +222,21 @@ def _ask(state: AppState, sent, dataset_ids, kinds, subset: set[int], run: int, 
                 except ApiError:  # refused: counted apart, not as an answer
                     result = None
                 ids, dist = [-1] * LISTED, [float("nan")] * LISTED
+                colour = None
                 if result is not None and result.score == kind:
                     for i, m in enumerate(result.matches[:LISTED]):
                         ids[i], dist[i] = dataset_ids[m.object_id], float(m.distance)
+                    colour = result.colour_distance
                 out.objects[kind].append(ids)
                 out.distances[kind].append(dist)
+                out.colours.setdefault(kind, []).append(colour)
             state.settings = with_local
             tick()
 
 
-def kinds_of(a: Answers, kind: str, stat: Calibration | None = None) -> tuple[np.ndarray, ...]:
+def kinds_of(
+    a: Answers, kind: str, stat: Calibration | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Scores of (right, wrong, unknown) best answers (`stat`'s statistic, else the distance)."""
     s, right, reg, _ = a.arrays(kind, stat)
     return s[reg & right], s[reg & ~right], s[~reg]
@@ -217,7 +247,35 @@ def calibrate(
 ) -> tuple[Calibration, dict]:
     """`stat`'s threshold by `rule` ("registered": reject at most that share of the registered objects'
     patches, right or wrong; "right": keep that share of the right answers) and its confidence curve."""
-    right, wrong, unknown = kinds_of(a, stat.score, stat)
+    plain = replace(stat, colour=None)
+    threshold, slope, midpoint, report = _fitted(*kinds_of(a, stat.score, plain), rule)
+    cal = replace(plain, threshold=round(threshold, 5), slope=round(slope, 5), midpoint=round(midpoint, 5),
+                  frames=frames, settings=a.settings[stat.score])  # fmt: skip
+    return cal, report
+
+
+def calibrate_colour(
+    a: Answers, cal: Calibration, weight: float, rule: tuple[str, float]
+) -> tuple[Calibration, dict]:
+    """`cal` (calibrated) with a colour term of this `weight` (`service.rejection.ColourTerm`): its
+    threshold by `rule` and its confidence curve on the best answers' statistics plus `weight` times their
+    colour distance. Answers without a colour distance count at their statistic moved onto the term's scale
+    (`with_colours`), which needs the term's threshold: found again from the last until it stands."""
+    term = ColourTerm(weight, cal.threshold, 0.0, 0.0)
+    for _ in range(5):
+        threshold, slope, midpoint, report = _fitted(*kinds_of(a, cal.score, replace(cal, colour=term)), rule)
+        moved = abs(threshold - term.threshold) > 1e-9
+        term = ColourTerm(weight, round(threshold, 5), round(slope, 5), round(midpoint, 5))
+        if not moved:
+            break
+    return replace(cal, colour=term), report
+
+
+def _fitted(
+    right: np.ndarray, wrong: np.ndarray, unknown: np.ndarray, rule: tuple[str, float]
+) -> tuple[float, float, float, dict]:
+    """The threshold `rule` gives on these best answers' statistics (right, wrong: registered objects';
+    unknown: unregistered ones'), the logistic curve of "the right object" on them, and the report."""
     name, share = rule
     registered = np.concatenate([right, wrong])
     threshold = keep_threshold(registered if name == "registered" else right, 1 - share if name ==
@@ -229,20 +287,21 @@ def calibrate(
     # object that is not registered, whatever the numbers of each the calibration happened to have
     w = np.concatenate([np.full(n_reg, 0.5 / n_reg), np.full(n_unk, 0.5 / n_unk)]) * len(s)
     slope, midpoint = fit_logistic(s, label, w)
-    cal = replace(stat, threshold=round(threshold, 5), slope=round(slope, 5), midpoint=round(midpoint, 5),
-                  frames=frames, settings=a.settings[stat.score])  # fmt: skip
     grid = np.quantile(s, np.linspace(0, 1, 101))
     report = {
         "n": {"right": len(right), "wrong": len(wrong), "unknown": n_unk},
         "median": {"right": _med(right), "wrong": _med(wrong), "unknown": _med(unknown)},
-        "at_threshold": _at(right, wrong, unknown, cal.threshold),
+        "at_threshold": _at(right, wrong, unknown, round(threshold, 5)),
         "curve": rejection_curve(right, wrong, unknown, grid),
     }
-    return cal, report
+    return threshold, slope, midpoint, report
 
 
 #: the statistics compared on validation frames (`explore`): the distance, and the lead at these weights
 LEAD_WEIGHTS = (0.25, 0.5, 1.0, 2.0, 4.0)
+#: the colour term's weights compared (`explore`), on the lead at weight `COLOUR_LEAD` (the shipped statistic)
+COLOUR_WEIGHTS = (0.5, 1.0, 1.5, 2.0, 3.0, 4.0)
+COLOUR_LEAD = 2.0
 #: the exploration's figure: the unknowns rejected where at most this share of registered patches is
 EXPLORE_AT = 0.1
 
@@ -267,6 +326,13 @@ def explore(a: Answers, kind: str) -> list[dict]:
     stats["minus the lead alone"] = dist[:, 0] - other
     for n in (5, 10):
         stats[f"share of the top {n} not the best's object"] = 1 - (ids[:, :n] == ids[:, :1]).mean(1)
+    colour = a.colour_distances(kind)[answered]
+    if not np.isnan(colour).all():  # the colours at the best answer's pose (`service.pipeline.colours`)
+        for c in COLOUR_WEIGHTS:
+            lead = stats[f"lead, weight {COLOUR_LEAD:g}"]
+            stats[f"lead, weight {COLOUR_LEAD:g}, + {c:g} x the colour distance"] = lead + c * np.nan_to_num(
+                colour
+            )
     if kind == "local" and "descriptor" in a.kinds:  # not shippable: the re-ranking drops the descriptor's
         d = a.lists("descriptor")[1][answered, 0]
         for w in (5.0, 10.0):
@@ -355,7 +421,7 @@ def measure(a: Answers, cal: Calibration, sets: list[list[int]], fold: int = 1) 
     """The calibration on held-out answers: per left-out object (in the runs without it and `fold` - 1
     others, `registered_sets`), and by how many objects were registered."""
     s, right, reg, obj = a.arrays(cal.score, cal)
-    t = cal.threshold
+    t = decision_threshold(cal)
     run = a.run_of(cal.score)
     out: dict = {"per_unregistered_object": {}, "by_registered": {}}
     left_out = [r for r, subset in enumerate(sets) if len(subset) == len(sets[0]) - fold]

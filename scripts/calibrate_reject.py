@@ -40,8 +40,10 @@ sys.path.insert(0, str(ROOT))
 from evaluation.openset import (  # noqa: E402
     Answers,
     calibrate,
+    calibrate_colour,
     collect,
     compare_filtered,
+    decision_threshold,
     explore,
     kinds_of,
     measure,
@@ -81,7 +83,7 @@ def picture(report: dict, path: Path) -> None:
     fig, axes = plt.subplots(len(kinds), 2, figsize=(11, 4.2 * len(kinds)), squeeze=False)
     for row, kind in zip(axes, kinds, strict=True):
         cal, test = report["calibrations"][kind], report["test"].get(kind, {})
-        t = cal["threshold"]
+        t = cal["colour"]["threshold"] if "colour" in cal else cal["threshold"]
         for name, colour in (("right", "tab:green"), ("wrong", "tab:orange"), ("unknown", "tab:red")):
             xs = report["val_scores"][kind][name]
             if xs:
@@ -89,6 +91,7 @@ def picture(report: dict, path: Path) -> None:
         row[0].axvline(t, color="k", ls="--", label=f"threshold {t:.3g}")
         row[0].set_xlabel(
             f"best answer's {Calibration(kind, t, 0, 0, statistic=cal['statistic'], weight=cal['weight']).describe()}"
+            + (f", + {cal['colour']['weight']:g} x colour distance" if "colour" in cal else "")
         )
         row[0].set_title(f"validation frames ({kind}): best answers' scores")
         row[0].legend(fontsize=8)
@@ -112,6 +115,21 @@ def picture(report: dict, path: Path) -> None:
 #: 10 % aimed at on new frames: the rgb threshold of "keep 0.9 of right answers" on validation rejected 13.6 %
 #: of the registered objects' patches of the test frames
 REJECT_REGISTERED = 0.08
+
+
+def colour_terms(given: list[str]) -> dict[str, float]:
+    """--colour-weight values: score kind -> the colour term's weight (0: none)."""
+    out = {}
+    for text in given:
+        kind, _, weight = text.rpartition("=")
+        try:
+            w = float(weight)
+        except ValueError:
+            w = -1.0
+        if kind not in SCORE_KINDS or w < 0:
+            raise ValueError(f"{text!r}: KIND=WEIGHT, KIND 'local' or 'descriptor', WEIGHT >= 0")
+        out[kind] = w
+    return out
 
 
 def statistics(given: list[str]) -> dict[str, tuple[str, float]]:
@@ -201,6 +219,15 @@ def main() -> None:
     ap.add_argument("--fold", type=int, default=1, help="objects left out at once (each object once)")
     ap.add_argument("--shipped", action="store_true",
                     help="fit nothing: measure the model's own calibration on both splits")  # fmt: skip
+    ap.add_argument(
+        "--colour-weight",
+        action="append",
+        default=[],
+        metavar="KIND=WEIGHT",
+        help="a colour term for that score kind (service.rejection.ColourTerm): the best answer's "
+        "statistic plus WEIGHT x its colour distance where a colour frame shows it (0: none; "
+        "default: the shipped calibration's)",
+    )
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args()
     if not args.model.is_file():
@@ -213,6 +240,10 @@ def main() -> None:
         chosen = statistics(args.statistic)
     except ValueError as e:
         sys.exit(f"--statistic: {e}")
+    try:
+        colour_weights = colour_terms(args.colour_weight)
+    except ValueError as e:
+        sys.exit(f"--colour-weight: {e}")
     if not 0 <= args.reject_registered < 1:
         sys.exit("--reject-registered: a share in [0, 1)")
     if args.shipped and args.out is not None:
@@ -253,6 +284,13 @@ def main() -> None:
         name, weight = chosen.get(kind, chosen.get("", ("distance", 0.0)))
         stat = Calibration(kind, 0.0, 0.0, 0.0, statistic=name, weight=weight)
         cal, rep = calibrate(a, shipped.get(kind) or stat, rule, "val")
+        weighed = colour_weights.get(kind)
+        if weighed is None and kind not in colour_weights and (was := shipped.get(kind)) and was.colour:
+            weighed = was.colour.weight  # recalibrated as shipped: with its colour term
+        if weighed:
+            plain = rep
+            cal, rep = calibrate_colour(a, cal, weighed, rule)
+            rep["without_colour"] = {"threshold": cal.threshold, "at_threshold": plain["at_threshold"]}
         if args.shipped:  # nothing fitted: the validation frames are measured like the test frames
             cal = shipped[kind]
             rep["at_threshold"] = measure(a, cal, val_sets, args.fold)["by_registered"]
@@ -265,7 +303,9 @@ def main() -> None:
         report["compare_filtered"][kind] = compare_filtered(a, kind, cal)
         report["val_scores"][kind] = {k: np.round(v, 4).tolist() for k, v in zip(
             ("right", "wrong", "unknown"), kinds_of(a, kind, cal), strict=True)}  # fmt: skip
-        print(f"{kind}: {cal.describe()} threshold {cal.threshold:.4g}, val {rep['at_threshold']}")
+        print(
+            f"{kind}: {cal.describe(coloured=True)} threshold {decision_threshold(cal):.4g}, val {rep['at_threshold']}"
+        )
         for row in report["explored"][kind]:
             print(f"  explored {kind}: {json.dumps(row)}")
         print(f"  one collection filtered against left-out runs: {report['compare_filtered'][kind]}")

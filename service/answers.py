@@ -87,6 +87,7 @@ def result_out(result: Result, K: np.ndarray | None) -> RecognizeOut:
         best=None if result.reason else matches[0],
         reason=result.reason,
         score=result.score,
+        colour_distance=result.colour_distance,
         timings_ms=result.timings_ms,
         model=result.model,
     )

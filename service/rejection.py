@@ -15,6 +15,14 @@ re-ranked answers) or "descriptor" (the descriptor distance, without re-ranking)
 - `slope`, `midpoint`: the confidence of an answer with statistic s is 1 / (1 + exp(slope * (s -
   midpoint))), a logistic fit on validation answers of whether the top answer was the right object (half of
   them with the object registered, half with it left out: a 1 in 2 chance that a patch shows an unknown);
+- `colour` (optional, `ColourTerm`): a frame sent with its camera and the object's centre, in colour, shows
+  whether the frame's colours where the best answer's pose puts its object are that object's
+  (`index.refine.chroma.chroma_distance`, 0-2: its `colour_distance`). The best answer's statistic then
+  adds `weight` times that distance and is judged on the term's own threshold and confidence curve; a
+  patch, a shape-only object or a frame without colour is judged on the statistic alone. An unknown object
+  named after a registered one has that one's distance and its lead but not its colours: on LM-O's
+  validation frames the colours took the unknowns rejected from 63.5 to 71.3 % at the same share of
+  registered ones (docs/experiments.md, "The colours in the open set");
 - `settings`: the settings (and the stages' constants) its answers were made with
   (`service.pipeline.calibration.settings_of`), and `graph`: the network it was measured on
   (`Embedder.graph_digest`); `service.pipeline.calibration.stale` tells the running service when either
@@ -58,6 +66,33 @@ def served_score(settings: Settings, embedder: Embedder) -> str:
 
 
 @dataclass(frozen=True)
+class ColourTerm:
+    """The best answer's statistic with its colours: the statistic plus `weight` times its colour distance,
+    rejected above `threshold`, its confidence 1 / (1 + exp(slope * (s - midpoint)))."""
+
+    weight: float
+    threshold: float
+    slope: float
+    midpoint: float
+
+    def confidence(self, value: float) -> float:
+        return _logistic(self.slope, self.midpoint, value)
+
+    def to_json(self) -> dict[str, float]:
+        return {
+            "weight": self.weight,
+            "threshold": self.threshold,
+            "slope": self.slope,
+            "midpoint": self.midpoint,
+        }
+
+
+def _logistic(slope: float, midpoint: float, value: float) -> float:
+    z = slope * (value - midpoint)
+    return 1.0 / (1.0 + math.exp(min(z, 700.0)))  # exp overflows past ~709
+
+
+@dataclass(frozen=True)
 class Calibration:
     """One score kind's rejection threshold and confidence curve (see the module's docstring)."""
 
@@ -71,6 +106,8 @@ class Calibration:
     settings: Mapping[str, object] | None = field(default=None, hash=False, compare=False)
     #: the digest of the model graph it was measured on (`Embedder.graph_digest`); None in older ones
     graph: str | None = field(default=None, compare=False)
+    #: the best answer's statistic with its colours, where a frame shows them (None: not calibrated)
+    colour: ColourTerm | None = None
 
     def values(self, matches: Sequence[Match]) -> list[float]:
         """Each answer's statistic. "lead": its distance less `weight` times its lead over the nearest
@@ -87,13 +124,18 @@ class Calibration:
 
     def confidence(self, value: float) -> float:
         """Chance that an answer with this statistic is the right object (validation frames, logistic)."""
-        z = self.slope * (value - self.midpoint)
-        return 1.0 / (1.0 + math.exp(min(z, 700.0)))  # exp overflows past ~709
+        return _logistic(self.slope, self.midpoint, value)
 
-    def describe(self) -> str:
-        if self.statistic == "distance":
-            return f"{self.score} distance"
-        return f"{self.score} distance less {self.weight:g} x its lead over the nearest other object"
+    def describe(self, coloured: bool = False) -> str:
+        """What the verdict thresholds (`coloured`: with the colour term)."""
+        what = (
+            f"{self.score} distance"
+            if self.statistic == "distance"
+            else f"{self.score} distance less {self.weight:g} x its lead over the nearest other object"
+        )
+        if coloured and self.colour is not None:
+            what += f", plus {self.colour.weight:g} x its colour distance"
+        return what
 
     def to_json(self) -> dict[str, object]:
         return {
@@ -105,6 +147,7 @@ class Calibration:
             "frames": self.frames,
             **({} if self.settings is None else {"settings": dict(self.settings)}),
             **({} if self.graph is None else {"graph": self.graph}),
+            **({} if self.colour is None else {"colour": self.colour.to_json()}),
         }
 
 
@@ -131,6 +174,7 @@ def _parse(text: str, model: str) -> dict[str, Calibration]:
                 float(c.get("weight", 0.0)),
                 dict(c["settings"]) if c.get("settings") is not None else None,
                 str(c["graph"]) if c.get("graph") is not None else None,
+                _colour_term(c.get("colour")),
             )
             for kind, c in raw.items()
             if kind in SCORE_KINDS
@@ -143,13 +187,24 @@ def _parse(text: str, model: str) -> dict[str, Calibration]:
         return {}
 
 
+def _colour_term(raw: object) -> ColourTerm | None:
+    """A calibration's colour term from its JSON (None: it has none)."""
+    if raw is None:
+        return None
+    if not isinstance(raw, Mapping):
+        raise ValueError("its colour term is not an object")
+    return ColourTerm(*(float(raw[k]) for k in ("weight", "threshold", "slope", "midpoint")))
+
+
 @dataclass(frozen=True)
 class Verdict:
-    """Each match's confidence (None without a calibration of its score) and, when the best answer is
-    rejected, why (None when it stands)."""
+    """Each match's confidence (None without a calibration of its score), when the best answer is rejected
+    why (None when it stands), and the best answer's statistic (`value`, None without answers), what a
+    later look at its colours adds to (`coloured`)."""
 
     confidences: list[float | None]
     reason: str | None
+    value: float | None = None
 
 
 def judge(
@@ -165,19 +220,48 @@ def judge(
     confidences = [None if calibration is None else calibration.confidence(v) for v in values]
     if not matches:
         return Verdict(confidences, "no object is registered")
+    threshold = None if calibration is None else calibration.threshold
+    return Verdict(confidences, _reason(values[0], threshold, score, calibration, setting), values[0])
+
+
+def coloured(
+    value: float,
+    colour_distance: float,
+    score: str,
+    calibration: Calibration,
+    setting: float | str | None = None,
+) -> tuple[float, str | None]:
+    """The best answer's confidence and verdict (`judge`'s reason) once its colours are measured: its
+    statistic `value` plus the colour term's weight times `colour_distance`, on the term's threshold and
+    curve (`calibration.colour`, which the caller checked). `setting` as `judge` takes it."""
+    term = calibration.colour
+    assert term is not None  # the caller's check: a calibration without the term judges `value` alone
+    total = value + term.weight * colour_distance
+    return term.confidence(total), _reason(total, term.threshold, score, calibration, setting, coloured=True)
+
+
+def _reason(
+    value: float,
+    threshold: float | None,
+    score: str,
+    calibration: Calibration | None,
+    setting: float | str | None,
+    coloured: bool = False,
+) -> str | None:
+    """Why the best answer, its statistic `value`, is rejected at the calibration's `threshold` (or the
+    setting's); None when it stands."""
     if setting == "off":
-        return Verdict(confidences, None)
+        return None
     if setting is not None:
         threshold, source = float(setting), "the setting POSEDESC_REJECT_ABOVE"
-    elif calibration is not None:
-        threshold, source = calibration.threshold, f"the model's calibration on {calibration.frames} frames"
+    elif calibration is not None and threshold is not None:
+        source = f"the model's calibration on {calibration.frames} frames"
     else:
-        return Verdict(confidences, None)
-    if values[0] <= threshold:
-        return Verdict(confidences, None)
-    what = f"{score} distance" if calibration is None else calibration.describe()
-    return Verdict(
-        confidences,
-        f"no registered object is close enough: the nearest answer's {what} {values[0]:.4g} is above "
-        f"{threshold:.4g} ({source})",
+        return None
+    if value <= threshold:
+        return None
+    what = f"{score} distance" if calibration is None else calibration.describe(coloured)
+    return (
+        f"no registered object is close enough: the nearest answer's {what} {value:.4g} is above "
+        f"{threshold:.4g} ({source})"
     )

@@ -163,11 +163,19 @@ class RecognizeOut(BaseModel):
         "descriptor",
         description="what the matches' distances are: 'local' (re-ranked) or 'descriptor'",
     )
+    colour_distance: float | None = Field(
+        None,
+        description="a colour frame sent with its camera and the object's centre: how far the frame's colours "
+        "where the first answer's pose puts its object are from that object's (chromaticity, mean L1, 0-2; "
+        "its own colours: about 0.1, another object's: 0.3 and more); with the model's calibration it is "
+        "part of the open-set verdict (`reason` says so). null: not measured (a patch, a shape-only object, "
+        "too little of it in view)",
+    )
     timings_ms: dict[str, float] = Field(
         description="milliseconds of each stage that ran (`service.pipeline`): decode (the images), cut (the "
         "patch at each query turn), mask (models with a mask), embed (the descriptors), search (the store), "
         "local (the re-ranking by local features), sweep (the roll sweep), refine (viewpoints and rolls "
-        "around the best); then sums kept for older readers: patch = cut + mask, rerank = local + sweep + "
+        "around the best), fit (the pose fit), colours (the colours at the first answer's pose); then sums kept for older readers: patch = cut + mask, rerank = local + sweep + "
         "refine (present when the re-ranking ran); total (all of it)"
     )
     model: str = Field(description="the model that matched the modality sent")

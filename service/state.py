@@ -124,7 +124,9 @@ class AppState:
         built = self._pipelines
         if built is None or built[0] is not self.settings or built[1] is not self.embedders:
             pipelines = {
-                m: Pipeline.build(self.settings, e, self.templates, self.shapes, self.metrics.failed)
+                m: Pipeline.build(
+                    self.settings, e, self.templates, self.shapes, self.metrics.failed, self.surfaces.get
+                )
                 for m, e in self.embedders.items()
             }
             self._pipelines = built = (self.settings, self.embedders, pipelines)

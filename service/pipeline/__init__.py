@@ -14,7 +14,9 @@ the store's snapshot as it found it and runs the model's own onnxruntime session
   refinement;
 
 then the answers' assembly (`answer`: the order, the open-set verdict, the origins), and the pose fit of
-the best answers over six degrees of freedom against the frame (`fit.PoseFit`, `pose_fit` answers). Each stage gets the
+the best answers over six degrees of freedom against the frame (`fit.PoseFit`, `pose_fit` answers). Then, in a
+colour frame sent with its camera and the object's centre, the colours at the best answer's pose
+(`colours.Colours`: its `colour_distance`, and the open-set verdict where the calibration weighs them). Each stage gets the
 query's frozen `context.Context` and hands on a new one (or None: nothing to do for this query). A stage
 that a model or the settings leave out is not in its pipeline (`build` returns None). Adding a stage is a
 new module and one line in `STAGES`.
@@ -32,7 +34,7 @@ the whole turn when they are upright only): the n patches are embedded in one ba
 match of template in-plane θ on the turn by o says the object is rolled θ + o (`crop` undoes o).
 
 `timings_ms` (milliseconds): `decode` (when timed: `service.recognition.recognise`), then each stage that
-ran by its name (`cut`, `mask`, `embed`, `search`, `local`, `sweep`, `refine`, `fit`), then the sums older
+ran by its name (`cut`, `mask`, `embed`, `search`, `local`, `sweep`, `refine`, `fit`, `colours`), then the sums older
 readers know: `patch` = cut + mask, `rerank` = local + sweep + refine (when the re-ranking ran), and
 `total` (everything above, decode included)."""
 
@@ -43,11 +45,13 @@ from collections.abc import Callable, Mapping
 from dataclasses import replace
 
 from index.features.embed import Embedder
+from index.refine.chroma import SurfaceColours
 from index.store import Snapshot
 from index.templates.register import TemplateConfig
 from index.templates.windows import window_classes
 from service.errors import ApiError
 from service.pipeline.answer import Result, answer, judged
+from service.pipeline.colours import Colours
 from service.pipeline.context import Context, Stage
 from service.pipeline.fit import PoseFit, Shapes, first
 from service.pipeline.mask import QueryMask
@@ -75,9 +79,20 @@ class Pipeline:
     """One model's stages (`stages`), run in order on a query."""
 
     def __init__(
-        self, stages: tuple[Stage, ...], settings: Settings, judged: int = 0, fit: PoseFit | None = None
+        self,
+        stages: tuple[Stage, ...],
+        settings: Settings,
+        judged: int = 0,
+        fit: PoseFit | None = None,
+        colours: Colours | None = None,
     ):
-        self.stages, self.settings, self.judged, self.fit = stages, settings, judged, fit
+        self.stages, self.settings, self.judged, self.fit, self.colours = (
+            stages,
+            settings,
+            judged,
+            fit,
+            colours,
+        )
 
     @classmethod
     def build(
@@ -87,12 +102,18 @@ class Pipeline:
         templates: TemplateConfig,
         shapes: Shapes | None = None,
         on_failure: Callable[[str], None] | None = None,
+        surfaces: Callable[[int], SurfaceColours | None] | None = None,
     ) -> Pipeline:
         """The model's stages at these settings; `shapes`: the objects' fit models (None: no pose fit);
-        `on_failure`: told the stage's name when a stage fails inside (the pose fit)."""
+        `on_failure`: told the stage's name when a stage fails inside (the pose fit); `surfaces`: the
+        objects' surface colours (None: the colours at the answer's pose are not measured,
+        `service.pipeline.colours`)."""
         made = (stage.build(settings, embedder, templates) for stage in STAGES)
         fit = PoseFit.build(settings, shapes, on_failure)
-        return cls(tuple(s for s in made if s is not None), settings, judged(settings, embedder), fit)
+        colours = None if surfaces is None else Colours(surfaces, settings.reject_above)
+        return cls(
+            tuple(s for s in made if s is not None), settings, judged(settings, embedder), fit, colours
+        )
 
     @classmethod
     def screening(cls, settings: Settings, embedder: Embedder, templates: TemplateConfig) -> Pipeline:
@@ -136,6 +157,11 @@ class Pipeline:
                 result = fitted
                 spent[self.fit.name] = time.perf_counter() - t
             result = first(result, q.k)
+        if self.colours is not None:
+            t = time.perf_counter()
+            if (measured := self.colours(result, runs)) is not None:
+                result = measured
+                spent[self.colours.name] = time.perf_counter() - t
         result.timings_ms = timings(spent, time.perf_counter() - t0, decode_s)
         return result
 

@@ -53,6 +53,11 @@ class Result:
     origins_mm: list[float] = field(default_factory=list)
     #: the best matches' pose fits (`service.pipeline.fit`), as many as were fitted (None: not fitted)
     fits: list[Fit | None] = field(default_factory=list)
+    #: the best answer's open-set statistic (`service.rejection.Verdict.value`; None without answers)
+    statistic: float | None = None
+    #: how far the frame's colours at the best answer's pose are from its object's, 0-2
+    #: (`service.pipeline.colours`; None: not measured)
+    colour_distance: float | None = None
 
     def fitted(self, i: int) -> Fit | None:
         """Match i's fit when the fit moved it, else None (its pose is its template's)."""
@@ -133,6 +138,7 @@ def answer(runs: Sequence[Context], timings_ms: dict[str, float], settings: Sett
         verdict.confidences[: ctx.query.k],
         verdict.reason,
         origins,
+        statistic=verdict.value,
     )
 
 

@@ -103,3 +103,26 @@ def test_a_shape_only_part_beside_textured_objects_is_found_with_colour_as_with_
         timeout=120,
     ).json()
     assert all(d["best"]["name"] != "bare-part" for d in after["detections"])  # deleted: never named again
+
+
+def test_a_deleted_object_s_colour_frames_are_answered_unknown_not_as_another(server, tmp_path):
+    mesh = trimesh.load(PART, process=False)  # the example part, with its colours
+    obj = register(server, mesh, tmp_path / "part.ply", "coloured-part")
+    assert obj["textured"] is True
+    qs = queries(tmp_path / "part.ply", tmp_path / "q")
+
+    def asked(q: dict) -> dict:
+        r = httpx.post(
+            f"{server.url}/recognize", files=files(tmp_path / "q", q, "rgb"), data=q["form"], timeout=120
+        )
+        assert r.status_code == 200, r.text
+        return r.json()
+
+    before = [asked(q) for q in qs]
+    assert sum(a["best"] is not None and a["best"]["name"] == "coloured-part" for a in before) >= 3, before
+    assert all(a["colour_distance"] is not None for a in before if a["best"] is not None)
+    assert httpx.delete(f"{server.url}/objects/{obj['object_id']}").status_code == 204
+    after = [asked(q) for q in qs]
+    # the frames hold an object nobody registered now: its colours are no demo object's
+    assert all(a["best"] is None for a in after), [(a["matches"][0]["name"], a["reason"]) for a in after]
+    assert all("colour distance" in a["reason"] or "lead" in a["reason"] for a in after)

@@ -53,3 +53,19 @@ def test_the_catalogue_objectness_figures_are_its_json() -> None:
     by_window = pct(test["recall_by_window"]["w/8, 12%"]["top20"])
     by_extent = pct(test["recall_by_extent_and_true_diameter"]["w/8, 12%"]["top20"])
     assert test["split"] == "test" and f"by window {by_window} %, by extent {by_extent} %" in text
+
+
+def test_the_colours_in_the_open_set_are_the_calibration_s_json() -> None:
+    text = experiments()
+    rgb = json.loads((RESULTS / "reject-posedesc-rgb.json").read_text())
+    six = rgb["test"]["local"]["by_registered"]["6"]
+    assert rgb["calibrations"]["local"]["colour"]["weight"] == 1.0
+    from doc_figures import pct as rounded  # halves to even on the stored value, as the docs round
+
+    row = (
+        f"| **{pct(six['rejected_unknown'])} %** | **{pct(six['rejected_registered'])} %** | "
+        f"{rounded(six['rejected_right'])} % | {pct(six['rejected_wrong'])} % |"
+    )
+    assert row in text
+    val = rgb["calibrations"]["local"]["at_threshold"]["rejected_registered"]
+    assert f"**not met** ({pct(six['rejected_registered'])} %; on validation {pct(val)} %" in text

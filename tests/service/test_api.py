@@ -68,8 +68,9 @@ def test_recognise_a_full_colour_frame(client, l_frame):
         for m in body["matches"]
     ]
     assert min(errors) <= 20.0, errors
-    # a frame with its camera: the best answer is also fitted to it (`fit`)
-    assert set(body["timings_ms"]) == {"decode", "cut", "patch", "embed", "search", "fit", "total"}
+    # a frame with its camera: the best answer is also fitted to it (`fit`), and its colours there measured
+    assert set(body["timings_ms"]) == {"decode", "cut", "patch", "embed", "search", "fit", "colours", "total"}
+    assert body["colour_distance"] is not None and body["colour_distance"] < 0.2  # the L's own colours
 
 
 @pytest.mark.parametrize("sent", ["rgbd", "depth"])

@@ -7,7 +7,7 @@ import json
 import pytest
 
 from index.store import Match
-from service.rejection import REJECT_KEY, Calibration, judge, read_calibrations
+from service.rejection import REJECT_KEY, Calibration, ColourTerm, coloured, judge, read_calibrations
 
 
 def match(distance: float) -> Match:
@@ -77,4 +77,34 @@ def test_lead_rejects_a_near_answer_that_another_object_answers_about_as_well():
     meta = {REJECT_KEY: json.dumps({"local": LEAD.to_json()})}
     assert read_calibrations(meta) == {"local": LEAD}
     bad = {REJECT_KEY: json.dumps({"local": {**LEAD.to_json(), "statistic": "vibes"}})}
+    assert read_calibrations(bad) == {}
+
+
+COLOURED = Calibration(
+    "local", threshold=0.3, slope=10.0, midpoint=0.2, statistic="lead", weight=1.0,
+    colour=ColourTerm(weight=1.0, threshold=0.5, slope=8.0, midpoint=0.4),
+)  # fmt: skip
+
+
+def test_the_colour_term_adds_the_colour_distance_and_judges_on_its_own_threshold():
+    verdict = judge([match(0.5), other(0.9)], "local", COLOURED)
+    assert verdict.reason is None and verdict.value == pytest.approx(
+        0.1
+    )  # the statistic alone: judged as before
+    # its colours are its object's: 0.1 + 0.2 stands under the term's 0.5 ...
+    confidence, reason = coloured(0.1, 0.2, "local", COLOURED)
+    assert reason is None and confidence == pytest.approx(COLOURED.colour.confidence(0.3))  # type: ignore[union-attr]
+    # ... another object's colours where its pose puts it: 0.1 + 0.6 is above, though the statistic was not
+    confidence, reason = coloured(0.1, 0.6, "local", COLOURED)
+    assert reason is not None and "plus 1 x its colour distance 0.7 is above 0.5" in reason
+    assert confidence < 0.5
+    assert coloured(0.1, 0.6, "local", COLOURED, setting="off")[1] is None  # the setting still rules
+    assert coloured(0.1, 0.6, "local", COLOURED, setting=1.0)[1] is None
+
+
+def test_a_colour_term_round_trips_through_the_metadata_and_a_bad_one_is_ignored():
+    meta = {REJECT_KEY: json.dumps({"local": COLOURED.to_json()})}
+    assert read_calibrations(meta) == {"local": COLOURED}
+    assert read_calibrations({REJECT_KEY: json.dumps({"local": LEAD.to_json()})})["local"].colour is None
+    bad = {REJECT_KEY: json.dumps({"local": {**LEAD.to_json(), "colour": {"weight": 1.0}}})}
     assert read_calibrations(bad) == {}

@@ -1,0 +1,64 @@
+"""The colours at the best answer's pose, after the pose fit: a colour frame sent with its camera and the
+object's centre shows whether the frame's colours there are the named object's
+(`index.refine.chroma.chroma_distance`, 0-2; the detection's colour check measures the same,
+`service.detection.agree`).
+
+The distance is the answer's `colour_distance`. Where the model's calibration has a colour term
+(`service.rejection.ColourTerm`) and the frame has no depth, it also enters the open-set verdict: the best
+answer's statistic plus the term's weight times the distance, on the term's threshold and confidence
+curve. An object not registered is named after the registered one whose views it resembles most, with that
+one's distance and lead, but not with its colours. A patch (no camera), a shape-only object (no colours to
+check) and a detection's verification (its own colour check weighs it, `service.detection.agree`) are
+judged as before, on the statistic alone."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+
+from index.refine.chroma import SurfaceColours, chroma_distance
+from service.pipeline.answer import Result
+from service.pipeline.context import Context
+from service.rejection import coloured, read_calibrations
+
+
+@dataclass(frozen=True)
+class Colours:
+    """The best answer's colour distance (`Result.colour_distance`) and, with a colour term, its verdict
+    and confidence. `surfaces`: an object's surface colours (None: it has none); `setting`: the
+    `reject_above` setting, as `service.rejection.judge` takes it."""
+
+    surfaces: Callable[[int], SurfaceColours | None]
+    setting: float | str | None = None
+    name: str = "colours"
+
+    def __call__(self, result: Result, runs: list[Context] | tuple[Context, ...]) -> Result | None:
+        """`result` with the colours measured; None when nothing was (no change)."""
+        q, d = runs[0].query, runs[0].decoded
+        K = q.camera
+        if (
+            K is None
+            or q.u is None
+            or q.estimated
+            or d.rgb is None
+            or d.modality == "depth"
+            or not result.matches
+        ):
+            return None
+        surface = self.surfaces(result.matches[0].object_id)
+        if surface is None:
+            return None
+        distance = chroma_distance(d.rgb, K, surface, *result.pose(0))
+        if distance is None:  # too little of it in view to say
+            return None
+        measured = replace(result, colour_distance=distance)
+        calibration = read_calibrations(d.embedder.info.extra, d.embedder.path.name).get(result.score)
+        if (
+            calibration is None
+            or calibration.colour is None
+            or d.depth is not None
+            or result.statistic is None
+        ):
+            return measured
+        confidence, reason = coloured(result.statistic, distance, result.score, calibration, self.setting)
+        return replace(measured, confidences=[confidence, *result.confidences[1:]], reason=reason)
