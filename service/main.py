@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import os
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 
@@ -19,7 +20,7 @@ from service.inputs.limits import BodyLimit
 from service.metrics import Observe
 from service.pipeline.calibration import stale
 from service.routes import health, jobs, objects, page, recognize
-from service.settings import Settings
+from service.settings import Settings, unknown_variables
 from service.state import AppState, close_state, load_state
 
 DESCRIPTION = """Recognises known 3-D objects in images and tells from which viewpoint they are seen
@@ -45,6 +46,12 @@ def create_app(settings: Settings | None = None, url: str | None = None) -> Fast
         elif settings.api_key is None and public(host_of(url)):
             log.warning(
                 "writes are open to anyone who can reach %s (POSEDESC_ALLOW_OPEN_WRITES, no API key)", url
+            )
+        if unknown := unknown_variables(os.environ):
+            log.warning(
+                "%s: no such setting, ignored (the settings: docs/service.md; tuning constants live in their "
+                "stage modules)",
+                ", ".join(unknown),
             )
         state = await run_in_threadpool(load_state, settings)
         for problem in stale(settings, state.embedders).values():  # also in GET /readyz

@@ -7,6 +7,7 @@ differently live in the stage's module with the measurement that chose them (`se
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Annotated, Literal
 
@@ -232,6 +233,18 @@ class Settings(BaseSettings):
     @classmethod
     def _empty_key_is_none(cls, v: object) -> object:
         return None if v is None or (isinstance(v, str) and not v.strip()) else v
+
+
+#: `POSEDESC_*` variables the project reads that are not settings (the compose files' image name)
+NOT_SETTINGS = frozenset({"POSEDESC_IMAGE"})
+
+
+def unknown_variables(environ: Mapping[str, str]) -> list[str]:
+    """The `POSEDESC_*` names in `environ` that are no setting: the settings ignore them (`extra="ignore"`),
+    so a misspelt name, or a setting that became a stage's constant (docs/experiments.md, "The live path
+    holds what ships"), would otherwise change nothing without a word."""
+    known = {f"POSEDESC_{name.upper()}" for name in Settings.model_fields} | NOT_SETTINGS
+    return sorted(k for k in environ if k.upper().startswith("POSEDESC_") and k.upper() not in known)
 
 
 class _StoreOnly(BaseSettings):
