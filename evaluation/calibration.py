@@ -1,9 +1,12 @@
 """The math of open-set rejection (`scripts/calibrate_reject.py`, `service.rejection`): from the best answer's
 score (a distance, smaller is closer) of three kinds of validation patches — the right object answered,
 a wrong object answered while the right one is registered, an object that is not registered — a threshold
-and a confidence curve. Pure numpy; each function takes 1-d score arrays."""
+and a confidence curve; the detection confidence's calibration error (`scripts/calibrate_detections.py`);
+and the metadata a calibration is written into. Pure numpy but for the last."""
 
 from __future__ import annotations
+
+from pathlib import Path
 
 import numpy as np
 
@@ -89,3 +92,29 @@ def rejection_curve(
         "precision": precision.tolist(),
         "recall": (1 - r).tolist(),
     }
+
+
+def calibration_error(p: np.ndarray, right: np.ndarray, bins: int = 5) -> float:
+    """The expected calibration error: over `bins` equal bins of the confidence `p`, the share of answers
+    in each times how far their mean confidence is from the share of them that were right."""
+    p, y = np.asarray(p, float), np.asarray(right, float)
+    edges = np.linspace(0.0, 1.0, bins + 1)
+    which = np.clip(np.digitize(p, edges[1:-1]), 0, bins - 1)
+    return float(sum((which == b).mean() * abs(p[which == b].mean() - y[which == b].mean())
+                     for b in range(bins) if (which == b).any()))  # fmt: skip
+
+
+def write_metadata(model: Path, out: Path, props: dict[str, str]) -> None:
+    """`model` written to `out` with these metadata entries set (the others kept): only metadata_props
+    changes; refused when the graph would (the onnx package)."""
+    import onnx
+
+    proto = onnx.load(str(model))
+    graph = proto.graph.SerializeToString()
+    merged = {p.key: p.value for p in proto.metadata_props} | props
+    del proto.metadata_props[:]
+    for k, v in merged.items():
+        proto.metadata_props.add(key=k, value=v)
+    onnx.save(proto, str(out))
+    if onnx.load(str(out)).graph.SerializeToString() != graph:
+        raise SystemExit(f"{out}: the graph changed while writing the metadata")

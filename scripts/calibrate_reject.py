@@ -37,6 +37,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from evaluation.calibration import write_metadata as write_model_metadata  # noqa: E402
 from evaluation.openset import (  # noqa: E402
     Answers,
     calibrate,
@@ -59,18 +60,7 @@ from service.settings import Settings  # noqa: E402
 
 def write_metadata(model: Path, out: Path, calibrations: dict[str, dict]) -> None:
     """The model with its `reject_above` metadata replaced: only metadata_props changes."""
-    import onnx
-
-    proto = onnx.load(str(model))
-    graph = proto.graph.SerializeToString()
-    props = {p.key: p.value for p in proto.metadata_props}
-    props[REJECT_KEY] = json.dumps(calibrations)
-    del proto.metadata_props[:]
-    for k, v in props.items():
-        proto.metadata_props.add(key=k, value=v)
-    onnx.save(proto, str(out))
-    if onnx.load(str(out)).graph.SerializeToString() != graph:
-        raise SystemExit(f"{out}: the graph changed while writing the metadata")
+    write_model_metadata(model, out, {REJECT_KEY: json.dumps(calibrations)})
 
 
 def picture(report: dict, path: Path) -> None:

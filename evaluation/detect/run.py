@@ -29,7 +29,7 @@ import tempfile
 import time
 from collections import Counter
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import cv2
@@ -107,6 +107,8 @@ class Asked:
     floor: list[Hit]
     frame_ms: list[float]
     stage_ms: dict[str, list[float]]
+    #: per hit of `ranked` (the same order), what a calibrated confidence reads (`cues_of`); none for LineMOD
+    cues: list[dict] = field(default_factory=list)
 
 
 def evaluate_detect(cfg: DetectConfig) -> tuple[dict, list[Estimate]]:
@@ -142,6 +144,7 @@ def evaluate_detect(cfg: DetectConfig) -> tuple[dict, list[Estimate]]:
         finally:
             close_state(state)
         out: dict = {"posedesc": _figures(ours, truths, symmetries, len(frames))}
+        out["posedesc"]["cues"] = cue_outcomes(ours, truths)
         rows = bop_estimates(ours, frames)
         out["bop"] = _bop(dataset, instances, rows, _frame_size(frames[0])[1], kind)
         n_templates = sum(map(len, views.values()))
@@ -291,6 +294,7 @@ def ask_service(
     """Every frame through the service's detector (floor 0, `ALL` detections); see the module's docstring."""
     ranked: list[Hit] = []
     floor: list[Hit] = []
+    cues: list[dict] = []
     frame_ms: list[float] = []
     stage_ms: dict[str, list[float]] = {}
     with bar(len(frames), "detect (posedesc)", "frame") as b:
@@ -306,11 +310,32 @@ def ask_service(
                 stage_ms.setdefault(k, []).append(v)
             hits = [(d, _hit(frame.key, d, dataset_ids)) for d in found.detections]
             ranked += [h for _, h in hits[: cfg.max_detections]]
+            cues += [cues_of(d) for d, _ in hits[: cfg.max_detections]]
             at = floors(state.settings, frame.depth is not None)
             at_floor = [h for d, h in hits if reported(d, cfg.min_confidence, at)]
             floor += at_floor[: cfg.max_detections]
             b.update()
-    return Asked(ranked, floor, frame_ms, stage_ms)
+    return Asked(ranked, floor, frame_ms, stage_ms, cues)
+
+
+def cues_of(d: Detection) -> dict:
+    """What `service.detection.report.DetectConfidence` reads of a detection: its source, the verifier's
+    confidence and its depth fit's score (None: not fitted)."""
+    fit = d.result.fits[0] if d.result.fits else None
+    verifier = d.result.confidences[0] if d.result.confidences else None
+    return {
+        "source": d.proposal.source,
+        "verifier": None if verifier is None else round(float(verifier), 5),
+        "fit": None if fit is None or fit.failed else round(float(fit.score), 5),
+        "confidence": round(float(d.confidence), 5),
+    }
+
+
+def cue_outcomes(asked: Asked, truths: Sequence[Truth]) -> list[dict]:
+    """Each ranked hit's cues (`cues_of`) and what it was ("tp", "fp" or "ignored": `match`, by confidence)."""
+    matched = match(asked.ranked, truths)
+    outcome = {id(h): o for h, o in zip(matched.hits, matched.outcome, strict=True)}
+    return [{**c, "outcome": outcome[id(h)]} for h, c in zip(asked.ranked, asked.cues, strict=True)]
 
 
 def _hit(frame: tuple[int, int], d: Detection, dataset_ids: Mapping[int, int]) -> Hit:

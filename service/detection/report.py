@@ -3,12 +3,19 @@ said at all (`reported`), at most `max_detections` a frame."""
 
 from __future__ import annotations
 
+import json
+import logging
+import math
+from collections.abc import Mapping
 from dataclasses import dataclass, replace
+from functools import lru_cache
 
 from service.detection import agree
 from service.detection.found import DEPTH_PART, Detection, Frame, Proposal
 from service.pipeline.answer import Result
 from service.settings import Settings
+
+log = logging.getLogger("service")
 
 #: the share of its visible points a detection from a part of a depth segment larger than any registered
 #: object (touching objects that real depth joins: a guess at where one object ends) needs its depth fit to
@@ -68,13 +75,63 @@ def floors(settings: Settings, depth: bool) -> Floors:
     return Floors(settings.detect_rgb_floor if weighed else settings.detect_floor)
 
 
-def confidence(result: Result, p: Proposal) -> float:
+#: the model metadata key of a calibrated detection confidence (`DetectConfidence`,
+#: written by `scripts/calibrate_detections.py`)
+DETECT_KEY = "detect_confidence"
+
+
+@dataclass(frozen=True)
+class DetectConfidence:
+    """A model's calibrated confidence of a detection from a depth segment: the chance that it names the
+    right object there, from the share of the object's visible surface the depth explains at its fitted pose
+    (`Fit.score`): 1 / (1 + exp(slope * (score - midpoint))), a logistic fit on real-depth videos'
+    detections (`scripts/calibrate_detections.py`; the figures per video, fitted on the others:
+    docs/experiments.md, "A detection's confidence on real depth"). The verifier's confidence says how near
+    the best template is; on real depth it spread over 0.3-0.5 for right and wrong detections alike (none
+    reached 0.5, so `min_confidence` 0.5 found nothing on any video), and beside the fit its weight changed
+    tenfold from one video to the next."""
+
+    slope: float
+    midpoint: float
+
+    def __call__(self, fit: float) -> float:
+        z = self.slope * (fit - self.midpoint)
+        return 1.0 / (1.0 + math.exp(max(min(z, 700.0), -700.0)))
+
+    def to_json(self) -> dict[str, float]:
+        return {"slope": self.slope, "midpoint": self.midpoint}
+
+
+def read_detect_confidence(meta: Mapping[str, str]) -> DetectConfidence | None:
+    """A model's `DetectConfidence` from its metadata; None without one (or an unusable one)."""
+    return _parsed(meta.get(DETECT_KEY) or "")
+
+
+@lru_cache(maxsize=16)  # read once per model, not once per detection
+def _parsed(text: str) -> DetectConfidence | None:
+    if not text:
+        return None
+    try:
+        raw = json.loads(text)
+        return DetectConfidence(float(raw["slope"]), float(raw["midpoint"]))
+    except (ValueError, TypeError, KeyError) as e:
+        log.warning("unusable %s metadata (%s): the verifier's confidence stands", DETECT_KEY, e)
+        return None
+
+
+def confidence(result: Result, p: Proposal, calibrated: DetectConfidence | None = None) -> float:
     """A detection's confidence: the verifier's in its best answer, times the objectness network's score
     for a colour proposal. Measured on the validation frames (docs/experiments.md), the verifier's
     confidence alone ranks a proposal that it screened at nine places too high: the ranking by the
-    product had AP50 0.70 against 0.54 by the verifier's and 0.67 by the network's."""
+    product had AP50 0.70 against 0.54 by the verifier's and 0.67 by the network's. A depth segment's
+    (or part's) detection fitted to the depth, with the verifying model's `calibrated` confidence: that."""
     verified = float(result.confidences[0] or 0.0)
-    return verified * p.score if p.source == "colour" else verified
+    if p.source == "colour":
+        return verified * p.score
+    fit = result.fits[0] if result.fits else None
+    if calibrated is None or fit is None or fit.failed:
+        return verified
+    return calibrated(fit.score)
 
 
 def reported(x: Detection, min_confidence: float | None, at: Floors) -> bool:

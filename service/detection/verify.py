@@ -18,7 +18,7 @@ import numpy as np
 from index.draw import project
 from index.store import Snapshot
 from service.detection.found import Detection, Frame, Proposal
-from service.detection.report import confidence
+from service.detection.report import confidence, read_detect_confidence
 from service.errors import ApiError, NothingMeasured
 from service.pipeline.query import Query
 from service.state import AppState
@@ -86,7 +86,8 @@ class Verify:
         box = _box(mesh.vertices if mesh is not None else None, R, t, K, d.size, p)
         assert at.u is not None and at.v is not None  # `centred` gives a centre
         u, v = (at.u, at.v) if result.fitted(0) is None else tuple(float(x) for x in (K @ t)[:2] / t[2])
-        return Detection(u, v, box, confidence(result, p), result, p)
+        calibrated = read_detect_confidence(d.embedder.info.extra)
+        return Detection(u, v, box, confidence(result, p, calibrated), result, p)
 
     def screen(
         self,

@@ -69,3 +69,17 @@ def test_the_colours_in_the_open_set_are_the_calibration_s_json() -> None:
     assert row in text
     val = rgb["calibrations"]["local"]["at_threshold"]["rejected_registered"]
     assert f"**not met** ({pct(six['rejected_registered'])} %; on validation {pct(val)} %" in text
+
+
+def test_the_detection_confidence_figures_are_its_json() -> None:
+    text = experiments()
+    result = json.loads((RESULTS / "detect-confidence-depth.json").read_text())
+    for video, r in result["leave_one_video_out"].items():
+        before, after = r["verifier"], r["calibrated"]
+        assert f"| {video} | {pct(before['ap50'])} / " in text and f"{pct(after['ap50'])}" in text, video
+        right = pct(after["right_at_0.5"])
+        assert f"| 0 / {after['at_0.5']} ({right} %) |" in text, video
+    mean = result["mean_left_out"]
+    assert f"| mean | {pct(mean['verifier']['ap50'])} / **{pct(mean['calibrated']['ap50'])}** |" in text
+    cal = result["calibration"]
+    assert f"slope {cal['slope']:.2f}, midpoint {cal['midpoint']:.3f}" in text

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from dataclasses import replace
 
 import numpy as np
@@ -9,7 +10,16 @@ import numpy as np
 from index.refine.fit import Fit, failed_at
 from service.detection import agree
 from service.detection.found import DEPTH_PART, Detection, Proposal
-from service.detection.report import PART_FIT_FLOOR, Floors, floors, reported
+from service.detection.report import (
+    DETECT_KEY,
+    PART_FIT_FLOOR,
+    DetectConfidence,
+    Floors,
+    confidence,
+    floors,
+    read_detect_confidence,
+    reported,
+)
 from service.pipeline.answer import Result
 from service.settings import Settings
 
@@ -88,3 +98,30 @@ def test_a_part_of_a_depth_segment_needs_more_of_it_borne_out():
     assert PART_FIT_FLOOR == 0.6 and floors(Settings(), depth=True).part_fit == 0.6
     low = Settings(detect_depth_fit_floor=0.7)
     assert floors(low, depth=True).part_fit == 0.7  # never below a whole segment's
+
+
+CURVE = DetectConfidence(slope=-4.0, midpoint=0.4)
+
+
+def test_a_depth_detection_s_calibrated_confidence_follows_its_fit_not_the_verifier():
+    def conf(source: str, verifier: float, fit: float | None, calibrated=CURVE) -> float:
+        x = detection(source, verifier, fit)
+        return confidence(x.result, x.proposal, calibrated)
+
+    assert conf("depth", 0.35, 0.4) == 0.5  # at the midpoint
+    assert conf("depth", 0.35, 0.9) > 0.8 > 0.2 > conf("depth", 0.35, 0.0)  # what the depth explains decides
+    assert conf("depth", 0.35, 0.9) == conf("depth", 0.45, 0.9)  # the verifier's confidence does not
+    assert conf(DEPTH_PART, 0.35, 0.9) == conf("depth", 0.35, 0.9)
+    assert conf("colour", 0.8, 0.9) == 0.8 * 0.9  # a colour proposal: the verifier's times the objectness's
+    assert conf("depth", 0.35, None) == 0.35  # not fitted: the verifier's
+    assert conf("depth", 0.35, 0.9, calibrated=None) == 0.35  # a model without the calibration
+    failed = detection("depth", 0.35, 0.9)
+    failed = replace(failed, result=replace(failed.result, fits=[failed_at(np.eye(3), np.zeros(3))]))
+    assert confidence(failed.result, failed.proposal, CURVE) == 0.35
+
+
+def test_the_detection_calibration_is_read_from_the_metadata_and_a_bad_one_is_ignored():
+    assert read_detect_confidence({DETECT_KEY: json.dumps(CURVE.to_json())}) == CURVE
+    assert read_detect_confidence({}) is None
+    assert read_detect_confidence({DETECT_KEY: "{not json"}) is None
+    assert read_detect_confidence({DETECT_KEY: json.dumps({"slope": 1.0})}) is None
