@@ -48,6 +48,7 @@ from evaluation.baselines.linemod_frames import (
 from evaluation.bop.csv import Estimate
 from evaluation.bop.scores import BOP_MIN_VISIB, detections_block, object_model
 from evaluation.bop.vsd import vsd_for
+from evaluation.detect.cues import cue_outcomes, cues_of
 from evaluation.detect.score import IOU, MIN_VISIB, ROTATION_OK_DEG, Hit, Truth, match, scores
 from evaluation.paper.samples import RENDERED, select_instances, served_data
 from evaluation.paper.templates import service_symmetry
@@ -144,7 +145,7 @@ def evaluate_detect(cfg: DetectConfig) -> tuple[dict, list[Estimate]]:
         finally:
             close_state(state)
         out: dict = {"posedesc": _figures(ours, truths, symmetries, len(frames))}
-        out["posedesc"]["cues"] = cue_outcomes(ours, truths)
+        out["posedesc"]["cues"] = cue_outcomes(ours.ranked, ours.cues, truths)
         rows = bop_estimates(ours, frames)
         out["bop"] = _bop(dataset, instances, rows, _frame_size(frames[0])[1], kind)
         n_templates = sum(map(len, views.values()))
@@ -316,26 +317,6 @@ def ask_service(
             floor += at_floor[: cfg.max_detections]
             b.update()
     return Asked(ranked, floor, frame_ms, stage_ms, cues)
-
-
-def cues_of(d: Detection) -> dict:
-    """What `service.detection.report.DetectConfidence` reads of a detection: its source, the verifier's
-    confidence and its depth fit's score (None: not fitted)."""
-    fit = d.result.fits[0] if d.result.fits else None
-    verifier = d.result.confidences[0] if d.result.confidences else None
-    return {
-        "source": d.proposal.source,
-        "verifier": None if verifier is None else round(float(verifier), 5),
-        "fit": None if fit is None or fit.failed else round(float(fit.score), 5),
-        "confidence": round(float(d.confidence), 5),
-    }
-
-
-def cue_outcomes(asked: Asked, truths: Sequence[Truth]) -> list[dict]:
-    """Each ranked hit's cues (`cues_of`) and what it was ("tp", "fp" or "ignored": `match`, by confidence)."""
-    matched = match(asked.ranked, truths)
-    outcome = {id(h): o for h, o in zip(matched.hits, matched.outcome, strict=True)}
-    return [{**c, "outcome": outcome[id(h)]} for h, c in zip(asked.ranked, asked.cues, strict=True)]
 
 
 def _hit(frame: tuple[int, int], d: Detection, dataset_ids: Mapping[int, int]) -> Hit:
