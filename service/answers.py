@@ -77,6 +77,7 @@ def picture(state: AppState, q: Query, d: Decoded, answers: list[tuple[Result, i
 
 
 NOTHING_FOUND = "no registered object was found in the frame"
+NOTHING_SEARCHED = "no registered object can be found in this frame: `warnings` says why"
 
 
 def result_out(result: Result, K: np.ndarray | None) -> RecognizeOut:
@@ -146,9 +147,10 @@ def found_out(found: Found, K: np.ndarray | None) -> RecognizeOut:
     return RecognizeOut(
         matches=first.matches if first else [],
         best=first.best if first else None,
-        reason=None if first else NOTHING_FOUND,
+        reason=None if first else NOTHING_FOUND if found.searched else NOTHING_SEARCHED,
         score=found.detections[0].result.score if found.detections else "local",
         timings_ms=found.timings_ms,
         model=found.model,
         detections=detections,
+        warnings=list(found.warnings),
     )

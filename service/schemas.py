@@ -185,6 +185,11 @@ class RecognizeOut(BaseModel):
         "first (at most max_detections); `best` and `matches` are then the first detection's. Null when u "
         "and v were sent",
     )
+    warnings: list[str] = Field(
+        default_factory=list,
+        description="what the service could not do for this query and you should know: a whole colour frame "
+        "names the shape-only objects (meshes without colours) it does not search for",
+    )
 
 
 class ObjectOut(BaseModel):

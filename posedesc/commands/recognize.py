@@ -74,7 +74,7 @@ def run(args: argparse.Namespace) -> int:
     from service.state import close_state
 
     args.out.mkdir(parents=True, exist_ok=True)
-    failed = 0
+    failed, warned = 0, set[str]()
     try:
         for f in tqdm(frames, desc="frames", unit="frame", disable=len(frames) == 1 or None):
             name = (f.rgb or f.depth).stem  # type: ignore[union-attr]
@@ -103,6 +103,9 @@ def run(args: argparse.Namespace) -> int:
                     body, png = answer_and_drawing(state, q, 1 if q.finds else min(args.k, 3))
                     (args.out / f"{name}-answers.png").write_bytes(png)
                 (args.out / f"{name}.json").write_text(json.dumps(body.model_dump(), indent=1) + "\n")
+                for w in set(body.warnings) - warned:  # each once, not once a frame
+                    tqdm.write(f"warning: {w}", file=sys.stderr)
+                    warned.add(w)
             except ApiError as e:
                 failed += 1
                 if len(frames) == 1:

@@ -39,7 +39,7 @@ from service.detection.stand import Stand
 from service.detection.verify import Verify
 from service.errors import ApiError
 from service.inputs.depth_units import check_scene_depth
-from service.pipeline.query import Decoded, Query, by_model, decode
+from service.pipeline.query import COLOUR_SHAPE_ONLY, Decoded, Query, by_model, decode
 from service.recognition import answerable
 from service.state import AppState
 
@@ -53,6 +53,7 @@ __all__ = [
     "floors",
     "reported",
     "stages",
+    "unsearched",
 ]
 
 
@@ -122,6 +123,11 @@ def detect_decoded(state: AppState, q: Query, d: Decoded, decode_s: float = 0.0)
     steps = stages(state)
     # each part of the store found by its own model, up to `stand`; then merged and reported together
     frames = [Frame(q, dp, K, snap, floor) for dp, snap in by_model(state, d)]
+    warnings = unsearched(state, frames)
+    if not frames:  # nothing the frame can show is registered (`unsearched` says why)
+        ms["total"] = time.perf_counter() - t0 + decode_s
+        ms_out = {k: round(v * 1000, 2) for k, v in ms.items()}
+        return Found((), ms_out, 0, d.embedder.path.stem, warnings, searched=False)
     for stage in steps[:STAGES_APART]:
         t = time.perf_counter()
         frames = [stage(fr) for fr in frames]
@@ -138,4 +144,21 @@ def detect_decoded(state: AppState, q: Query, d: Decoded, decode_s: float = 0.0)
         {k: round(v * 1000, 2) for k, v in ms.items()},
         proposals,
         d.embedder.path.stem,
+        warnings,
     )
+
+
+#: at most this many names in a warning; the rest counted
+NAMED = 5
+
+
+def unsearched(state: AppState, frames: list[Frame]) -> tuple[str, ...]:
+    """What the frame's parts (`by_model`) leave out of the store, said: the shape-only objects a colour
+    frame does not search for (`COLOUR_SHAPE_ONLY`)."""
+    objects = state.store.snapshot.objects
+    searched = {oid for fr in frames for oid in fr.snapshot.objects}
+    left = sorted(rec.name for oid, rec in objects.items() if oid not in searched)
+    if not left:
+        return ()
+    names = ", ".join(left[:NAMED]) + (f" and {len(left) - NAMED} more" if len(left) > NAMED else "")
+    return (COLOUR_SHAPE_ONLY.format(names=names),)

@@ -72,9 +72,13 @@ class Frame:
 @dataclass(frozen=True)
 class Found:
     """The detections, most confident first, the milliseconds each step took, how many proposals were
-    verified and the model that verified them."""
+    verified, the model that verified them, and what was not searched for (`warnings`; `searched` false:
+    nothing was, as the frame can show none of the registered objects)."""
 
     detections: tuple[Detection, ...]
     timings_ms: dict[str, float]
     proposals: int
     model: str
+    #: what the detection could not do and the user should know (`service.detection.unsearched`)
+    warnings: tuple[str, ...] = ()
+    searched: bool = True

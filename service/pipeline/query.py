@@ -49,6 +49,16 @@ class Loaded(Protocol):
     def store(self) -> TemplateStore: ...
 
 
+#: what a whole colour frame says of the shape-only objects it does not search for (`by_model`). On YCB-V's
+#: real colour frames of 12 shape-only meshes (three videos, 260 instances) the colour detection found none
+#: and named 31 false ones (`docs/results/ycbv-detect-rgb-{0,1,2}.json`; docs/experiments.md, "Shape-only
+#: objects in a whole colour frame")
+COLOUR_SHAPE_ONLY = (
+    "not searched for in a whole colour frame, as their meshes have no colours: {names}. Colour alone cannot "
+    "tell them from what stands around; send the frame with depth, or the object's centre (u, v)"
+)
+
+
 def untextured(rec: ObjectRecord) -> bool:
     """Whether an object is shape-only: its mesh without colours (`TEXTURED_KEY` false; objects registered
     before the flag was kept count as textured)."""
@@ -67,13 +77,17 @@ def by_model(state: Loaded, d: Decoded) -> list[tuple[Decoded, Snapshot]]:
     the frame's modality; but an RGB-D frame of a store holding shape-only and textured objects has its
     shape-only ones found by the depth model, as when every object is shape-only (`decode`): the colour of
     a grey render matches no real surface, and adding colour to a frame must never lose what its depth
-    alone finds. Costs a second pass (its proposals verified twice) for such stores only. A query with a
-    centre is not split (`service.recognition.recognise_decoded`)."""
+    alone finds. Costs a second pass (its proposals verified twice) for such stores only. A colour frame
+    has no part for shape-only objects, and none at all when every object is shape-only
+    (`COLOUR_SHAPE_ONLY`). A query with a centre is not split (`service.recognition.recognise_decoded`)."""
     snapshot = state.store.snapshot
+    bare = frozenset(oid for oid, rec in snapshot.objects.items() if untextured(rec))
+    if d.modality == "rgb" and bare:  # colour alone: no part for shape-only objects (`COLOUR_SHAPE_ONLY`)
+        textured = frozenset(snapshot.objects) - bare
+        return [(d, snapshot.within(textured))] if textured else []
     depth = state.embedders.get("depth")
     if d.modality != "rgbd" or depth is None:
         return [(d, snapshot)]
-    bare = frozenset(oid for oid, rec in snapshot.objects.items() if untextured(rec))
     if not bare or len(bare) == len(snapshot.objects):
         return [(d, snapshot)]
     textured = frozenset(snapshot.objects) - bare

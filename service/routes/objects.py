@@ -37,7 +37,8 @@ MAX_QUEUED = 16  # registrations waiting for the render thread; more is a client
 #: the warning a shape-only mesh's registration answers with
 SHAPE_ONLY = (
     "the mesh has no colours (no texture, no vertex or face colours): it is recognised by its shape, surely "
-    "with depth; in colour only by its silhouette and shading, at lower confidence"
+    "with depth; in colour only at a centre you give (u, v), by its silhouette and shading, at lower "
+    "confidence: a whole colour frame does not search for it"
 )
 
 
