@@ -125,6 +125,8 @@ def test_show_refuses_a_missing_object_in_one_line(answered, tmp_path):
     assert not out.exists()
 
 
+# a subprocess per bad input: ~5 s
+@pytest.mark.slow
 def test_show_refuses_bad_input_in_one_line(answered, tmp_path):
     frame, answers, data, _ = answered
     args = ["--data-dir", str(data), *intrinsics()]

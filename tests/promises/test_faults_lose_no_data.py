@@ -117,6 +117,8 @@ def test_sigkill_during_a_registration_leaves_the_object_wholly_present_or_absen
     assert "Traceback" not in server.log.read_text()
 
 
+# two registrations and a server restart: ~5 s
+@pytest.mark.slow
 def test_damaged_snapshots_are_rebuilt_from_sqlite(tmp_path, posedesc_models, l_shape, t_shape):
     data_dir = tmp_path / "data"
     with Server(data_dir, posedesc_models, ENV) as server:

@@ -10,6 +10,8 @@ import pytest
 ROOT = Path(__file__).resolve().parents[2]
 
 
+# the objectness network over 20 real frames: ~4.5 s
+@pytest.mark.slow
 def test_measure_reproduces_the_committed_validation_recall(tmp_path, lmo, script) -> None:
     pytest.importorskip("torch")  # the frames are read by training/objectness/
     out = tmp_path / "val.json"

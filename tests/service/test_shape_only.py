@@ -7,6 +7,7 @@ from __future__ import annotations
 import shutil
 
 import numpy as np
+import pytest
 import trimesh
 from fastapi.testclient import TestClient
 from service_helpers import depth_png, frame, frame_fields, png, register, service_settings, wait_ready
@@ -86,6 +87,8 @@ def test_beside_textured_objects_an_rgbd_frames_shape_only_objects_are_found_by_
         assert any(x["best"]["name"] == "part" for x in alone.json()["detections"])
 
 
+# two services, four registrations: ~4 s
+@pytest.mark.slow
 def test_in_colour_a_shape_only_objects_distances_carry_the_handicap(
     tmp_path, posedesc_models, renderer, l_shape
 ):

@@ -127,6 +127,7 @@ def test_model_points_are_a_fixed_sample_of_the_vertices():
 
 
 # registration (4 in-plane variants a viewpoint) and 4 recognise calls, shipped rgb model: ~6 s on 2 cores
+@pytest.mark.slow
 def test_evaluate_writes_bop_rows_and_the_block_recomputes(lmo, tmp_path, monkeypatch, capsys):
     if not RGB_MODEL.is_file():
         pytest.skip("the shipped rgb model is not in models/")

@@ -87,6 +87,8 @@ def test_auto_keeps_what_is_asked_and_a_textured_mesh_has_none():
     assert chosen.symmetry == "none" and chosen.source == "colours" and chosen.textured
 
 
+# 19 meshes' symmetries from their shapes: ~7 s
+@pytest.mark.slow
 def test_the_ycbv_shapes_symmetries_and_lmo_keeps_its_own(ycbv, lmo):
     """YCB-V's models_info.json states no symmetries and its meshes have no colours: each shape's own
     (docs/experiments.md lists the misfits). LM-O's states them: they are kept, and nothing is added."""

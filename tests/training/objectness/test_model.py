@@ -74,6 +74,8 @@ def test_the_network_maps_a_frame_to_cells_and_the_loss_prefers_the_truth() -> N
     assert float(centre_loss(right, heat, weight)) < float(centre_loss(wrong, heat, weight))
 
 
+# torch.onnx.export: ~9 s on 2 cores
+@pytest.mark.slow
 def test_the_export_runs_in_onnxruntime_as_in_torch_at_any_size(tmp_path: Path) -> None:
     net = ObjectnessNet(width=8, pretrained=False).eval()
     path = export(net, ObjectnessConfig(width=8), tmp_path / "o.onnx", {"command": "test"})
