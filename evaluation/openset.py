@@ -37,7 +37,7 @@ from service.errors import ApiError
 from service.pipeline.calibration import settings_of
 from service.recognition import recognise
 from service.rejection import LISTED as REJECT_LISTED
-from service.rejection import Calibration, ColourTerm
+from service.rejection import MEASURES, Calibration, Term
 from service.settings import Settings
 from service.state import AppState, close_state, load_state
 
@@ -66,6 +66,9 @@ class Answers:
     #: per score kind, the best answer's colour distance (`Result.colour_distance`; None: not measured, or
     #: answers collected before it was kept)
     colours: dict[str, list[float | None]] = field(default_factory=dict)
+    #: per score kind, the share of the best answer's surface its depth fit leaves unexplained
+    #: (`Result.unexplained`; None: not measured, or answers collected before it was kept)
+    unexplained: dict[str, list[float | None]] = field(default_factory=dict)
 
     @property
     def kinds(self) -> list[str]:
@@ -84,13 +87,15 @@ class Answers:
         keep = ids[:, 0] >= 0
         obj = np.array(self.obj)
         best = dist[:, 0] if statistic is None else best_values(ids, dist, statistic)
-        if statistic is not None and statistic.colour is not None:
-            best = with_colours(best, self.colour_distances(kind), statistic)
+        if statistic is not None and (measure := term_of(statistic)) is not None:
+            best = with_term(best, self.measured(kind, measure), statistic, measure)
         return best[keep], (ids[:, 0] == obj)[keep], np.array(self.registered)[keep], obj[keep]
 
-    def colour_distances(self, kind: str) -> np.ndarray:
-        """The best answers' colour distances, nan where none was measured. Shape: (n,)."""
-        got = self.colours.get(kind) or [None] * len(self.obj)
+    def measured(self, kind: str, measure: str) -> np.ndarray:
+        """What the frames showed of the best answers (`service.rejection.MEASURES`: "colour", their colour
+        distances; "fit", the share their depth fit leaves unexplained), nan where none was measured.
+        Shape: (n,)."""
+        got = (self.colours if measure == "colour" else self.unexplained).get(kind) or [None] * len(self.obj)
         return np.array([np.nan if c is None else c for c in got], float)
 
     def run_of(self, kind: str) -> np.ndarray:
@@ -121,19 +126,30 @@ def best_values(ids: np.ndarray, dist: np.ndarray, statistic: Calibration) -> np
     return out
 
 
-def with_colours(best: np.ndarray, colour: np.ndarray, stat: Calibration) -> np.ndarray:
-    """The best answers' statistics as the service judges them with `stat`'s colour term
-    (`service.rejection.coloured`): plus its weight times the colour distance, on the term's threshold;
-    where no colour was measured the statistic alone is judged on `stat.threshold`, so it is moved by the
+def term_of(stat: Calibration) -> str | None:
+    """The measure of `stat`'s term ("colour" or "fit"), None without one. A calibration holds one at most
+    here: each moves the statistic onto its own threshold, and two would leave no one scale to find it on."""
+    have = [m for m in MEASURES if stat.term(m) is not None]
+    if len(have) > 1:
+        raise ValueError(f"a calibration with both a colour and a fit term: {stat}")
+    return have[0] if have else None
+
+
+def with_term(best: np.ndarray, measured: np.ndarray, stat: Calibration, measure: str) -> np.ndarray:
+    """The best answers' statistics as the service judges them with `stat`'s term of `measure`
+    (`service.rejection.termed`): plus its weight times what was measured, on the term's threshold; where
+    nothing was measured the statistic alone is judged on `stat.threshold`, so it is moved by the
     difference of the two thresholds (the same verdict on the term's scale)."""
-    term = stat.colour
+    term = stat.term(measure)
     assert term is not None
-    return np.where(np.isnan(colour), best - stat.threshold + term.threshold, best + term.weight * colour)
+    return np.where(np.isnan(measured), best - stat.threshold + term.threshold, best + term.weight * measured)
 
 
 def decision_threshold(stat: Calibration) -> float:
-    """What `Answers.arrays`'s statistics are judged on: the colour term's threshold when it has one."""
-    return stat.threshold if stat.colour is None else stat.colour.threshold
+    """What `Answers.arrays`'s statistics are judged on: the term's threshold when it has one."""
+    measure = term_of(stat)
+    term = None if measure is None else stat.term(measure)
+    return stat.threshold if term is None else term.threshold
 
 
 def score_kinds(embedder: Embedder) -> list[str]:
@@ -222,14 +238,16 @@ def _ask(state: AppState, sent, dataset_ids, kinds, subset: set[int], run: int, 
                 except ApiError:  # refused: counted apart, not as an answer
                     result = None
                 ids, dist = [-1] * LISTED, [float("nan")] * LISTED
-                colour = None
+                colour = unexplained = None
                 if result is not None and result.score == kind:
                     for i, m in enumerate(result.matches[:LISTED]):
                         ids[i], dist[i] = dataset_ids[m.object_id], float(m.distance)
                     colour = result.colour_distance
+                    unexplained = result.unexplained
                 out.objects[kind].append(ids)
                 out.distances[kind].append(dist)
                 out.colours.setdefault(kind, []).append(colour)
+                out.unexplained.setdefault(kind, []).append(unexplained)
             state.settings = with_local
             tick()
 
@@ -247,28 +265,31 @@ def calibrate(
 ) -> tuple[Calibration, dict]:
     """`stat`'s threshold by `rule` ("registered": reject at most that share of the registered objects'
     patches, right or wrong; "right": keep that share of the right answers) and its confidence curve."""
-    plain = replace(stat, colour=None)
+    plain = replace(stat, colour=None, fit=None)
     threshold, slope, midpoint, report = _fitted(*kinds_of(a, stat.score, plain), rule)
     cal = replace(plain, threshold=round(threshold, 5), slope=round(slope, 5), midpoint=round(midpoint, 5),
                   frames=frames, settings=a.settings[stat.score])  # fmt: skip
     return cal, report
 
 
-def calibrate_colour(
-    a: Answers, cal: Calibration, weight: float, rule: tuple[str, float]
+def calibrate_term(
+    a: Answers, cal: Calibration, measure: str, weight: float, rule: tuple[str, float]
 ) -> tuple[Calibration, dict]:
-    """`cal` (calibrated) with a colour term of this `weight` (`service.rejection.ColourTerm`): its
-    threshold by `rule` and its confidence curve on the best answers' statistics plus `weight` times their
-    colour distance. Answers without a colour distance count at their statistic moved onto the term's scale
-    (`with_colours`), which needs the term's threshold: found again from the last until it stands."""
-    term = ColourTerm(weight, cal.threshold, 0.0, 0.0)
+    """`cal` (calibrated, without a term) with a term of `measure` ("colour" or "fit") of this `weight`
+    (`service.rejection.Term`): its threshold by `rule` and its confidence curve on the best answers'
+    statistics plus `weight` times what was measured of them. Answers without it count at their statistic
+    moved onto the term's scale (`with_term`), which needs the term's threshold: found again from the last
+    until it stands."""
+    term = Term(weight, cal.threshold, 0.0, 0.0)
     for _ in range(5):
-        threshold, slope, midpoint, report = _fitted(*kinds_of(a, cal.score, replace(cal, colour=term)), rule)
+        threshold, slope, midpoint, report = _fitted(
+            *kinds_of(a, cal.score, cal.with_term(measure, term)), rule
+        )
         moved = abs(threshold - term.threshold) > 1e-9
-        term = ColourTerm(weight, round(threshold, 5), round(slope, 5), round(midpoint, 5))
+        term = Term(weight, round(threshold, 5), round(slope, 5), round(midpoint, 5))
         if not moved:
             break
-    return replace(cal, colour=term), report
+    return cal.with_term(measure, term), report
 
 
 def _fitted(
@@ -302,6 +323,9 @@ LEAD_WEIGHTS = (0.25, 0.5, 1.0, 2.0, 4.0)
 #: the colour term's weights compared (`explore`), on the lead at weight `COLOUR_LEAD` (the shipped statistic)
 COLOUR_WEIGHTS = (0.5, 1.0, 1.5, 2.0, 3.0, 4.0)
 COLOUR_LEAD = 2.0
+#: the fit term's weights compared (`explore`), on the lead at weight `FIT_LEAD` (the depth model's statistic)
+FIT_WEIGHTS = (0.05, 0.1, 0.15, 0.2, 0.3, 0.4)
+FIT_LEAD = 0.5
 #: the exploration's figure: the unknowns rejected where at most this share of registered patches is
 EXPLORE_AT = 0.1
 
@@ -326,12 +350,21 @@ def explore(a: Answers, kind: str) -> list[dict]:
     stats["minus the lead alone"] = dist[:, 0] - other
     for n in (5, 10):
         stats[f"share of the top {n} not the best's object"] = 1 - (ids[:, :n] == ids[:, :1]).mean(1)
-    colour = a.colour_distances(kind)[answered]
+    colour = a.measured(kind, "colour")[answered]
     if not np.isnan(colour).all():  # the colours at the best answer's pose (`service.pipeline.colours`)
         for c in COLOUR_WEIGHTS:
             lead = stats[f"lead, weight {COLOUR_LEAD:g}"]
             stats[f"lead, weight {COLOUR_LEAD:g}, + {c:g} x the colour distance"] = lead + c * np.nan_to_num(
                 colour
+            )
+    unexplained = a.measured(kind, "fit")[answered]
+    if not np.isnan(
+        unexplained
+    ).all():  # the depth at the best answer's pose (`service.pipeline.unexplained`)
+        for c in FIT_WEIGHTS:
+            lead = stats[f"lead, weight {FIT_LEAD:g}"]
+            stats[f"lead, weight {FIT_LEAD:g}, + {c:g} x the unexplained share"] = lead + c * np.nan_to_num(
+                unexplained
             )
     if kind == "local" and "descriptor" in a.kinds:  # not shippable: the re-ranking drops the descriptor's
         d = a.lists("descriptor")[1][answered, 0]

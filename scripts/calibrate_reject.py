@@ -41,7 +41,7 @@ from evaluation.calibration import write_metadata as write_model_metadata  # noq
 from evaluation.openset import (  # noqa: E402
     Answers,
     calibrate,
-    calibrate_colour,
+    calibrate_term,
     collect,
     compare_filtered,
     decision_threshold,
@@ -49,12 +49,20 @@ from evaluation.openset import (  # noqa: E402
     kinds_of,
     measure,
     registered_sets,
+    term_of,
 )
 from evaluation.splits import split_frames  # noqa: E402
 from index.data.bop import BopDataset  # noqa: E402
 from index.features.embed import Embedder  # noqa: E402
 from posedesc.commands.evaluate import parse_ids  # noqa: E402
-from service.rejection import REJECT_KEY, SCORE_KINDS, STATISTICS, Calibration, read_calibrations  # noqa: E402
+from service.rejection import (  # noqa: E402
+    MEASURES,
+    REJECT_KEY,
+    SCORE_KINDS,
+    STATISTICS,
+    Calibration,
+    read_calibrations,
+)  # noqa: E402
 from service.settings import Settings  # noqa: E402
 
 
@@ -73,7 +81,8 @@ def picture(report: dict, path: Path) -> None:
     fig, axes = plt.subplots(len(kinds), 2, figsize=(11, 4.2 * len(kinds)), squeeze=False)
     for row, kind in zip(axes, kinds, strict=True):
         cal, test = report["calibrations"][kind], report["test"].get(kind, {})
-        t = cal["colour"]["threshold"] if "colour" in cal else cal["threshold"]
+        termed = next((m for m in MEASURES if m in cal), None)
+        t = cal[termed]["threshold"] if termed else cal["threshold"]
         for name, colour in (("right", "tab:green"), ("wrong", "tab:orange"), ("unknown", "tab:red")):
             xs = report["val_scores"][kind][name]
             if xs:
@@ -81,7 +90,7 @@ def picture(report: dict, path: Path) -> None:
         row[0].axvline(t, color="k", ls="--", label=f"threshold {t:.3g}")
         row[0].set_xlabel(
             f"best answer's {Calibration(kind, t, 0, 0, statistic=cal['statistic'], weight=cal['weight']).describe()}"
-            + (f", + {cal['colour']['weight']:g} x colour distance" if "colour" in cal else "")
+            + (f", + {cal[termed]['weight']:g} x {MEASURES[termed]}" if termed else "")
         )
         row[0].set_title(f"validation frames ({kind}): best answers' scores")
         row[0].legend(fontsize=8)
@@ -107,8 +116,8 @@ def picture(report: dict, path: Path) -> None:
 REJECT_REGISTERED = 0.08
 
 
-def colour_terms(given: list[str]) -> dict[str, float]:
-    """--colour-weight values: score kind -> the colour term's weight (0: none)."""
+def term_weights(given: list[str]) -> dict[str, float]:
+    """--colour-weight or --fit-weight values: score kind -> the term's weight (0: none)."""
     out = {}
     for text in given:
         kind, _, weight = text.rpartition("=")
@@ -120,6 +129,20 @@ def colour_terms(given: list[str]) -> dict[str, float]:
             raise ValueError(f"{text!r}: KIND=WEIGHT, KIND 'local' or 'descriptor', WEIGHT >= 0")
         out[kind] = w
     return out
+
+
+def term_asked(
+    weights: dict[str, dict[str, float]], kind: str, shipped: Calibration | None
+) -> tuple[str | None, float]:
+    """The term a score kind is calibrated with: (measure, weight) as asked (`--colour-weight`,
+    `--fit-weight`), else the shipped calibration's (recalibrated as shipped), else (None, 0)."""
+    for which, by_kind in weights.items():
+        if kind in by_kind:
+            return which, by_kind[kind]
+    for which in MEASURES:
+        if shipped is not None and (term := shipped.term(which)) is not None:
+            return which, term.weight
+    return None, 0.0
 
 
 def statistics(given: list[str]) -> dict[str, tuple[str, float]]:
@@ -214,9 +237,17 @@ def main() -> None:
         action="append",
         default=[],
         metavar="KIND=WEIGHT",
-        help="a colour term for that score kind (service.rejection.ColourTerm): the best answer's "
+        help="a colour term for that score kind (service.rejection.Term): the best answer's "
         "statistic plus WEIGHT x its colour distance where a colour frame shows it (0: none; "
         "default: the shipped calibration's)",
+    )
+    ap.add_argument(
+        "--fit-weight",
+        action="append",
+        default=[],
+        metavar="KIND=WEIGHT",
+        help="instead, a fit term: the best answer's statistic plus WEIGHT x the share of it the depth "
+        "leaves unexplained where a frame with depth shows it (0: none; default: the shipped calibration's)",
     )
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args()
@@ -230,10 +261,14 @@ def main() -> None:
         chosen = statistics(args.statistic)
     except ValueError as e:
         sys.exit(f"--statistic: {e}")
-    try:
-        colour_weights = colour_terms(args.colour_weight)
-    except ValueError as e:
-        sys.exit(f"--colour-weight: {e}")
+    weights: dict[str, dict[str, float]] = {}
+    for which, given in (("colour", args.colour_weight), ("fit", args.fit_weight)):
+        try:
+            weights[which] = term_weights(given)
+        except ValueError as e:
+            sys.exit(f"--{which}-weight: {e}")
+    if both := sorted(k for k, w in weights["colour"].items() if w and weights["fit"].get(k)):
+        sys.exit(f"--colour-weight and --fit-weight: one term a score kind ({both[0]} has both)")
     if not 0 <= args.reject_registered < 1:
         sys.exit("--reject-registered: a share in [0, 1)")
     if args.shipped and args.out is not None:
@@ -274,13 +309,11 @@ def main() -> None:
         name, weight = chosen.get(kind, chosen.get("", ("distance", 0.0)))
         stat = Calibration(kind, 0.0, 0.0, 0.0, statistic=name, weight=weight)
         cal, rep = calibrate(a, shipped.get(kind) or stat, rule, "val")
-        weighed = colour_weights.get(kind)
-        if weighed is None and kind not in colour_weights and (was := shipped.get(kind)) and was.colour:
-            weighed = was.colour.weight  # recalibrated as shipped: with its colour term
-        if weighed:
+        asked, weighed = term_asked(weights, kind, shipped.get(kind))
+        if asked is not None and weighed:
             plain = rep
-            cal, rep = calibrate_colour(a, cal, weighed, rule)
-            rep["without_colour"] = {"threshold": cal.threshold, "at_threshold": plain["at_threshold"]}
+            cal, rep = calibrate_term(a, cal, asked, weighed, rule)
+            rep["without_term"] = {"threshold": cal.threshold, "at_threshold": plain["at_threshold"]}
         if args.shipped:  # nothing fitted: the validation frames are measured like the test frames
             cal = shipped[kind]
             rep["at_threshold"] = measure(a, cal, val_sets, args.fold)["by_registered"]
@@ -294,7 +327,7 @@ def main() -> None:
         report["val_scores"][kind] = {k: np.round(v, 4).tolist() for k, v in zip(
             ("right", "wrong", "unknown"), kinds_of(a, kind, cal), strict=True)}  # fmt: skip
         print(
-            f"{kind}: {cal.describe(coloured=True)} threshold {decision_threshold(cal):.4g}, val {rep['at_threshold']}"
+            f"{kind}: {cal.describe(term_of(cal))} threshold {decision_threshold(cal):.4g}, val {rep['at_threshold']}"
         )
         for row in report["explored"][kind]:
             print(f"  explored {kind}: {json.dumps(row)}")

@@ -89,6 +89,7 @@ def result_out(result: Result, K: np.ndarray | None) -> RecognizeOut:
         reason=result.reason,
         score=result.score,
         colour_distance=result.colour_distance,
+        unexplained=None if result.unexplained is None else round(result.unexplained, 4),
         timings_ms=result.timings_ms,
         model=result.model,
     )

@@ -15,7 +15,7 @@ re-ranked answers) or "descriptor" (the descriptor distance, without re-ranking)
 - `slope`, `midpoint`: the confidence of an answer with statistic s is 1 / (1 + exp(slope * (s -
   midpoint))), a logistic fit on validation answers of whether the top answer was the right object (half of
   them with the object registered, half with it left out: a 1 in 2 chance that a patch shows an unknown);
-- `colour` (optional, `ColourTerm`): a frame sent with its camera and the object's centre, in colour, shows
+- `colour` (optional, a `Term`): a frame sent with its camera and the object's centre, in colour, shows
   whether the frame's colours where the best answer's pose puts its object are that object's
   (`index.refine.chroma.chroma_distance`, 0-2: its `colour_distance`). The best answer's statistic then
   adds `weight` times that distance and is judged on the term's own threshold and confidence curve; a
@@ -23,6 +23,13 @@ re-ranked answers) or "descriptor" (the descriptor distance, without re-ranking)
   named after a registered one has that one's distance and its lead but not its colours: on LM-O's
   validation frames the colours took the unknowns rejected from 63.5 to 71.3 % at the same share of
   registered ones (docs/experiments.md, "The colours in the open set");
+- `fit` (optional, a `Term`): a frame sent with its camera, its depth and the object's centre shows how much
+  of the best answer's fitted pose the depth leaves unexplained where it could explain it
+  (`index.refine.depth.unexplained_of`, 0-1: points hidden by a nearer object, or over a hole in the depth,
+  left out). The best answer's statistic then adds `weight` times that share, judged on the term's own
+  threshold and curve. An unknown object named after a registered one has its distance and its lead, but
+  its surface is not where that one's would be; a registered one half hidden is far from its templates and
+  still fits (docs/experiments.md, "The depth fit in the open set");
 - `settings`: the settings (and the stages' constants) its answers were made with
   (`service.pipeline.calibration.settings_of`), and `graph`: the network it was measured on
   (`Embedder.graph_digest`); `service.pipeline.calibration.stale` tells the running service when either
@@ -40,7 +47,7 @@ import json
 import logging
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import lru_cache
 
 from index.features.embed import Embedder
@@ -54,6 +61,8 @@ REJECT_KEY = "reject_above"
 SCORE_KINDS = ("local", "descriptor")
 #: what a calibration may threshold (see the module's docstring)
 STATISTICS = ("distance", "lead")
+#: what a frame may show of the best answer, beside its statistic (`Term`), and how a verdict names it
+MEASURES = {"colour": "its colour distance", "fit": "the share of it the depth leaves unexplained"}
 #: answers the service ranks to compute a statistic that reads past the best one, whatever k was asked
 #: ("lead": the nearest other object's answer is nearly always among them; 40 is what the calibration's
 #: answers listed, `evaluation.openset.LISTED`)
@@ -66,9 +75,10 @@ def served_score(settings: Settings, embedder: Embedder) -> str:
 
 
 @dataclass(frozen=True)
-class ColourTerm:
-    """The best answer's statistic with its colours: the statistic plus `weight` times its colour distance,
-    rejected above `threshold`, its confidence 1 / (1 + exp(slope * (s - midpoint)))."""
+class Term:
+    """The best answer's statistic with what the frame shows of it (its colour distance, or the share of its
+    surface the depth leaves unexplained): the statistic plus `weight` times that measure, rejected above
+    `threshold`, its confidence 1 / (1 + exp(slope * (s - midpoint)))."""
 
     weight: float
     threshold: float
@@ -107,7 +117,10 @@ class Calibration:
     #: the digest of the model graph it was measured on (`Embedder.graph_digest`); None in older ones
     graph: str | None = field(default=None, compare=False)
     #: the best answer's statistic with its colours, where a frame shows them (None: not calibrated)
-    colour: ColourTerm | None = None
+    colour: Term | None = None
+    #: the best answer's statistic with what its depth fit leaves unexplained, where a frame shows it (None:
+    #: not calibrated)
+    fit: Term | None = None
 
     def values(self, matches: Sequence[Match]) -> list[float]:
         """Each answer's statistic. "lead": its distance less `weight` times its lead over the nearest
@@ -126,15 +139,23 @@ class Calibration:
         """Chance that an answer with this statistic is the right object (validation frames, logistic)."""
         return _logistic(self.slope, self.midpoint, value)
 
-    def describe(self, coloured: bool = False) -> str:
-        """What the verdict thresholds (`coloured`: with the colour term)."""
+    def term(self, measure: str) -> Term | None:
+        """The term of a measure ("colour" or "fit"; `MEASURES`), None when not calibrated."""
+        return {"colour": self.colour, "fit": self.fit}[measure]
+
+    def with_term(self, measure: str, term: Term | None) -> Calibration:
+        """This calibration with `term` as its term of `measure` ("colour" or "fit")."""
+        return replace(self, colour=term) if measure == "colour" else replace(self, fit=term)
+
+    def describe(self, measure: str | None = None) -> str:
+        """What the verdict thresholds (with the term of `measure`, when it has one)."""
         what = (
             f"{self.score} distance"
             if self.statistic == "distance"
             else f"{self.score} distance less {self.weight:g} x its lead over the nearest other object"
         )
-        if coloured and self.colour is not None:
-            what += f", plus {self.colour.weight:g} x its colour distance"
+        if measure is not None and (term := self.term(measure)) is not None:
+            what += f", plus {term.weight:g} x {MEASURES[measure]}"
         return what
 
     def to_json(self) -> dict[str, object]:
@@ -148,6 +169,7 @@ class Calibration:
             **({} if self.settings is None else {"settings": dict(self.settings)}),
             **({} if self.graph is None else {"graph": self.graph}),
             **({} if self.colour is None else {"colour": self.colour.to_json()}),
+            **({} if self.fit is None else {"fit": self.fit.to_json()}),
         }
 
 
@@ -174,7 +196,8 @@ def _parse(text: str, model: str) -> dict[str, Calibration]:
                 float(c.get("weight", 0.0)),
                 dict(c["settings"]) if c.get("settings") is not None else None,
                 str(c["graph"]) if c.get("graph") is not None else None,
-                _colour_term(c.get("colour")),
+                _term(c.get("colour")),
+                _term(c.get("fit")),
             )
             for kind, c in raw.items()
             if kind in SCORE_KINDS
@@ -187,20 +210,20 @@ def _parse(text: str, model: str) -> dict[str, Calibration]:
         return {}
 
 
-def _colour_term(raw: object) -> ColourTerm | None:
-    """A calibration's colour term from its JSON (None: it has none)."""
+def _term(raw: object) -> Term | None:
+    """A calibration's term from its JSON (None: it has none)."""
     if raw is None:
         return None
     if not isinstance(raw, Mapping):
-        raise ValueError("its colour term is not an object")
-    return ColourTerm(*(float(raw[k]) for k in ("weight", "threshold", "slope", "midpoint")))
+        raise ValueError("its term is not an object")
+    return Term(*(float(raw[k]) for k in ("weight", "threshold", "slope", "midpoint")))
 
 
 @dataclass(frozen=True)
 class Verdict:
     """Each match's confidence (None without a calibration of its score), when the best answer is rejected
     why (None when it stands), and the best answer's statistic (`value`, None without answers), what a
-    later look at its colours adds to (`coloured`)."""
+    later look at the frame adds to (`termed`)."""
 
     confidences: list[float | None]
     reason: str | None
@@ -224,20 +247,22 @@ def judge(
     return Verdict(confidences, _reason(values[0], threshold, score, calibration, setting), values[0])
 
 
-def coloured(
+def termed(
     value: float,
-    colour_distance: float,
+    measure: str,
+    measured: float,
     score: str,
     calibration: Calibration,
     setting: float | str | None = None,
 ) -> tuple[float, str | None]:
-    """The best answer's confidence and verdict (`judge`'s reason) once its colours are measured: its
-    statistic `value` plus the colour term's weight times `colour_distance`, on the term's threshold and
-    curve (`calibration.colour`, which the caller checked). `setting` as `judge` takes it."""
-    term = calibration.colour
+    """The best answer's confidence and verdict (`judge`'s reason) once the frame shows `measure` of it
+    ("colour": its colour distance; "fit": the share its depth fit leaves unexplained): its statistic
+    `value` plus the term's weight times `measured`, on the term's threshold and curve (`calibration.term`,
+    which the caller checked). `setting` as `judge` takes it."""
+    term = calibration.term(measure)
     assert term is not None  # the caller's check: a calibration without the term judges `value` alone
-    total = value + term.weight * colour_distance
-    return term.confidence(total), _reason(total, term.threshold, score, calibration, setting, coloured=True)
+    total = value + term.weight * measured
+    return term.confidence(total), _reason(total, term.threshold, score, calibration, setting, measure)
 
 
 def _reason(
@@ -246,7 +271,7 @@ def _reason(
     score: str,
     calibration: Calibration | None,
     setting: float | str | None,
-    coloured: bool = False,
+    measure: str | None = None,
 ) -> str | None:
     """Why the best answer, its statistic `value`, is rejected at the calibration's `threshold` (or the
     setting's); None when it stands."""
@@ -260,7 +285,7 @@ def _reason(
         return None
     if value <= threshold:
         return None
-    what = f"{score} distance" if calibration is None else calibration.describe(coloured)
+    what = f"{score} distance" if calibration is None else calibration.describe(measure)
     return (
         f"no registered object is close enough: the nearest answer's {what} {value:.4g} is above "
         f"{threshold:.4g} ({source})"

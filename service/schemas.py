@@ -171,6 +171,13 @@ class RecognizeOut(BaseModel):
         "part of the open-set verdict (`reason` says so). null: not measured (a patch, a shape-only object, "
         "too little of it in view)",
     )
+    unexplained: float | None = Field(
+        None,
+        description="a frame sent with its depth, its camera and the object's centre: the share of the first "
+        "answer's surface at its pose that the depth could show and does not explain (0-1: its own surface "
+        "about 0.1, another object's 0.5 and more; points behind a nearer object or over a hole in the depth "
+        "are left out); with the model's calibration it is part of the open-set verdict. null: not measured",
+    )
     timings_ms: dict[str, float] = Field(
         description="milliseconds of each stage that ran (`service.pipeline`): decode (the images), cut (the "
         "patch at each query turn), mask (models with a mask), embed (the descriptors), search (the store), "

@@ -16,7 +16,10 @@ the store's snapshot as it found it and runs the model's own onnxruntime session
 then the answers' assembly (`answer`: the order, the open-set verdict, the origins), and the pose fit of
 the best answers over six degrees of freedom against the frame (`fit.PoseFit`, `pose_fit` answers). Then, in a
 colour frame sent with its camera and the object's centre, the colours at the best answer's pose
-(`colours.Colours`: its `colour_distance`, and the open-set verdict where the calibration weighs them). Each stage gets the
+(`colours.Colours`: its `colour_distance`, and the open-set verdict where the calibration weighs them); in a
+frame sent with its depth, its camera and the centre, the share of the best answer's surface the depth leaves
+unexplained at its pose (`unexplained.Unexplained`: its `unexplained`, and the verdict where the calibration
+weighs it). Each stage gets the
 query's frozen `context.Context` and hands on a new one (or None: nothing to do for this query). A stage
 that a model or the settings leave out is not in its pipeline (`build` returns None). Adding a stage is a
 new module and one line in `STAGES`.
@@ -34,7 +37,8 @@ the whole turn when they are upright only): the n patches are embedded in one ba
 match of template in-plane θ on the turn by o says the object is rolled θ + o (`crop` undoes o).
 
 `timings_ms` (milliseconds): `decode` (when timed: `service.recognition.recognise`), then each stage that
-ran by its name (`cut`, `mask`, `embed`, `search`, `local`, `sweep`, `refine`, `fit`, `colours`), then the sums older
+ran by its name (`cut`, `mask`, `embed`, `search`, `local`, `sweep`, `refine`, `fit`, `colours`,
+`unexplained`), then the sums older
 readers know: `patch` = cut + mask, `rerank` = local + sweep + refine (when the re-ranking ran), and
 `total` (everything above, decode included)."""
 
@@ -60,6 +64,7 @@ from service.pipeline.refine import Refine
 from service.pipeline.rerank import Rerank
 from service.pipeline.search import Embed, Search
 from service.pipeline.sweep import Sweep
+from service.pipeline.unexplained import Unexplained
 from service.settings import Settings
 
 #: every stage in its order; each class's `build(settings, embedder, templates)` makes it for a model, or
@@ -85,14 +90,10 @@ class Pipeline:
         judged: int = 0,
         fit: PoseFit | None = None,
         colours: Colours | None = None,
+        unexplained: Unexplained | None = None,
     ):
-        self.stages, self.settings, self.judged, self.fit, self.colours = (
-            stages,
-            settings,
-            judged,
-            fit,
-            colours,
-        )
+        self.stages, self.settings, self.judged = stages, settings, judged
+        self.fit, self.colours, self.unexplained = fit, colours, unexplained
 
     @classmethod
     def build(
@@ -111,9 +112,9 @@ class Pipeline:
         made = (stage.build(settings, embedder, templates) for stage in STAGES)
         fit = PoseFit.build(settings, shapes, on_failure)
         colours = None if surfaces is None else Colours(surfaces, settings.reject_above)
-        return cls(
-            tuple(s for s in made if s is not None), settings, judged(settings, embedder), fit, colours
-        )
+        unexplained = None if fit is None else Unexplained(fit.shapes.depth.get, settings.reject_above)
+        stages = tuple(s for s in made if s is not None)
+        return cls(stages, settings, judged(settings, embedder), fit, colours, unexplained)
 
     @classmethod
     def screening(cls, settings: Settings, embedder: Embedder, templates: TemplateConfig) -> Pipeline:
@@ -157,11 +158,11 @@ class Pipeline:
                 result = fitted
                 spent[self.fit.name] = time.perf_counter() - t
             result = first(result, q.k)
-        if self.colours is not None:
+        for look in (self.colours, self.unexplained):
             t = time.perf_counter()
-            if (measured := self.colours(result, runs)) is not None:
+            if look is not None and (measured := look(result, runs)) is not None:
                 result = measured
-                spent[self.colours.name] = time.perf_counter() - t
+                spent[look.name] = time.perf_counter() - t
         result.timings_ms = timings(spent, time.perf_counter() - t0, decode_s)
         return result
 

@@ -58,6 +58,9 @@ class Result:
     #: how far the frame's colours at the best answer's pose are from its object's, 0-2
     #: (`service.pipeline.colours`; None: not measured)
     colour_distance: float | None = None
+    #: the share of the best answer's surface the frame's depth leaves unexplained at its fitted pose, 0-1
+    #: (`service.pipeline.unexplained`; None: not measured)
+    unexplained: float | None = None
 
     def fitted(self, i: int) -> Fit | None:
         """Match i's fit when the fit moved it, else None (its pose is its template's)."""

@@ -4,7 +4,7 @@ object's centre shows whether the frame's colours there are the named object's
 `service.detection.agree`).
 
 The distance is the answer's `colour_distance`. Where the model's calibration has a colour term
-(`service.rejection.ColourTerm`) and the frame has no depth, it also enters the open-set verdict: the best
+(`service.rejection.Term`) and the frame has no depth, it also enters the open-set verdict: the best
 answer's statistic plus the term's weight times the distance, on the term's threshold and confidence
 curve. An object not registered is named after the registered one whose views it resembles most, with that
 one's distance and lead, but not with its colours. A patch (no camera), a shape-only object (no colours to
@@ -19,7 +19,7 @@ from dataclasses import dataclass, replace
 from index.refine.chroma import SurfaceColours, chroma_distance
 from service.pipeline.answer import Result
 from service.pipeline.context import Context
-from service.rejection import coloured, read_calibrations
+from service.rejection import read_calibrations, termed
 
 
 @dataclass(frozen=True)
@@ -60,5 +60,7 @@ class Colours:
             or result.statistic is None
         ):
             return measured
-        confidence, reason = coloured(result.statistic, distance, result.score, calibration, self.setting)
+        confidence, reason = termed(
+            result.statistic, "colour", distance, result.score, calibration, self.setting
+        )
         return replace(measured, confidences=[confidence, *result.confidences[1:]], reason=reason)

@@ -7,7 +7,7 @@ import json
 import pytest
 
 from index.store import Match
-from service.rejection import REJECT_KEY, Calibration, ColourTerm, coloured, judge, read_calibrations
+from service.rejection import REJECT_KEY, Calibration, Term, judge, read_calibrations, termed
 
 
 def match(distance: float) -> Match:
@@ -82,7 +82,7 @@ def test_lead_rejects_a_near_answer_that_another_object_answers_about_as_well():
 
 COLOURED = Calibration(
     "local", threshold=0.3, slope=10.0, midpoint=0.2, statistic="lead", weight=1.0,
-    colour=ColourTerm(weight=1.0, threshold=0.5, slope=8.0, midpoint=0.4),
+    colour=Term(weight=1.0, threshold=0.5, slope=8.0, midpoint=0.4),
 )  # fmt: skip
 
 
@@ -92,14 +92,14 @@ def test_the_colour_term_adds_the_colour_distance_and_judges_on_its_own_threshol
         0.1
     )  # the statistic alone: judged as before
     # its colours are its object's: 0.1 + 0.2 stands under the term's 0.5 ...
-    confidence, reason = coloured(0.1, 0.2, "local", COLOURED)
+    confidence, reason = termed(0.1, "colour", 0.2, "local", COLOURED)
     assert reason is None and confidence == pytest.approx(COLOURED.colour.confidence(0.3))  # type: ignore[union-attr]
     # ... another object's colours where its pose puts it: 0.1 + 0.6 is above, though the statistic was not
-    confidence, reason = coloured(0.1, 0.6, "local", COLOURED)
+    confidence, reason = termed(0.1, "colour", 0.6, "local", COLOURED)
     assert reason is not None and "plus 1 x its colour distance 0.7 is above 0.5" in reason
     assert confidence < 0.5
-    assert coloured(0.1, 0.6, "local", COLOURED, setting="off")[1] is None  # the setting still rules
-    assert coloured(0.1, 0.6, "local", COLOURED, setting=1.0)[1] is None
+    assert termed(0.1, "colour", 0.6, "local", COLOURED, setting="off")[1] is None  # the setting still rules
+    assert termed(0.1, "colour", 0.6, "local", COLOURED, setting=1.0)[1] is None
 
 
 def test_a_colour_term_round_trips_through_the_metadata_and_a_bad_one_is_ignored():
@@ -108,3 +108,21 @@ def test_a_colour_term_round_trips_through_the_metadata_and_a_bad_one_is_ignored
     assert read_calibrations({REJECT_KEY: json.dumps({"local": LEAD.to_json()})})["local"].colour is None
     bad = {REJECT_KEY: json.dumps({"local": {**LEAD.to_json(), "colour": {"weight": 1.0}}})}
     assert read_calibrations(bad) == {}
+
+
+FITTED = Calibration(
+    "descriptor", threshold=0.3, slope=10.0, midpoint=0.2, statistic="lead", weight=0.5,
+    fit=Term(weight=0.2, threshold=0.4, slope=9.0, midpoint=0.35),
+)  # fmt: skip
+
+
+def test_the_fit_term_adds_the_unexplained_share_and_round_trips():
+    # half its surface unexplained: 0.25 + 0.2 x 0.5 = 0.35 stands under the term's 0.4 ...
+    confidence, reason = termed(0.25, "fit", 0.5, "descriptor", FITTED)
+    assert reason is None and confidence == pytest.approx(FITTED.fit.confidence(0.35))  # type: ignore[union-attr]
+    # ... all of it unexplained: 0.45 is above, though the statistic alone (0.25 < 0.3) was not
+    confidence, reason = termed(0.25, "fit", 1.0, "descriptor", FITTED)
+    assert reason is not None and "plus 0.2 x the share of it the depth leaves unexplained 0.45" in reason
+    meta = {REJECT_KEY: json.dumps({"descriptor": FITTED.to_json()})}
+    assert read_calibrations(meta) == {"descriptor": FITTED}
+    assert FITTED.colour is None and FITTED.with_term("colour", FITTED.fit).colour == FITTED.fit

@@ -21,13 +21,13 @@ from service.pipeline.answer import Result
 from service.pipeline.colours import Colours
 from service.pipeline.context import Context
 from service.pipeline.query import Decoded, Query
-from service.rejection import REJECT_KEY, Calibration, ColourTerm
+from service.rejection import REJECT_KEY, Calibration, Term
 
 K = np.array([[572.4, 0.0, 325.3], [0.0, 573.6, 242.0], [0.0, 0.0, 1.0]])
 #: the object tilted towards the camera, 600 mm away
 R = trimesh.transformations.euler_matrix(0.6, 0.3, 0.2)[:3, :3]
 t = np.array([10.0, -5.0, 600.0])
-COLOUR = ColourTerm(weight=1.0, threshold=0.3, slope=10.0, midpoint=0.2)
+COLOUR = Term(weight=1.0, threshold=0.3, slope=10.0, midpoint=0.2)
 
 
 @pytest.fixture(scope="module")
