@@ -171,10 +171,9 @@ def _seen(
         # a point further than SELF_MM behind the nearest model point of its cell is not seen
         cu, cv = (u[facing] // cell_px).astype(np.int64), (v[facing] // cell_px).astype(np.int64)
         cell = cv * (w // cell_px + 1) + cu
-        _, inverse = np.unique(cell, return_inverse=True)
-        nearest = np.full(inverse.max() + 1, np.inf)
-        np.minimum.at(nearest, inverse, z[facing])
-        facing[facing] = z[facing] <= nearest[inverse] + SELF_MM
+        nearest = np.full((h // cell_px + 1) * (w // cell_px + 1), np.inf)  # every cell: no np.unique
+        np.minimum.at(nearest, cell, z[facing])
+        facing[facing] = z[facing] <= nearest[cell] + SELF_MM
     d = np.zeros(len(p))
     d[inside] = depth[v[inside].astype(int), u[inside].astype(int)]
     return p, n, facing, d

@@ -44,14 +44,15 @@ def foreground(d: Decoded, p: Patches, window_mm: float) -> tuple[Patches, np.nd
     `window_mm`: the window the patches were cut through."""
     x = batch_inputs(d.modality, p.rgb, p.depth, p.distance, window_mm, fill=False)
     keep = d.embedder.mask(x)
-    return masked(filled(p), keep), keep
+    return masked(filled(p, keep), keep), keep
 
 
-def filled(p: Patches) -> Patches:
+def filled(p: Patches, keep: np.ndarray | None = None) -> Patches:
     """The patches with their depth's holes filled (`index.features.patches.fill_depth`), as the network takes
     them. Before a mask: filling after it filled the emptied background from the object, 15 ms a query
-    of the RGB-D re-ranking for nothing its network reads (measured on validation frames)."""
-    return p if p.depth is None else replace(p, depth=fill_depth(p.depth))
+    of the RGB-D re-ranking for nothing its network reads (measured on validation frames). `keep`: the mask
+    (N, S, S) bool that will empty the rest: the fill stops once the holes inside it are filled."""
+    return p if p.depth is None else replace(p, depth=fill_depth(p.depth, needed=keep))
 
 
 def masked(p: Patches, keep: np.ndarray) -> Patches:

@@ -122,7 +122,7 @@ class QueryCuts:
         keep = None
         if mask is not None:
             keep = np.stack([turn_masks(mask[1][None], r - mask[0], spec)[0] for r in rolls])
-            p = masked(filled(p), keep)
+            p = masked(filled(p, keep), keep)
         elif d.embedder.has_mask:
             p, keep = foreground(d, p, window)
         x = batch_inputs(d.modality, p.rgb, p.depth, p.distance, window, fill=keep is None)

@@ -43,6 +43,25 @@ def test_fill_closes_holes_with_neighbour_medians():
     assert np.array_equal(f[d > 0], d[d > 0])  # valid pixels untouched
 
 
+def test_fill_of_what_is_needed_is_the_whole_fill_there():
+    # a fill told which pixels a mask keeps stops early, and they hold what the whole fill gives them
+    rng = np.random.default_rng(0)
+    d = rng.uniform(700.0, 900.0, (6, 32, 32)).astype(np.float32)
+    d[rng.random(d.shape) < 0.3] = 0  # scattered holes
+    d[:, 10:30, 12:30] = 0  # a large one, many rounds to close
+    d[4] = 0  # nothing to fill from
+    needed = np.zeros(d.shape, bool)
+    needed[:, 8:16, 8:16] = True  # the large hole's edge and what is left around it
+    needed[5] = False  # a patch that needs nothing
+    whole, some = fill_depth(d), fill_depth(d, needed=needed)
+    assert np.array_equal(some[needed], whole[needed])
+    measured = needed.copy()
+    measured[4] = False  # the patch without depth stays empty
+    assert (some[measured] > 0).all() and (some[4] == 0).all()
+    assert (some[1:4][~needed[1:4] & (whole[1:4] != d[1:4])] == 0).any()  # it stopped before the rest
+    assert np.array_equal(some[5], d[5])  # nothing needed: left as it was
+
+
 def test_fill_leaves_all_empty_alone():
     assert (fill_depth(np.zeros((8, 8))) == 0).all()
 
