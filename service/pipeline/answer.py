@@ -28,7 +28,7 @@ from index.templates.surface import offset_of
 from service.pipeline.context import Context
 from service.pipeline.query import untextured
 from service.poses import match_pose
-from service.rejection import LISTED, judge, read_calibrations, served_score
+from service.rejection import LISTED, judge, read_calibrations, served_score, termed
 from service.settings import Settings
 
 
@@ -143,6 +143,19 @@ def answer(runs: Sequence[Context], timings_ms: dict[str, float], settings: Sett
         origins,
         statistic=verdict.value,
     )
+
+
+def rejudged(
+    result: Result, embedder: Embedder, measure: str, measured: float, setting: float | str | None
+) -> Result:
+    """`result` with its best answer judged again once the frame shows `measure` of it ("colour", its colour
+    distance; "fit", the share of it the depth leaves unexplained: `service.rejection.termed`), where the
+    model's calibration of its score has that term; else as it was. `setting`: `reject_above`."""
+    calibration = read_calibrations(embedder.info.extra, embedder.path.name).get(result.score)
+    if calibration is None or calibration.term(measure) is None or result.statistic is None:
+        return result
+    confidence, reason = termed(result.statistic, measure, measured, result.score, calibration, setting)
+    return replace(result, confidences=[confidence, *result.confidences[1:]], reason=reason)
 
 
 def _origins(ctx: Context, matches: list[Match]) -> list[float]:

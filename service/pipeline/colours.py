@@ -17,9 +17,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, replace
 
 from index.refine.chroma import SurfaceColours, chroma_distance
-from service.pipeline.answer import Result
+from service.pipeline.answer import Result, rejudged
 from service.pipeline.context import Context
-from service.rejection import read_calibrations, termed
 
 
 @dataclass(frozen=True)
@@ -52,15 +51,6 @@ class Colours:
         if distance is None:  # too little of it in view to say
             return None
         measured = replace(result, colour_distance=distance)
-        calibration = read_calibrations(d.embedder.info.extra, d.embedder.path.name).get(result.score)
-        if (
-            calibration is None
-            or calibration.colour is None
-            or d.depth is not None
-            or result.statistic is None
-        ):
+        if d.depth is not None:  # a frame with depth: judged by what the depth shows (`unexplained`)
             return measured
-        confidence, reason = termed(
-            result.statistic, "colour", distance, result.score, calibration, self.setting
-        )
-        return replace(measured, confidences=[confidence, *result.confidences[1:]], reason=reason)
+        return rejudged(measured, d.embedder, "colour", distance, self.setting)

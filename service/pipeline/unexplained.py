@@ -18,9 +18,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, replace
 
 from index.refine.depth import DepthModel, unexplained_of
-from service.pipeline.answer import Result
+from service.pipeline.answer import Result, rejudged
 from service.pipeline.context import Context
-from service.rejection import read_calibrations, termed
 
 
 @dataclass(frozen=True)
@@ -45,9 +44,4 @@ class Unexplained:
         share = unexplained_of(model, *result.pose(0), K, d.depth)
         if share is None:  # none of it in view
             return None
-        measured = replace(result, unexplained=share)
-        calibration = read_calibrations(d.embedder.info.extra, d.embedder.path.name).get(result.score)
-        if calibration is None or calibration.fit is None or result.statistic is None:
-            return measured
-        confidence, reason = termed(result.statistic, "fit", share, result.score, calibration, self.setting)
-        return replace(measured, confidences=[confidence, *result.confidences[1:]], reason=reason)
+        return rejudged(replace(result, unexplained=share), d.embedder, "fit", share, self.setting)
