@@ -248,7 +248,7 @@ def _embed_part(
 ) -> _Part:
     """The views at `keep` turned from their renders and embedded by one model."""
     t0 = time.perf_counter()
-    t = uprights.templates(keep)
+    t = uprights.templates(keep, colour=embedder.modality != "depth")
     ts = embed_templates(embedder, {uprights.window_mm: t}, window_mm=window_mm)
     return _Part(ts, t.visible, t0, time.perf_counter())
 

@@ -17,6 +17,11 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
+# Mesa's software rasteriser (llvmpipe) draws on the thread that asks, not on a pool of its own: a template
+# is 91 px a side, too small for the hand-off to pay. The 301 renders of a 20k-face mesh: 0.97-1.0 s and
+# 1.04-1.10 CPU-seconds with its default pool (a thread a core) against 0.84-0.87 s and as many CPU-seconds
+# (the same pixels; docs/experiments.md, "A registration's CPU"). Read when the first GL context is made.
+os.environ.setdefault("LP_NUM_THREADS", "0")
 
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
@@ -75,15 +80,20 @@ class Uprights:
     size: int
     window_mm: float
 
-    def templates(self, idx: Sequence[int] | None = None) -> Templates:
-        """The templates of the views at `idx` (default all), in that order."""
+    def templates(self, idx: Sequence[int] | None = None, colour: bool = True) -> Templates:
+        """The templates of the views at `idx` (default all), in that order. Without `colour` (a depth
+        model's, which never reads it) their rgb is left black and not turned: turning it is most of
+        the turn's cost."""
         idx = range(len(self.views)) if idx is None else idx
         s = self.size
         rgb = np.zeros((len(idx), s, s, 3), np.uint8)
         depth = np.zeros((len(idx), s, s), np.float32)
         for j, i in enumerate(idx):
             k = self.of_view[i]
-            rgb[j], depth[j] = rotate_crop(self.rgb[k], self.depth[k], self.views[i].inplane, s)
+            if colour:
+                rgb[j], depth[j] = rotate_crop(self.rgb[k], self.depth[k], self.views[i].inplane, s)
+            else:
+                depth[j] = rotate_crop_depth(self.depth[k], self.views[i].inplane, s)
         return Templates([self.views[i] for i in idx], rgb, depth, self.window_mm)
 
 
@@ -260,13 +270,23 @@ def rotate_crop(
     rgb: np.ndarray, depth: np.ndarray, inplane: float, size: int
 ) -> tuple[np.ndarray, np.ndarray]:
     """Turns a centred render by `inplane` degrees counter-clockwise and crops the central size x size."""
-    big = rgb.shape[0]
+    M = _turn(rgb.shape[0], inplane, size)
+    return cv2.warpAffine(rgb, M, (size, size), flags=cv2.INTER_LINEAR), rotate_crop_depth(depth, M, size)
+
+
+def rotate_crop_depth(depth: np.ndarray, turn: float | np.ndarray, size: int) -> np.ndarray:
+    """`rotate_crop`'s depth alone; `turn`: the in-plane angle, or its matrix (`_turn`)."""
+    M = _turn(depth.shape[0], turn, size) if isinstance(turn, float | int) else turn
+    return cv2.warpAffine(depth, M, (size, size), flags=cv2.INTER_NEAREST)
+
+
+def _turn(big: int, inplane: float, size: int) -> np.ndarray:
+    """The affine map of `rotate_crop`: a turn about the render's centre, shifted so the crop is the output."""
     c = (big - 1) / 2
-    M = cv2.getRotationMatrix2D((c, c), float(inplane), 1.0)  # positive = counter-clockwise in the image
-    M[:, 2] -= (big - size) / 2  # then shift so the crop is the output
-    rgb_out = cv2.warpAffine(rgb, M, (size, size), flags=cv2.INTER_LINEAR)
-    depth_out = cv2.warpAffine(depth, M, (size, size), flags=cv2.INTER_NEAREST)
-    return rgb_out, depth_out
+    # positive = counter-clockwise in the image
+    M = np.asarray(cv2.getRotationMatrix2D((c, c), float(inplane), 1.0), np.float64)
+    M[:, 2] -= (big - size) / 2
+    return M
 
 
 class RenderWorker:

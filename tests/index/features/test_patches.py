@@ -77,6 +77,16 @@ def test_rgb_zero_mean_unit_variance():
     assert np.allclose(normalise_rgb((rgb * 0.5 + 20).astype(np.uint8)), x, atol=0.05)
 
 
+def test_rgb_normalised_to_the_bit_as_numpy_std_gives():
+    """The registration's faster standard deviation is numpy's own, to the last bit (a flat patch too)."""
+    rng = np.random.default_rng(1)
+    rgb = rng.integers(0, 256, (7, 64, 64, 3), dtype=np.uint8)
+    rgb[0] = 0
+    x = np.moveaxis(rgb, -1, -3).astype(np.float32, order="C")
+    want = (x - x.mean(axis=(-2, -1), keepdims=True)) / (x.std(axis=(-2, -1), keepdims=True) + 1e-3 * 255)
+    assert np.array_equal(normalise_rgb(rgb), want)
+
+
 def test_surface_depth_ignores_far_background():
     d = np.full((64, 64), 2000.0)
     d[20:44, 20:44] = 980.0

@@ -35,6 +35,14 @@ def test_all_301_templates(renderer, l_shape):
     assert np.abs(t.rgb[0].astype(int) - t.rgb[150].astype(int)).mean() > 5
 
 
+def test_templates_without_colour_have_the_same_depth(renderer, l_shape):
+    """A depth model's templates skip turning the colour: their depth is the same to the bit."""
+    up = renderer.render_upright(l_shape, sphere_views(1, inplane=np.arange(0.0, 360.0, 30.0)))
+    both, depth_only = up.templates(), up.templates(colour=False)
+    assert np.array_equal(both.depth, depth_only.depth) and (both.depth > 0).any()
+    assert not depth_only.rgb.any() and both.rgb.any()
+
+
 def test_inplane_variant_equals_rolled_camera_render(renderer, l_shape):
     """A template turned in-plane is what a camera rolled by that angle sees."""
     v = View(60, 35, 30, 500)
