@@ -222,12 +222,16 @@ def _term(raw: object) -> Term | None:
 @dataclass(frozen=True)
 class Verdict:
     """Each match's confidence (None without a calibration of its score), when the best answer is rejected
-    why (None when it stands), and the best answer's statistic (`value`, None without answers), what a
-    later look at the frame adds to (`termed`)."""
+    why (None when it stands), and each match's statistic (`values`: the distance without a calibration),
+    the best's (`value`, None without answers) what a later look at the frame adds to (`termed`)."""
 
     confidences: list[float | None]
     reason: str | None
-    value: float | None = None
+    values: list[float] = field(default_factory=list)
+
+    @property
+    def value(self) -> float | None:
+        return self.values[0] if self.values else None
 
 
 def judge(
@@ -243,8 +247,16 @@ def judge(
     confidences = [None if calibration is None else calibration.confidence(v) for v in values]
     if not matches:
         return Verdict(confidences, "no object is registered")
+    return Verdict(confidences, reason_of(values[0], score, calibration, setting), values)
+
+
+def reason_of(
+    value: float, score: str, calibration: Calibration | None, setting: float | str | None = None
+) -> str | None:
+    """Why an answer whose statistic is `value` is rejected as the best (None when it stands): `judge`'s
+    verdict on an answer that comes first after the answers were judged (the depth's re-ordering)."""
     threshold = None if calibration is None else calibration.threshold
-    return Verdict(confidences, _reason(values[0], threshold, score, calibration, setting), values[0])
+    return _reason(value, threshold, score, calibration, setting)
 
 
 def termed(

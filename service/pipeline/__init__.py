@@ -54,7 +54,7 @@ from index.store import Snapshot
 from index.templates.register import TemplateConfig
 from index.templates.windows import window_classes
 from service.errors import ApiError
-from service.pipeline.answer import Result, answer, judged
+from service.pipeline.answer import Result, answer, judged, shown
 from service.pipeline.colours import Colours
 from service.pipeline.context import Context, Stage
 from service.pipeline.fit import PoseFit, Shapes, first
@@ -157,7 +157,7 @@ class Pipeline:
             if (fitted := self.fit(result, runs)) is not None:
                 result = fitted
                 spent[self.fit.name] = time.perf_counter() - t
-            result = first(result, q.k)
+            result = shown(first(result, q.k), d.embedder, self.settings.reject_above)
         for look in (self.colours, self.unexplained):
             t = time.perf_counter()
             if look is not None and (measured := look(result, runs)) is not None:

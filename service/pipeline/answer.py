@@ -28,7 +28,7 @@ from index.templates.surface import offset_of
 from service.pipeline.context import Context
 from service.pipeline.query import untextured
 from service.poses import match_pose
-from service.rejection import LISTED, judge, read_calibrations, served_score, termed
+from service.rejection import LISTED, judge, read_calibrations, reason_of, served_score, termed
 from service.settings import Settings
 
 
@@ -55,6 +55,9 @@ class Result:
     fits: list[Fit | None] = field(default_factory=list)
     #: the best answer's open-set statistic (`service.rejection.Verdict.value`; None without answers)
     statistic: float | None = None
+    #: per match, its open-set statistic (`service.rejection.Verdict.values`), which moves with it when the
+    #: depth re-orders the answers: the verdict is then the new best's (`shown`)
+    statistics: list[float] = field(default_factory=list)
     #: how far the frame's colours at the best answer's pose are from its object's, 0-2
     #: (`service.pipeline.colours`; None: not measured)
     colour_distance: float | None = None
@@ -142,7 +145,21 @@ def answer(runs: Sequence[Context], timings_ms: dict[str, float], settings: Sett
         verdict.reason,
         origins,
         statistic=verdict.value,
+        statistics=verdict.values[: ctx.query.k],
     )
+
+
+def shown(result: Result, embedder: Embedder, setting: float | str | None) -> Result:
+    """`result` judged on the answer it now shows first: after the depth's re-ordering (`service.pipeline.fit`)
+    the best answer may be another than the nearest, and the verdict is its own, on its own statistic (as
+    every answer's, its distance less the lead it has over the nearest answer of another object), which is
+    what the calibration measures on the answers as the service lists them (`evaluation.openset`). Before,
+    the verdict stayed the nearest answer's whatever was shown first. `setting`: `reject_above`."""
+    if not result.statistics or result.statistic == result.statistics[0]:
+        return result
+    calibration = read_calibrations(embedder.info.extra, embedder.path.name).get(result.score)
+    value = result.statistics[0]
+    return replace(result, statistic=value, reason=reason_of(value, result.score, calibration, setting))
 
 
 def rejudged(

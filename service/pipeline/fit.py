@@ -229,7 +229,8 @@ def reranked(result: Result, n: int, outlines: Sequence[Outline] = ()) -> Result
     for 67 %; re-ordered, 67 %; the first 20 re-ordered, 95 % (98 % with the open set off, with or without
     the area). The area took videos 0001 and 0002 from 76 and 73 % to 91 and 78 % (open set off), where
     partly hidden objects had been named after small ones posed on their faces (docs/experiments.md).
-    The open-set verdict stays the query's."""
+    Each answer's confidence and open-set statistic move with it; the verdict is then the new best's
+    (`service.pipeline.answer.shown`)."""
     n = min(n, len(result.matches), len(result.fits))
     # an object's least `beyond` among its answers: it tells one object from another, not one pose from another
     least: dict[int, float] = {}
@@ -254,6 +255,7 @@ def reranked(result: Result, n: int, outlines: Sequence[Outline] = ()) -> Result
         result,
         matches=pick(result.matches),
         confidences=pick(result.confidences),
+        statistics=pick(result.statistics),
         origins_mm=pick(result.origins_mm),
         fits=pick(result.fits),
     )
@@ -265,6 +267,7 @@ def first(result: Result, k: int) -> Result:
         result,
         matches=result.matches[:k],
         confidences=result.confidences[:k],
+        statistics=result.statistics[:k],
         origins_mm=result.origins_mm[:k],
         fits=result.fits[:k],
     )

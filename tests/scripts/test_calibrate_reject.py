@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from evaluation.openset import Answers, best_values, compare_filtered
+from evaluation.openset import Answers, at_least, best_values, compare_filtered
 from index.features.embed import Embedder
 from service.rejection import Calibration, read_calibrations
 
@@ -47,6 +47,20 @@ def test_the_best_answers_statistic_is_the_services(script):
     # object 1's patch: [1, 1] left of [1, 1, 3], as the run listed it; object 3's: [1] left, lead 0 (one
     # answer listed) where the run listed two more of object 1, lead 0.1: the stand-in is not exact here
     assert cmp["statistic_difference"]["median_abs"] == pytest.approx(0.05)
+
+
+def test_a_reordered_first_answer_is_read_against_the_nearest_others():
+    """A list the depth re-ordered (the answer listed first is not the nearest): its statistic is its distance
+    less its lead over the nearest answer of another object, none when one is nearer."""
+    ids = np.array([[3, 1, 3, 2], [1, 3, 1, -1]])
+    dist = np.array([[0.3, 0.2, 0.25, 0.6], [0.25, 0.3, 0.2, np.nan]])
+    assert best_values(ids, dist, LEAD) == pytest.approx([0.3, 0.25 - 0.05])
+
+
+def test_a_threshold_is_written_never_below_the_rule_s():
+    assert at_least(0.7880912) == 0.78810 and at_least(0.14937) == 0.14937 and at_least(0.123456) == 0.12346
+    rows = np.array([0.7880912] * 3 + [0.9])
+    assert (rows <= at_least(0.7880912)).sum() == 3  # rounded to the nearest, 0.78809 rejected all three
 
 
 def test_statistics_are_parsed_per_score_kind(script):
