@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from evaluation.calibration import fit_logistic, keep_threshold, rejection_curve
+from evaluation.calibration import at_least, auc, fit_logistic, keep_threshold, rejection_curve
 from evaluation.paper.samples import RENDERED, select_instances, served_data
 from evaluation.progress import bar
 from evaluation.queries import frame_files, query
@@ -295,17 +295,6 @@ def calibrate_term(
     return cal.with_term(measure, term), report
 
 
-def at_least(threshold: float, decimals: int = 5) -> float:
-    """`threshold` written with `decimals` decimals, never below it: the rule's threshold is the statistic of
-    an answer it keeps (`keep_threshold`), and rounded down it would reject that answer and every one alike
-    (the same patch answered alike in several registered sets: the rgb calibration of before rejected 8.45 %
-    of the registered validation patches under a rule of at most 8 %)."""
-    out = round(threshold, decimals)
-    while out < threshold:
-        out = round(out + 10.0**-decimals, decimals)
-    return out
-
-
 def _fitted(
     right: np.ndarray, wrong: np.ndarray, unknown: np.ndarray, rule: tuple[str, float]
 ) -> tuple[float, float, float, dict]:
@@ -394,7 +383,7 @@ def explore(a: Answers, kind: str) -> list[dict]:
             "worst_object": round(min(per), 4),
             "registered_rejected": round(float(np.mean(s[reg] > t)), 4),
             "right_rejected": round(float(np.mean(s[reg & right] > t)), 4),
-            "auc": round(_auc(s[~reg], s[reg]), 4),
+            "auc": round(auc(s[~reg], s[reg]), 4),
         })  # fmt: skip
     return sorted(rows, key=lambda r: -r["unknown_rejected"])
 
@@ -404,14 +393,6 @@ def _nearest_other(ids: np.ndarray, dist: np.ndarray) -> np.ndarray:
     differ = (ids != ids[:, :1]) & (ids >= 0)
     first = dist[np.arange(len(ids)), np.argmax(differ, 1)]
     return np.where(differ.any(1), first, np.nanmax(dist, 1))
-
-
-def _auc(high: np.ndarray, low: np.ndarray) -> float:
-    """P(a `high` score above a `low` one), ties half."""
-    low = np.sort(low)
-    below = np.searchsorted(low, high, "left")
-    ties = np.searchsorted(low, high, "right") - below
-    return float((below + ties / 2).sum() / (len(high) * len(low)))
 
 
 def compare_filtered(a: Answers, kind: str, stat: Calibration) -> dict:

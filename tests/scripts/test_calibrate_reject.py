@@ -7,7 +7,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from evaluation.openset import Answers, at_least, best_values, compare_filtered
+from evaluation.calibration import at_least
+from evaluation.openset import Answers, best_values, compare_filtered
 from index.features.embed import Embedder
 from service.rejection import Calibration, read_calibrations
 
