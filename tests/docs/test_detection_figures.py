@@ -108,3 +108,12 @@ def test_the_probe_by_extent() -> None:
             "(`detect36-val-extent-tolerant.json` against `detect36-val-shipped.json`)",
         ],
     )
+
+
+def test_the_readme_s_rgbd_whole_frame_figures_are_detect_test_rgbd() -> None:
+    """The detection table's note gives the RGB-D whole frames' recall and precision as text
+    (`scripts/readme_tables.py`): they are those of the run it cites."""
+    run = result("detect-test-rgbd.json")
+    a, false = run["posedesc"]["all"], run["false_alarms"]["posedesc"]["detections_per_frame"]
+    said = f"recall {pct(a['recall'])}, precision {pct(a['precision'])}, {false:g} false detections a frame"
+    assert not missing(doc("README.md"), [said])
