@@ -221,3 +221,18 @@ def expected_templates(models: Path, modality: str, viewpoints: int = 71) -> int
 
     step = Embedder(models / f"posedesc-{modality}.onnx").info.inplane_step
     return viewpoints * (int(round(360.0 / step)) if step > 0 else 1)
+
+
+def calibrated(models: Path, folder: Path, modality: str, calibrations: dict):
+    """The test `modality` model of `models`, copied into `folder` with `calibrations` (score kind ->
+    `service.rejection.Calibration`) as its open-set metadata, as `scripts/calibrate_reject.py` writes it."""
+    import json
+
+    from evaluation.calibration import write_metadata
+    from index.features.embed import Embedder
+    from service.rejection import REJECT_KEY
+
+    name = f"posedesc-{modality}.onnx"
+    payload = json.dumps({kind: cal.to_json() for kind, cal in calibrations.items()})
+    write_metadata(models / name, folder / name, {REJECT_KEY: payload})
+    return Embedder(folder / name)

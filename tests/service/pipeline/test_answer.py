@@ -5,12 +5,9 @@ threshold the service applies."""
 
 from __future__ import annotations
 
-import json
-import shutil
-
 import numpy as np
-import onnx
 import pytest
+from service_helpers import calibrated
 
 from evaluation.openset import best_values
 from index.features.embed import Embedder
@@ -18,7 +15,7 @@ from index.refine.fit import Fit
 from index.store import Match
 from service.pipeline.answer import Result, shown
 from service.pipeline.fit import first, reranked
-from service.rejection import REJECT_KEY, Calibration, judge
+from service.rejection import Calibration, judge
 
 #: rejects a best answer whose distance less its lead over the nearest other object is above 0.25
 CAL = Calibration("descriptor", 0.25, 30.0, 0.25, statistic="lead", weight=0.5)
@@ -26,13 +23,7 @@ CAL = Calibration("descriptor", 0.25, 30.0, 0.25, statistic="lead", weight=0.5)
 
 @pytest.fixture(scope="module")
 def embedder(posedesc_models, tmp_path_factory) -> Embedder:
-    folder = tmp_path_factory.mktemp("judged-models")
-    model = folder / "posedesc-depth.onnx"
-    shutil.copy(posedesc_models / "posedesc-depth.onnx", model)
-    proto = onnx.load(str(model))
-    proto.metadata_props.add(key=REJECT_KEY, value=json.dumps({"descriptor": CAL.to_json()}))
-    onnx.save(proto, str(model))
-    return Embedder(model)
+    return calibrated(posedesc_models, tmp_path_factory.mktemp("judged-models"), "depth", {"descriptor": CAL})
 
 
 def judged(distances: list[tuple[int, float]], explained: list[float]) -> Result:

@@ -4,14 +4,12 @@ the object in it has the named object's shape with its own colours or with other
 
 from __future__ import annotations
 
-import json
-import shutil
 from dataclasses import replace
 
 import numpy as np
-import onnx
 import pytest
 import trimesh
+from service_helpers import calibrated
 
 from index.features.embed import Embedder
 from index.refine.chroma import SurfaceColours
@@ -21,7 +19,7 @@ from service.pipeline.answer import Result
 from service.pipeline.colours import Colours
 from service.pipeline.context import Context
 from service.pipeline.query import Decoded, Query
-from service.rejection import REJECT_KEY, Calibration, Term
+from service.rejection import Calibration, Term
 
 K = np.array([[572.4, 0.0, 325.3], [0.0, 573.6, 242.0], [0.0, 0.0, 1.0]])
 #: the object tilted towards the camera, 600 mm away
@@ -34,14 +32,8 @@ COLOUR = Term(weight=1.0, threshold=0.3, slope=10.0, midpoint=0.2)
 def embedder(posedesc_models, tmp_path_factory) -> Embedder:
     """The test rgb model with a descriptor calibration whose colour term rejects at 0.3 (its statistic's
     own threshold, 10, rejects nothing)."""
-    folder = tmp_path_factory.mktemp("coloured-models")
-    model = folder / "posedesc-rgb.onnx"
-    shutil.copy(posedesc_models / "posedesc-rgb.onnx", model)
-    proto = onnx.load(str(model))
     cal = Calibration("descriptor", 10.0, 10.0, 5.0, colour=COLOUR)
-    proto.metadata_props.add(key=REJECT_KEY, value=json.dumps({"descriptor": cal.to_json()}))
-    onnx.save(proto, str(model))
-    return Embedder(model)
+    return calibrated(posedesc_models, tmp_path_factory.mktemp("coloured-models"), "rgb", {"descriptor": cal})
 
 
 def frame(renderer, mesh: trimesh.Trimesh) -> np.ndarray:

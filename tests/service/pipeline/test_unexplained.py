@@ -5,14 +5,12 @@ object where the answer puts it."""
 
 from __future__ import annotations
 
-import json
-import shutil
 from dataclasses import replace
 
 import numpy as np
-import onnx
 import pytest
 import trimesh
+from service_helpers import calibrated
 
 from index.features.embed import Embedder
 from index.refine.depth import DepthModel, score_of, unexplained_of
@@ -22,7 +20,7 @@ from service.pipeline.answer import Result
 from service.pipeline.context import Context
 from service.pipeline.query import Decoded, Query
 from service.pipeline.unexplained import Unexplained
-from service.rejection import REJECT_KEY, Calibration, Term
+from service.rejection import Calibration, Term
 
 K = np.array([[572.4, 0.0, 325.3], [0.0, 573.6, 242.0], [0.0, 0.0, 1.0]])
 #: the object tilted towards the camera, 600 mm away
@@ -35,14 +33,8 @@ FIT = Term(weight=1.0, threshold=0.5, slope=10.0, midpoint=0.4)
 def embedder(posedesc_models, tmp_path_factory) -> Embedder:
     """The test depth model with a descriptor calibration whose fit term rejects above 0.5 (its statistic's
     own threshold, 10, rejects nothing)."""
-    folder = tmp_path_factory.mktemp("fitted-models")
-    model = folder / "posedesc-depth.onnx"
-    shutil.copy(posedesc_models / "posedesc-depth.onnx", model)
-    proto = onnx.load(str(model))
     cal = Calibration("descriptor", 10.0, 10.0, 5.0, statistic="lead", weight=0.5, fit=FIT)
-    proto.metadata_props.add(key=REJECT_KEY, value=json.dumps({"descriptor": cal.to_json()}))
-    onnx.save(proto, str(model))
-    return Embedder(model)
+    return calibrated(posedesc_models, tmp_path_factory.mktemp("fitted-models"), "depth", {"descriptor": cal})
 
 
 def depth_of(renderer, *placed: tuple[trimesh.Trimesh, np.ndarray, np.ndarray]) -> np.ndarray:
