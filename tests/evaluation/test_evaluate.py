@@ -15,6 +15,9 @@ from evaluation.run import evaluate
 from posedesc.cli import main
 from tests.evaluation.conftest import N_FRAMES
 
+# the session's tiny BOP dataset and untrained models: made once, on one worker
+pytestmark = pytest.mark.xdist_group("tiny-bop")
+
 
 def check_table(table: dict) -> None:
     assert set(table) == {f"k{k}" for k in range(1, 23)}

@@ -17,6 +17,9 @@ from evaluation.rolls import RolledFrames, homography, inside, parse_rolls, roll
 from index.data.bop import BopDataset
 from posedesc.cli import main
 
+# the session's tiny BOP dataset and untrained models: made once, on one worker
+pytestmark = pytest.mark.xdist_group("tiny-bop")
+
 
 def _iou(a: np.ndarray, b: np.ndarray) -> float:
     return float((a & b).sum() / max((a | b).sum(), 1))

@@ -21,6 +21,8 @@ from service_helpers import ROOT, Server, expected_templates, free_port, patch_f
 
 from index.templates.register import TemplateConfig, template_views
 
+pytestmark = pytest.mark.xdist_group("faults")  # the module's fixture made once, on one worker
+
 ENV = {"POSEDESC_LEVEL": "1", "POSEDESC_SYNC_SECONDS": "0"}  # short registrations, all answered 202
 VIEWS = len(template_views("none", TemplateConfig(level=1)))  # 16 templates per object and model
 MODELS = ("rgb", "depth", "rgbd")

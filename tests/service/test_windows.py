@@ -15,6 +15,8 @@ from index.templates.mesh import diameter
 from index.templates.windows import window_class
 from service.main import create_app
 
+pytestmark = pytest.mark.xdist_group("windows")  # the module's fixtures made once, on one worker
+
 UV = (330.0, 250.0)
 
 

@@ -17,6 +17,8 @@ from service.recognition import recognise
 from service.settings import Settings
 from service.state import close_state, load_state
 
+pytestmark = pytest.mark.xdist_group("pipeline-mask")  # the module's exported model made once, on one worker
+
 
 @pytest.fixture(scope="module")
 def rgbd_masked(tmp_path_factory):

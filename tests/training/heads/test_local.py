@@ -28,6 +28,8 @@ from training.render_cache import build
 from training.similarity import pose_distances
 from training.trunk import Trunk
 
+pytestmark = pytest.mark.xdist_group("heads-local")  # the module's fixture made once, on one worker
+
 
 @pytest.fixture(scope="module")
 def shapes() -> TrainingData:

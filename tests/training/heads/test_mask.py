@@ -22,6 +22,8 @@ from training.heads.mask import (
 )
 from training.render_cache import build
 
+pytestmark = pytest.mark.xdist_group("heads-mask")  # the module's fixture made once, on one worker
+
 
 @pytest.fixture(scope="module")
 def shapes() -> TrainingData:
