@@ -14,6 +14,9 @@ answers), and a logistic fit of "the best answer is the right object" on it give
 into the model's `reject_above` metadata with the settings the answers were made with: only
 `metadata_props` is rewritten (the onnx package), the graph and weights are left byte for byte as they were.
 The answers are kept in `--cache` (out/openset), read again while the frames, sets and settings are the same.
+With `--leave-one-video-out` (a dataset of videos, such as YCB-V's), every video is measured with the
+calibration chosen on the others and the JSON's test figures are the mean over the videos
+(`evaluation.videos`); the calibration written (`--out`) is chosen on every video.
 
 The JSON (docs/results/reject-<model>.json) also holds, on validation, the statistics tried (`explore`: the
 unregistered objects' patches rejected where at most 10 % of the registered ones are) and how one collection
@@ -28,7 +31,9 @@ from __future__ import annotations
 
 import argparse
 import json
+import shutil
 import sys
+from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 
@@ -52,6 +57,7 @@ from evaluation.openset import (  # noqa: E402
     term_of,
 )
 from evaluation.splits import split_frames  # noqa: E402
+from evaluation.videos import mean_of, of_videos  # noqa: E402
 from index.data.bop import BopDataset  # noqa: E402
 from index.features.embed import Embedder  # noqa: E402
 from posedesc.commands.evaluate import parse_ids  # noqa: E402
@@ -94,15 +100,20 @@ def picture(report: dict, path: Path) -> None:
         )
         row[0].set_title(f"validation frames ({kind}): best answers' scores")
         row[0].legend(fontsize=8)
-        for n, by in test.get("by_registered", {}).items():
-            if not by["n_unknown"]:
-                continue  # every object registered: no unknowns to reject
-            c = by["curve"]
-            row[1].plot(c["rejected_unknown"], c["recall"], label=f"{n} registered")
-            row[1].plot(by["rejected_unknown"], 1 - by["rejected_right"], "ko", ms=4)
+        # left one video out: each video's curve, with the threshold chosen on the others
+        videos = report.get("leave_one_video_out", {})
+        blocks = {f"video {v}, ": p["test"][kind] for v, p in videos.items()} or {"": test}
+        for said, block in blocks.items():
+            for n, by in block.get("by_registered", {}).items():
+                if not by["n_unknown"] or "curve" not in by:
+                    continue  # every object registered: no unknowns to reject
+                c = by["curve"]
+                row[1].plot(c["rejected_unknown"], c["recall"], label=f"{said}{n} registered")
+                row[1].plot(by["rejected_unknown"], 1 - by["rejected_right"], "ko", ms=4)
         row[1].set_xlabel("patches of unregistered objects rejected")
         row[1].set_ylabel("right answers kept")
-        row[1].set_title(f"test frames ({kind}); dots: the calibrated threshold")
+        title = "each video, set on the others" if videos else "test frames"
+        row[1].set_title(f"{title} ({kind}); dots: the calibrated threshold")
         row[1].grid(alpha=0.3)
         row[1].legend(fontsize=8)
     fig.tight_layout()
@@ -159,6 +170,68 @@ def statistics(given: list[str]) -> dict[str, tuple[str, float]]:
     return out
 
 
+def fitted(
+    a: Answers,
+    kind: str,
+    chosen: dict[str, tuple[str, float]],
+    weights: dict[str, dict[str, float]],
+    shipped: dict[str, Calibration],
+    rule: tuple[str, float],
+) -> tuple[Calibration, dict]:
+    """One score kind's calibration on `a` (its statistic as `--statistic` says, or the shipped one's) by
+    `rule`, with its colour or fit term where one is asked for or shipped; and its report."""
+    name, weight = chosen.get(kind, chosen.get("", ("distance", 0.0)))
+    stat = Calibration(kind, 0.0, 0.0, 0.0, statistic=name, weight=weight)
+    cal, rep = calibrate(a, shipped.get(kind) or stat, rule, "val")
+    asked, weighed = term_asked(weights, kind, shipped.get(kind))
+    if asked is not None and weighed:
+        plain = rep
+        cal, rep = calibrate_term(a, cal, asked, weighed, rule)
+        rep["without_term"] = {"threshold": cal.threshold, "at_threshold": plain["at_threshold"]}
+    return cal, rep
+
+
+#: what `held_out` prints of each video: with the fewest objects registered (some left out)
+SAID = ("rejected_unknown", "rejected_registered")
+
+
+def held_out(
+    args: argparse.Namespace,
+    a: Answers,
+    sets: list[list[int]],
+    fit: Callable[[Answers, str], tuple[Calibration, dict]],
+    describe: Callable[[Calibration, list[int]], dict],
+) -> tuple[dict, dict]:
+    """`--leave-one-video-out`: each video measured with the calibration `fit` chooses on the others (and,
+    with `--held-out-models`, that calibration written into DIR/<video>/<model file>, beside copies of the
+    other models of its folder: a models folder to evaluate that video with); per video, and the mean over
+    them by score kind (`evaluation.videos.mean_of`)."""
+    per_video: dict[int, dict] = {}
+    for video in sorted(set(a.scene)):
+        others = sorted(set(a.scene) - {video})
+        train, test = of_videos(a, others), of_videos(a, [video])
+        cals = {kind: fit(train, kind)[0] for kind in a.kinds}
+        per_video[video] = {
+            "calibrated_on": others,
+            "thresholds": {k: decision_threshold(c) for k, c in cals.items()},
+            "test": {k: measure(test, c, sets, args.fold) for k, c in cals.items()},
+        }
+        if args.held_out_models is not None:
+            out = args.held_out_models / f"{video:06d}" / args.model.name
+            out.parent.mkdir(parents=True, exist_ok=True)
+            write_metadata(args.model, out, {k: describe(c, others) for k, c in cals.items()})
+            for beside in args.model.parent.glob(
+                "posedesc-*.onnx"
+            ):  # a models folder: the others as they are
+                if beside.name != args.model.name:
+                    shutil.copyfile(beside, out.parent / beside.name)
+        print(f"video {video:06d}, calibrated on {others}: " + json.dumps({
+            k: {x: b["by_registered"][min(b["by_registered"], key=int)].get(x) for x in SAID}
+            for k, b in per_video[video]["test"].items()}))  # fmt: skip
+    mean = {k: mean_of({v: p["test"][k] for v, p in per_video.items()}) for k in a.kinds}
+    return {str(v): p for v, p in per_video.items()}, mean
+
+
 def frames_of(args: argparse.Namespace, meta: dict[str, str]) -> tuple[list[int] | None, list[int] | None]:
     """(validation, test) frames: with `--video-split`, every frame (None) of the validation video and of
     the others; else the model's `split_frames`, or those of `--splits-from` (a model trained with the same
@@ -176,13 +249,16 @@ def frames_of(args: argparse.Namespace, meta: dict[str, str]) -> tuple[list[int]
 
 
 def scenes_of(args: argparse.Namespace, split: str) -> list[int]:
-    """The split's scenes: with `--video-split V`, V for validation and the dataset's other scenes for
-    test (consecutive frames of a video are near-duplicates: a video is in one split only); else `--scene`."""
+    """The split's scenes: with `--video-split V` (a scene, or several: `0,1`), V for validation and the
+    dataset's other scenes for test (consecutive frames of a video are near-duplicates: a video is in one
+    split only; none left: no test); else `--scene`."""
     if args.video_split is None:
         return [args.scene]
+    chosen = [int(x) for x in str(args.video_split).split(",") if x.strip()]
     scenes = [int(d.name) for d in BopDataset(args.dataset).scene_dirs() if d.name.isdigit()]
-    others = [s for s in scenes if s != args.video_split]
-    return [args.video_split] if split == "val" else others
+    if missing := sorted(set(chosen) - set(scenes)):
+        sys.exit(f"error: --video-split: no scene {missing[0]} in {args.dataset}")
+    return chosen if split == "val" else [s for s in scenes if s not in chosen]
 
 
 def answers(args: argparse.Namespace, split: str, frames: list[int] | None, sets: list[list[int]]) -> Answers:
@@ -227,8 +303,15 @@ def main() -> None:
     ap.add_argument("--per-size", type=int, default=3, help="test: random registered sets per size")
     ap.add_argument("--no-test", action="store_true", help="calibrate only")
     ap.add_argument("--collect-only", action="store_true", help="collect (or read) the answers, no more")
-    ap.add_argument("--video-split", type=int, default=None, metavar="SCENE",
-                    help="validate on this scene (a video), test on the dataset's others; not --scene")  # fmt: skip
+    ap.add_argument("--video-split", default=None, metavar="SCENES",
+                    help="validate on these scenes (videos, e.g. 0 or 0,1), test on the dataset's others; "
+                    "not --scene")  # fmt: skip
+    ap.add_argument("--leave-one-video-out", action="store_true",
+                    help="every video (scene) measured with the calibration chosen on the others (the JSON's "
+                    "test: the mean over the videos); the one written (--out) is chosen on them all")  # fmt: skip
+    ap.add_argument("--held-out-models", type=Path, default=None, metavar="DIR",
+                    help="with --leave-one-video-out: DIR/<video>/, the model calibrated without that video beside "
+                    "the other models of its folder")  # fmt: skip
     ap.add_argument("--fold", type=int, default=1, help="objects left out at once (each object once)")
     ap.add_argument("--shipped", action="store_true",
                     help="fit nothing: measure the model's own calibration on both splits")  # fmt: skip
@@ -271,6 +354,19 @@ def main() -> None:
         sys.exit(f"--colour-weight and --fit-weight: one term a score kind ({both[0]} has both)")
     if not 0 <= args.reject_registered < 1:
         sys.exit("--reject-registered: a share in [0, 1)")
+    if args.leave_one_video_out:
+        if args.video_split is not None or args.shipped:
+            sys.exit(
+                "--leave-one-video-out chooses the videos itself and fits: not with --video-split or --shipped"
+            )
+        scenes = [d.name for d in BopDataset(args.dataset).scene_dirs() if d.name.isdigit()]
+        if len(scenes) < 2:
+            sys.exit(
+                f"--leave-one-video-out: {args.dataset} has {len(scenes)} video(s); it needs two or more"
+            )
+        args.video_split = ",".join(str(int(x)) for x in scenes)  # every video validates; each in turn tests
+    elif args.held_out_models is not None:
+        sys.exit("--held-out-models: only with --leave-one-video-out")
     if args.shipped and args.out is not None:
         sys.exit("--shipped measures the model's own calibration: it writes no model (--out)")
     if not 1 <= args.fold < len(BopDataset(args.dataset).obj_ids):
@@ -287,7 +383,8 @@ def main() -> None:
     val_sets = registered_sets(objects, [], 0, args.seed, args.fold)
     test_sets = registered_sets(objects, sizes, args.per_size, args.seed, args.fold)
     a = answers(args, "val", val, val_sets)
-    t = answers(args, "test", test, test_sets) if test != [] and not args.no_test else None
+    tested = test != [] and not args.no_test and (args.video_split is None or scenes_of(args, "test"))
+    t = answers(args, "test", test, test_sets) if tested else None
     if args.collect_only:
         return
     rule = ("right", args.keep_right) if args.keep_right else ("registered", args.reject_registered)
@@ -306,14 +403,7 @@ def main() -> None:
     }  # fmt: skip
     metadata = {}
     for kind in a.kinds:
-        name, weight = chosen.get(kind, chosen.get("", ("distance", 0.0)))
-        stat = Calibration(kind, 0.0, 0.0, 0.0, statistic=name, weight=weight)
-        cal, rep = calibrate(a, shipped.get(kind) or stat, rule, "val")
-        asked, weighed = term_asked(weights, kind, shipped.get(kind))
-        if asked is not None and weighed:
-            plain = rep
-            cal, rep = calibrate_term(a, cal, asked, weighed, rule)
-            rep["without_term"] = {"threshold": cal.threshold, "at_threshold": plain["at_threshold"]}
+        cal, rep = fitted(a, kind, chosen, weights, shipped, rule)
         if args.shipped:  # nothing fitted: the validation frames are measured like the test frames
             cal = shipped[kind]
             rep["at_threshold"] = measure(a, cal, val_sets, args.fold)["by_registered"]
@@ -336,6 +426,24 @@ def main() -> None:
             report["test"][kind] = measure(t, cal, test_sets, args.fold)
             for o, by in report["test"][kind]["per_unregistered_object"].items():
                 print(f"{kind} test, object {o} unregistered: {json.dumps(by)}")
+    if args.leave_one_video_out:
+
+        def describe(cal: Calibration, videos: list[int]) -> dict:
+            on = f"{args.dataset.resolve().name}/" + "+".join(f"{v:06d}" for v in videos)
+            cal = replace(cal, graph=embedder.graph_digest)
+            return {
+                **cal.to_json(),
+                "dataset": on,
+                "objects": len(objects),
+                "rule": report["rule"],
+                "data": a.data,
+            }
+
+        def fit(x: Answers, kind: str) -> tuple[Calibration, dict]:
+            return fitted(x, kind, chosen, weights, shipped, rule)
+
+        report["leave_one_video_out"], report["test"] = held_out(args, a, val_sets, fit, describe)
+        test_sets = val_sets
     report["test_sets"] = test_sets
     json_path = args.json or ROOT / "docs" / "results" / f"reject-{stem}.json"
     json_path.parent.mkdir(parents=True, exist_ok=True)

@@ -4,6 +4,9 @@ it was."""
 
 from __future__ import annotations
 
+import argparse
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -81,3 +84,61 @@ def test_the_calibration_goes_into_the_metadata_only(script, posedesc_models, tm
     assert onnx.load(str(out)).graph.SerializeToString() == onnx.load(str(model)).graph.SerializeToString()
     written = read_calibrations(Embedder(out).info.extra)["descriptor"]
     assert written == cal and written.settings == {"level": 3}
+
+
+def test_a_video_split_validates_on_the_videos_named_and_tests_on_the_rest(script, tmp_path):
+    """`--video-split 0,1`: leave-one-video-out, the threshold chosen on two videos and measured on the
+    third; every video named: no test; a video the dataset lacks: a one-line error."""
+    (tmp_path / "models").mkdir()
+    (tmp_path / "models" / "models_info.json").write_text("{}")
+    for s in (0, 1, 2):
+        (tmp_path / "test" / f"{s:06d}").mkdir(parents=True)
+        (tmp_path / "test" / f"{s:06d}" / "scene_gt.json").write_text("{}")
+    scenes_of = script("calibrate_reject").scenes_of
+
+    def split(v: str | None) -> tuple[list[int], list[int]]:
+        args = argparse.Namespace(video_split=v, dataset=tmp_path, scene=2)
+        return scenes_of(args, "val"), scenes_of(args, "test")
+
+    assert split("0") == ([0], [1, 2])
+    assert split("0,2") == ([0, 2], [1])
+    assert split("0,1,2") == ([0, 1, 2], [])
+    assert split(None) == ([2], [2])
+    with pytest.raises(SystemExit, match="no scene 5"):
+        split("1,5")
+
+
+def test_each_video_is_measured_with_the_calibration_chosen_on_the_others(script, posedesc_models, tmp_path):
+    """`--leave-one-video-out`: the fit sees the other videos' rows only, each video is measured alone, and
+    `--held-out-models` gets the model calibrated without that video, its graph unchanged."""
+    import onnx
+
+    a = answers()
+    a.scene = [0, 1, 0, 1]  # video 0: object 1 in both runs; video 1: object 3, registered and then not
+    seen: list[list[int]] = []
+
+    def fit(x: Answers, kind: str) -> tuple[Calibration, dict]:
+        seen.append(sorted(set(x.scene)))
+        return replace(LEAD, threshold=0.25 if x.scene[0] == 1 else 0.05), {}
+
+    def describe(cal: Calibration, videos: list[int]) -> dict:
+        return {**cal.to_json(), "dataset": "+".join(map(str, videos))}
+
+    model = tmp_path / "posedesc-rgb.onnx"
+    model.write_bytes((posedesc_models / "posedesc-rgb.onnx").read_bytes())
+    beside = tmp_path / "posedesc-depth.onnx"  # another model of its folder: copied as it is
+    beside.write_bytes((posedesc_models / "posedesc-depth.onnx").read_bytes())
+    args = argparse.Namespace(fold=1, held_out_models=tmp_path / "held", model=model)
+    per_video, mean = script("calibrate_reject").held_out(args, a, [[1, 3], [1]], fit, describe)
+    assert seen == [[1], [0]]  # video 0 is measured with the calibration of video 1, and the other way
+    assert per_video["0"]["calibrated_on"] == [1] and per_video["0"]["thresholds"] == {"local": 0.25}
+    assert per_video["1"]["thresholds"] == {"local": 0.05}
+    assert per_video["0"]["test"]["local"]["per_unregistered_object"].keys() == {"1"}
+    unknown = per_video["1"]["test"]["local"]["per_unregistered_object"]["3"]
+    assert unknown["n"] == 1 and unknown["n_registered"] == 0  # run 1, object 3 unregistered: video 1's alone
+    assert mean["local"]["videos"] == [0, 1]
+    for video, threshold in (("000000", 0.25), ("000001", 0.05)):
+        written = read_calibrations(Embedder(tmp_path / "held" / video / model.name).info.extra)["local"]
+        assert written.threshold == threshold
+    assert onnx.load(str(tmp_path / "held" / "000000" / model.name)).graph == onnx.load(str(model)).graph
+    assert (tmp_path / "held" / "000001" / beside.name).read_bytes() == beside.read_bytes()
