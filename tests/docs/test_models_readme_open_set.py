@@ -152,7 +152,7 @@ def test_the_calibrations() -> None:
             f"{settings['refine_rounds']}, mask_coverage {settings['mask_coverage']:g}:",
             f"(the rgb model's `split_frames`, {len(rgb['frames']['val'])} frames, "
             f"{rgb['calibrations']['local']['n']['unknown']} instances)",
-            f"set on the real video ({num(real['threshold'], 3)})",
+            f"set on the real videos ({num(real['threshold'], 3)};",
             "**The threshold**: rejecting at most 8 % of the registered objects' validation patches",
             f"the shipped statistic is now the lead, threshold {num(rgb['calibrations']['local']['threshold'], 3)},",
         ],

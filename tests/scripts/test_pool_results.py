@@ -13,7 +13,7 @@ RESULTS = ROOT / "docs" / "results"
 
 
 def test_the_pooled_ycbv_results_are_the_committed_ones(tmp_path, script) -> None:
-    runs = [RESULTS / f"ycbv-service-depth-{s}-rerank.json" for s in range(3)]
+    runs = [RESULTS / f"ycbv-service-depth-{s}-lovo.json" for s in range(3)]
     out = tmp_path / "pooled.json"
     assert script("pool_results").main([*map(str, runs), "--json", str(out)]) == 0
     now, committed = (
@@ -29,7 +29,7 @@ def test_the_pooled_ycbv_results_are_the_committed_ones(tmp_path, script) -> Non
 
 
 def test_the_pooled_ycbv_detections_are_made_again_from_the_counts(tmp_path, script) -> None:
-    runs = [RESULTS / f"ycbv-detect-rgbd-{s}.json" for s in range(3)]
+    runs = [RESULTS / f"ycbv-detect-rgbd-{s}-lovo.json" for s in range(3)]
     out = tmp_path / "pooled.json"
     assert script("pool_results").main([*map(str, runs), "--json", str(out)]) == 0
     now = json.loads(out.read_text())
