@@ -57,7 +57,7 @@ YCBV_REJECT = (
     f"--held-out-models out/lovo --out models/posedesc-depth.onnx --json {RESULT}reject-posedesc-depth-real.json "
     "--picture docs/reject-posedesc-depth-real.png"
 )
-YCBV_UNKNOWN = "depth, **real depth** (YCB-V, each video set on the other two): 3 of 12 objects unregistered"
+YCBV_UNKNOWN = "depth, **real depth** (YCB-V, each video set on the others): 3 of 12 unregistered at a time"
 # Real depth: YCB-V's 3 videos, one `posedesc evaluate --scene S` run each, pooled (`scripts/pool_results.py`)
 POOL = "PYTHONPATH=. .venv/bin/python scripts/pool_results.py"
 

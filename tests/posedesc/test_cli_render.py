@@ -80,6 +80,7 @@ def test_render_refuses_an_object_no_template_shows(tmp_path, l_shape):
     assert "invisible in every template" in r.stderr and not (tmp_path / "o").exists()
 
 
+@pytest.mark.slow  # 4.5-5.2 s: a CLI run that renders and registers, then a real service answers
 def test_render_patches_writes_queries_the_service_answers(tmp_path, l_shape):
     """`--patches`: per view a frame and a patch, colour and 16-bit depth in mm, and a JSON to send with
     them; sent to the service with the mesh registered beside another object, the answer is that mesh
