@@ -220,9 +220,8 @@ def held_out(
             out = args.held_out_models / f"{video:06d}" / args.model.name
             out.parent.mkdir(parents=True, exist_ok=True)
             write_metadata(args.model, out, {k: describe(c, others) for k, c in cals.items()})
-            for beside in args.model.parent.glob(
-                "posedesc-*.onnx"
-            ):  # a models folder: the others as they are
+            # a models folder: the model's neighbours copied as they are
+            for beside in args.model.parent.glob("posedesc-*.onnx"):
                 if beside.name != args.model.name:
                     shutil.copyfile(beside, out.parent / beside.name)
         print(f"video {video:06d}, calibrated on {others}: " + json.dumps({
@@ -369,6 +368,8 @@ def main() -> None:
         sys.exit("--held-out-models: only with --leave-one-video-out")
     if args.shipped and args.out is not None:
         sys.exit("--shipped measures the model's own calibration: it writes no model (--out)")
+    if args.out is not None and not args.out.parent.is_dir():
+        sys.exit(f"--out: no folder {args.out.parent}")
     if not 1 <= args.fold < len(BopDataset(args.dataset).obj_ids):
         sys.exit("--fold: at least 1, fewer than the dataset's objects")
     embedder = Embedder(args.model)

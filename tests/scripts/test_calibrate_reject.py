@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import argparse
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -86,14 +87,19 @@ def test_the_calibration_goes_into_the_metadata_only(script, posedesc_models, tm
     assert written == cal and written.settings == {"level": 3}
 
 
+def videos(root: Path) -> None:
+    """A BOP dataset of three videos (scenes 0, 1, 2), no objects or frames: enough to split."""
+    (root / "models").mkdir()
+    (root / "models" / "models_info.json").write_text("{}")
+    for s in (0, 1, 2):
+        (root / "test" / f"{s:06d}").mkdir(parents=True)
+        (root / "test" / f"{s:06d}" / "scene_gt.json").write_text("{}")
+
+
 def test_a_video_split_validates_on_the_videos_named_and_tests_on_the_rest(script, tmp_path):
     """`--video-split 0,1`: leave-one-video-out, the threshold chosen on two videos and measured on the
     third; every video named: no test; a video the dataset lacks: a one-line error."""
-    (tmp_path / "models").mkdir()
-    (tmp_path / "models" / "models_info.json").write_text("{}")
-    for s in (0, 1, 2):
-        (tmp_path / "test" / f"{s:06d}").mkdir(parents=True)
-        (tmp_path / "test" / f"{s:06d}" / "scene_gt.json").write_text("{}")
+    videos(tmp_path)
     scenes_of = script("calibrate_reject").scenes_of
 
     def split(v: str | None) -> tuple[list[int], list[int]]:
@@ -142,3 +148,30 @@ def test_each_video_is_measured_with_the_calibration_chosen_on_the_others(script
         assert written.threshold == threshold
     assert onnx.load(str(tmp_path / "held" / "000000" / model.name)).graph == onnx.load(str(model)).graph
     assert (tmp_path / "held" / "000001" / beside.name).read_bytes() == beside.read_bytes()
+
+
+@pytest.mark.parametrize(
+    "extra, says",
+    [
+        (["--held-out-models", "held"], "--held-out-models: only with --leave-one-video-out"),
+        (["--leave-one-video-out", "--video-split", "0"], "not with --video-split or --shipped"),
+        (["--leave-one-video-out", "--out", "nowhere/posedesc-rgb.onnx"], "--out: no folder nowhere"),
+    ],
+)
+def test_what_a_left_out_video_cannot_be_is_one_line(
+    script, posedesc_models, tmp_path, monkeypatch, extra, says
+):
+    """Options that do not go together, or a model written nowhere, stop the script in one line before any
+    answer is collected."""
+    videos(tmp_path)
+    argv = [
+        "calibrate_reject",
+        str(posedesc_models / "posedesc-rgb.onnx"),
+        "--dataset",
+        str(tmp_path),
+        *extra,
+    ]
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr("sys.argv", argv)
+    with pytest.raises(SystemExit, match=says):
+        script("calibrate_reject").main()
