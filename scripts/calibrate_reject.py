@@ -391,7 +391,11 @@ def main() -> None:
     rule = ("right", args.keep_right) if args.keep_right else ("registered", args.reject_registered)
     stem = args.model.stem + (f"-{args.dataset.resolve().name}" if args.video_split is not None else "")
     stem += "-shipped" if args.shipped else ""
-    dataset = f"{args.dataset.resolve().name}/" + "+".join(f"{s:06d}" for s in scenes_of(args, "val"))
+
+    def chosen_on(scenes: list[int]) -> str:
+        return f"{args.dataset.resolve().name}/" + "+".join(f"{s:06d}" for s in scenes)
+
+    dataset = chosen_on(scenes_of(args, "val"))
     report: dict = {
         "model": str(args.model), "dataset": dataset, "objects": objects, "data": a.data,
         "command": " ".join(["scripts/calibrate_reject.py", *sys.argv[1:]]),
@@ -402,6 +406,18 @@ def main() -> None:
         f"reject at most {rule[1]} of the registered objects' validation patches",
         "calibrations": {}, "explored": {}, "compare_filtered": {}, "val_scores": {}, "test": {},
     }  # fmt: skip
+
+    def described(cal: Calibration, scenes: list[int]) -> dict:
+        """A calibration as the model's metadata keeps it: with what it was chosen on, and by which rule."""
+        on = chosen_on(scenes)
+        return {
+            **cal.to_json(),
+            "dataset": on,
+            "objects": len(objects),
+            "rule": report["rule"],
+            "data": a.data,
+        }
+
     metadata = {}
     for kind in a.kinds:
         cal, rep = fitted(a, kind, chosen, weights, shipped, rule)
@@ -410,8 +426,7 @@ def main() -> None:
             rep["at_threshold"] = measure(a, cal, val_sets, args.fold)["by_registered"]
         if not args.shipped:
             cal = replace(cal, graph=embedder.graph_digest)
-        metadata[kind] = {**cal.to_json(), "dataset": dataset, "objects": len(objects), "rule": report["rule"],
-                          "data": a.data}  # fmt: skip
+        metadata[kind] = described(cal, scenes_of(args, "val"))
         report["calibrations"][kind] = {**metadata[kind], **rep}
         report["explored"][kind] = explore(a, kind)
         report["compare_filtered"][kind] = compare_filtered(a, kind, cal)
@@ -429,19 +444,11 @@ def main() -> None:
                 print(f"{kind} test, object {o} unregistered: {json.dumps(by)}")
     if args.leave_one_video_out:
 
-        def describe(cal: Calibration, videos: list[int]) -> dict:
-            on = f"{args.dataset.resolve().name}/" + "+".join(f"{v:06d}" for v in videos)
-            cal = replace(cal, graph=embedder.graph_digest)
-            return {
-                **cal.to_json(),
-                "dataset": on,
-                "objects": len(objects),
-                "rule": report["rule"],
-                "data": a.data,
-            }
-
         def fit(x: Answers, kind: str) -> tuple[Calibration, dict]:
             return fitted(x, kind, chosen, weights, shipped, rule)
+
+        def describe(cal: Calibration, videos: list[int]) -> dict:
+            return described(replace(cal, graph=embedder.graph_digest), videos)
 
         report["leave_one_video_out"], report["test"] = held_out(args, a, val_sets, fit, describe)
         test_sets = val_sets
