@@ -38,6 +38,7 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+import onnx
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
@@ -59,7 +60,7 @@ from evaluation.openset import (  # noqa: E402
 from evaluation.splits import split_frames  # noqa: E402
 from evaluation.videos import mean_of, of_videos  # noqa: E402
 from index.data.bop import BopDataset  # noqa: E402
-from index.features.embed import Embedder  # noqa: E402
+from index.features.embed import Embedder, graph_digest  # noqa: E402
 from posedesc.commands.evaluate import parse_ids  # noqa: E402
 from service.rejection import (  # noqa: E402
     MEASURES,
@@ -261,11 +262,15 @@ def scenes_of(args: argparse.Namespace, split: str) -> list[int]:
 
 
 def answers(args: argparse.Namespace, split: str, frames: list[int] | None, sets: list[list[int]]) -> Answers:
-    """The split's answers: read from `--cache` when they were collected with the same frames, sets and
-    settings, else collected (`evaluation.openset.collect`) and written there."""
+    """The split's answers: read from `--cache` when they were collected by the same network (its graph's
+    digest: another network of the same file name, a retrained model, collects its own; a calibration
+    written into the file keeps them) with the same frames, sets and settings, else collected
+    (`evaluation.openset.collect`) and written there."""
     scenes = scenes_of(args, split)
     path = args.cache / f"{args.model.stem}-{args.dataset.resolve().name}-{split}.json"
-    key = {"scenes": scenes, "frames": frames, "sets": sets, "settings": Settings().model_dump(mode="json")}
+    network = graph_digest(onnx.load(args.model))
+    key = {"network": network, "scenes": scenes, "frames": frames, "sets": sets,
+           "settings": Settings().model_dump(mode="json")}  # fmt: skip
     if path.is_file():
         cached = json.loads(path.read_text())
         if cached.get("key") == key:

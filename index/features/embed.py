@@ -100,7 +100,7 @@ class Embedder:
             meta = {p.key: p.value for p in model.metadata_props}
             #: what the model computes, whatever its metadata says (a calibration names the graph it was
             #: measured on: `service.rejection`)
-            self.graph_digest = hashlib.sha256(model.graph.SerializeToString()).hexdigest()[:16]
+            self.graph_digest = graph_digest(model)
             outputs = [o.name for o in model.graph.output]
             parts = {outputs[0]: model} if len(outputs) == 1 else _per_output(model, outputs)
             #: nodes of each output's graph
@@ -298,6 +298,11 @@ def load_models(models_dir: str | Path, threads: int | None = None) -> dict[str,
         if e.modality != m:
             raise ValueError(f"{e.path.name} is a {e.modality} model, not {m}")
     return models
+
+
+def graph_digest(model: onnx.ModelProto) -> str:
+    """Short sha256 of a model's graph: what it computes, whatever its metadata (a calibration) says."""
+    return hashlib.sha256(model.graph.SerializeToString()).hexdigest()[:16]
 
 
 def fingerprint(path: str | Path) -> str:

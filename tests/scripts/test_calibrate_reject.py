@@ -96,6 +96,37 @@ def videos(root: Path) -> None:
         (root / "test" / f"{s:06d}" / "scene_gt.json").write_text("{}")
 
 
+def test_collected_answers_are_read_again_only_for_the_same_network(
+    script, posedesc_models, tmp_path, monkeypatch
+):
+    """The cache of collected answers is the network's: a calibration written into the file keeps it, another
+    network under the same file name (a retrained model) collects its own."""
+    from evaluation.calibration import write_metadata
+
+    mod = script("calibrate_reject")
+    collected: list[str] = []
+
+    def collect(model, dataset, frames, sets, scenes, seed=0):
+        collected.append(Embedder(model).graph_digest)
+        return answers()
+
+    monkeypatch.setattr(mod, "collect", collect)
+    model = tmp_path / "posedesc-x.onnx"
+    model.write_bytes((posedesc_models / "posedesc-rgb.onnx").read_bytes())
+    args = argparse.Namespace(
+        model=model, dataset=tmp_path, cache=tmp_path / "cache", video_split=None, scene=2, seed=0
+    )
+    first = mod.answers(args, "val", [1, 2], [[1, 3]])
+    assert first.obj == answers().obj and len(collected) == 1
+    mod.answers(args, "val", [1, 2], [[1, 3]])
+    write_metadata(model, model, {"note": "a calibration"})  # a calibration: the same network
+    mod.answers(args, "val", [1, 2], [[1, 3]])
+    assert len(collected) == 1
+    model.write_bytes((posedesc_models / "posedesc-depth.onnx").read_bytes())  # another network, same name
+    mod.answers(args, "val", [1, 2], [[1, 3]])
+    assert len(collected) == 2 and collected[0] != collected[1]
+
+
 def test_a_video_split_validates_on_the_videos_named_and_tests_on_the_rest(script, tmp_path):
     """`--video-split 0,1`: leave-one-video-out, the threshold chosen on two videos and measured on the
     third; every video named: no test; a video the dataset lacks: a one-line error."""
