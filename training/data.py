@@ -42,6 +42,10 @@ log = logging.getLogger(__name__)
 @dataclass
 class DataConfig:
     shapes: int = 40  # procedural objects besides the real meshes (generalisation to unseen meshes)
+    #: more procedural objects, each a single solid of random proportions (`random_shape(n_parts=1)`): boxes
+    #: and cans of other sizes, as most household objects are (drawn from their own random stream, so the
+    #: data of a config without them is the same as before they existed)
+    simple_shapes: int = 0
     shape_views: int = 300  # training renders per procedural object; real meshes get all 1241
     distance: float = 400.0  # render distance, mm (LineMOD's); the metric window makes it matter little
     window_mm: float = 200.0
@@ -75,6 +79,8 @@ class DataConfig:
             "template_inplane_step",
         ):
             d.pop(k)  # batch-time choices: not part of the cache
+        if not d["simple_shapes"]:
+            d.pop("simple_shapes")  # the caches made before it existed stay valid
         # version 3: templates kept wide (turned at batch time), whole-turn roll, excluded objects painted out
         return hashlib.sha1(json.dumps([d, roots, 3], sort_keys=True).encode()).hexdigest()[:12]
 

@@ -78,6 +78,11 @@ def _render_all(roots: list[Path], cfg: DataConfig) -> tuple[dict[str, np.ndarra
         meshes.append(random_shape(rng))
         names.append(f"shape_{k:03d}")
         symmetries.append("none")
+    simple = np.random.default_rng([cfg.seed, 1])  # their own stream: the rest is drawn as without them
+    for k in range(cfg.simple_shapes):
+        meshes.append(random_shape(simple, n_parts=1))
+        names.append(f"solid_{k:03d}")
+        symmetries.append("none")
     t_views = sphere_views(3, distance=cfg.distance)
     train_vp = hemisphere(4)
     t_rgb, t_depth, s_rgb, s_depth, s_obj, s_R = [], [], [], [], [], []

@@ -20,9 +20,10 @@ PRIMITIVES = ("box", "cylinder", "sphere", "capsule", "cone", "torus")
 TEXTURES = ("plain", "stripes", "checks", "blotches", "gradient")
 
 
-def _primitive(kind: str, rng: np.random.Generator, scale: float) -> trimesh.Trimesh:
-    """One primitive about `scale` mm across, fine enough for a texture baked to its vertices."""
-    s = scale * rng.uniform(0.35, 1.0, 3)
+def _primitive(kind: str, rng: np.random.Generator, scale: float, thinnest: float = 0.35) -> trimesh.Trimesh:
+    """One primitive about `scale` mm across (each side `thinnest` to 1 of it), fine enough for a texture
+    baked to its vertices."""
+    s = scale * rng.uniform(thinnest, 1.0, 3)
     if kind == "box":
         m = trimesh.creation.box(extents=s)
         m = m.subdivide().subdivide().subdivide()  # vertices for the texture
@@ -87,14 +88,17 @@ def _normalise(mesh: trimesh.Trimesh, diameter_mm: float) -> trimesh.Trimesh:
 
 
 def random_shape(
-    rng: np.random.Generator, diameter_mm: tuple[float, float] = (80.0, 300.0)
+    rng: np.random.Generator, diameter_mm: tuple[float, float] = (80.0, 300.0), n_parts: int | None = None
 ) -> trimesh.Trimesh:
-    """A random composition of 2-5 primitives, each randomly placed, turned, coloured and textured."""
-    n = int(rng.integers(2, 6))
+    """A random composition of 2-5 primitives (`n_parts` of them when given), each randomly placed, turned,
+    coloured and textured. One part is a single solid (a box, a cylinder, an ellipsoid, a capsule) of random
+    proportions: what most household objects are, and what a composition of several never is."""
+    n = int(rng.integers(2, 6)) if n_parts is None else n_parts
     parts: list[trimesh.Trimesh] = []
     for i in range(n):
         kind = str(rng.choice(PRIMITIVES[:4] if i == 0 else PRIMITIVES))  # a solid body first
-        part = _primitive(kind, rng, scale=100.0 if i == 0 else 70.0)
+        # a single solid as thin as a marker (a sixth of its length) or as flat as a box of tea
+        part = _primitive(kind, rng, 100.0 if i == 0 else 70.0, thinnest=0.15 if n == 1 else 0.35)
         part.apply_transform(_random_rotation(rng))
         if parts:  # centred on a point of the surface so far: one connected object
             anchor = trimesh.sample.sample_surface(parts[int(rng.integers(len(parts)))], 1, seed=rng)[0][0]

@@ -153,6 +153,8 @@ def configs(args: argparse.Namespace) -> tuple[TrainConfig, MaskConfig | LocalCo
         raise UserError("--hard-negatives is for --arch local")
     if args.hard_negatives is not None and not args.hard_negatives.is_file():
         raise UserError(f"--hard-negatives: no such model file: {args.hard_negatives}")
+    if args.shapes < 0 or args.simple_shapes < 0:
+        raise UserError("--shapes and --simple-shapes count objects: 0 or more")
     arch = args.arch if args.modality == "rgb" else "paper"  # the pretrained trunk takes colour only
     dim = args.dim or {"trunk": 32, "pca": 64}.get(arch, 16)
     try:
@@ -163,6 +165,7 @@ def configs(args: argparse.Namespace) -> tuple[TrainConfig, MaskConfig | LocalCo
         ) from None
     data_cfg = DataConfig(
         shapes=args.shapes,
+        simple_shapes=args.simple_shapes,
         split=SplitConfig(val=args.val, test=args.test),
         seed=args.seed,
         exclude=exclude,

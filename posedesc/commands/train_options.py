@@ -44,6 +44,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--inplane-step", type=float, default=30.0,
                    help="deg between the in-plane variants of a template (0: upright only)")  # fmt: skip
     p.add_argument("--shapes", type=int, default=40, help="procedural objects besides the BOP meshes")
+    p.add_argument("--simple-shapes", type=int, default=0,
+                   help="more procedural objects, each one solid (a box, a can...) of random proportions")  # fmt: skip
     p.add_argument("--batch", type=int, default=48, help="training samples per batch")
     p.add_argument(
         "--lr", type=float, default=1e-3, help="Adam learning rate, decayed (cosine) over the budget"
@@ -173,6 +175,7 @@ OPTIONS = {
     "lr": "--lr",
     "seed": "--seed",
     "data.shapes": "--shapes",
+    "data.simple_shapes": "--simple-shapes",
     "data.roll": "--roll",
     "data.template_inplane_step": "--inplane-step",
     "data.exclude": "--exclude-objects",

@@ -51,6 +51,32 @@ def test_templates_turn_like_the_services(rolled):
         r.close()
 
 
+def test_single_solids_are_added_after_the_shapes_and_change_nothing_before_them(rolled):
+    """`simple_shapes` appends one-solid objects drawn from their own stream: the composed shape and its
+    samples are those of the config without them, to the pixel."""
+    more = build(
+        [], DataConfig(shapes=1, simple_shapes=1, shape_views=20, template_inplane_step=90.0, seed=1)
+    )
+    assert more.names == ["shape_000", "solid_000"] and rolled.names == ["shape_000"]
+    assert np.array_equal(more.t_depth[0], rolled.t_depth[0])
+    first = more.s_obj == 0
+    assert np.array_equal(more.s_depth[first], rolled.s_depth) and np.array_equal(more.s_R[first], rolled.s_R)
+    assert (more.t_depth[1] > 0).any()  # the solid is drawn
+    assert DataConfig().key([]) != DataConfig(simple_shapes=1).key([])
+
+
+def test_a_single_solid_is_one_body_and_may_be_thin():
+    from index.templates.shapes import random_shape
+
+    rng = np.random.default_rng(3)
+    solids = [random_shape(rng, n_parts=1) for _ in range(40)]
+    assert all(m.body_count == 1 for m in solids)
+    # the oriented box's thinnest side against its longest: a marker or a flat box among them
+    ratios = [np.sort(m.bounding_box_oriented.primitive.extents) for m in solids]
+    assert min(r[0] / r[2] for r in ratios) < 0.3
+    assert max(r[0] / r[2] for r in ratios) > 0.6
+
+
 def test_paint_out_leaves_no_trace_of_the_object():
     rng = np.random.default_rng(0)
     frame = (rng.random((60, 80, 3)) * 40 + 100).astype(np.uint8)
