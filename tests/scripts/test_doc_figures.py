@@ -1,6 +1,6 @@
 """The figures docs/experiments.md gives for this session's measurements are those of their committed JSONs
 (docs/results/): the patch windows before and after, the rules per video and the thresholds chosen
-leave-one-video-out, the catalogue objectness network's validation."""
+leave-one-video-out, the catalogue objectness network's validation, the second depth network's runs."""
 
 from __future__ import annotations
 
@@ -83,3 +83,47 @@ def test_the_detection_confidence_figures_are_its_json() -> None:
     assert f"| mean | {pct(mean['verifier']['ap50'])} / **{pct(mean['calibrated']['ap50'])}** |" in text
     cal = result["calibration"]
     assert f"slope {cal['slope']:.2f}, midpoint {cal['midpoint']:.3f}" in text
+
+
+def _right(name: str) -> tuple[list[tuple[float, float]], tuple[float, float]]:
+    """Per YCB-V video (right object with the open set on, off) of `ycbv-service-depth-S-<name>.json`, and
+    pooled by instances."""
+    runs = [json.loads((RESULTS / f"ycbv-service-depth-{s}-{name}.json").read_text()) for s in range(3)]
+    per = [
+        (r["methods"]["ours"]["k1"]["180"], r["open_set_off"]["methods"]["ours"]["k1"]["180"]) for r in runs
+    ]
+    n = [r["n_samples"] for r in runs]
+    pooled = tuple(sum(w * x[i] for w, x in zip(n, per, strict=True)) / sum(n) for i in (0, 1))
+    return per, (pooled[0], pooled[1])
+
+
+def _rejected(json_name: str) -> list[tuple[float, float]]:
+    """Per video (unknowns, registered rejected) of a leave-one-video-out calibration, then their mean."""
+    held = json.loads((RESULTS / json_name).read_text())["leave_one_video_out"]
+    rows = []
+    for _, p in sorted(held.items()):
+        by = p["test"]["descriptor"]["by_registered"]
+        b = by[min(by, key=int)]
+        rows.append((b["rejected_unknown"], b["rejected_registered"]))
+    return rows + [(sum(r[0] for r in rows) / 3, sum(r[1] for r in rows) / 3)]
+
+
+def test_the_second_depth_network_s_figures_are_their_jsons() -> None:
+    text = experiments()
+    for label, name in (
+        ("shipped", "lovo"),
+        ("single solids in training", "solids"),
+        ("the two joined (fit weight 0.2, as shipped)", "joined"),
+        ("the two joined, fit weight 0.1", "joined-fit0.1"),
+    ):
+        per, pooled = _right(name)
+        cells = " | ".join(f"{pct(on)} / {pct(off)}" for on, off in [*per, pooled])
+        assert f"| {label} | {cells} | `ycbv-service-depth-S-{name}.json` |" in text
+    for label, json_name in (
+        ("shipped", "reject-posedesc-depth-real.json"),
+        ("single solids in training", "reject-depth-solids-real.json"),
+        ("the two joined, fit weight 0.2", "reject-depth-joined-real.json"),
+        ("the two joined, fit weight 0.1", "reject-depth-joined-fit0.1-real.json"),
+    ):
+        cells = " | ".join(f"{pct(u)} / {pct(r)}" for u, r in _rejected(json_name))
+        assert f"| {label} | {cells} | `{json_name}` |" in text
