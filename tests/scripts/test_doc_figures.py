@@ -127,3 +127,17 @@ def test_the_second_depth_network_s_figures_are_their_jsons() -> None:
     ):
         cells = " | ".join(f"{pct(u)} / {pct(r)}" for u, r in _rejected(json_name))
         assert f"| {label} | {cells} | `{json_name}` |" in text
+
+
+def test_the_joined_depth_network_s_detection_figures_are_their_jsons() -> None:
+    text = experiments()
+    for label, name in (("shipped", "lovo"), ("the two joined (fit weight 0.2)", "joined")):
+        runs = [
+            json.loads((RESULTS / f"ycbv-detect-rgbd-{s}-{name}.json").read_text())["posedesc"]["all"]
+            for s in range(3)
+        ]
+        targets, hits = sum(r["targets"] for r in runs), sum(r["hits"] for r in runs)
+        found = sum(r["true_positives"] for r in runs)
+        cells = [f"{pct(r['recall'])} / {pct(r['precision'])}" for r in runs]
+        cells.append(f"{pct(found / targets)} / {pct(found / hits)}")
+        assert f"| {label} | {' | '.join(cells)} | `ycbv-detect-rgbd-S-{name}.json` |" in text
