@@ -1,6 +1,7 @@
 """The figures docs/experiments.md gives for this session's measurements are those of their committed JSONs
 (docs/results/): the patch windows before and after, the rules per video and the thresholds chosen
-leave-one-video-out, the catalogue objectness network's validation, the second depth network's runs."""
+leave-one-video-out, the catalogue objectness network's validation, the second depth network's runs, the five
+screening places."""
 
 from __future__ import annotations
 
@@ -141,3 +142,41 @@ def test_the_joined_depth_network_s_detection_figures_are_their_jsons() -> None:
         cells = [f"{pct(r['recall'])} / {pct(r['precision'])}" for r in runs]
         cells.append(f"{pct(found / targets)} / {pct(found / hits)}")
         assert f"| {label} | {' | '.join(cells)} | `ycbv-detect-rgbd-S-{name}.json` |" in text
+
+
+def test_the_five_screening_places_figures_are_their_jsons() -> None:
+    text = experiments()
+
+    def run(name: str) -> dict:
+        return json.loads((RESULTS / f"screen5-{name}.json").read_text())
+
+    for name in ("grid", "descriptor-first-2", "descriptor-first-3", "axial", "diagonals"):
+        r = run(f"val-rgbd-{name}")
+        a = r["posedesc"]["all"]
+        cells = [pct(a["recall"]), pct(a["precision"]), pct(a["ap50"]), pct(r["bop"]["ar"])]
+        row = " | ".join(f"**{c}**" if name == "diagonals" else c for c in cells)
+        assert f"| {row} | `screen5-val-rgbd-{name}.json` |" in text, name
+    for video, name in (("0000", "ycbv-0"), ("0001", "ycbv-1"), ("0002", "ycbv-2"), ("LM-O", "val-depth")):
+        cells = []
+        for grid in ("grid", "diagonals"):
+            a = run(f"{name}-{grid}")["posedesc"]["all"]
+            cells.append(f"{pct(a['recall'])} / {pct(a['precision'])}")
+        assert f" | {cells[0]} | {cells[1]} | `screen5-{name}-{{grid,diagonals}}.json` |" in text, video
+    p50 = {
+        (g, n): run(f"bench-{g}-{n}")["sections"]["detect"]["by_objects"]["8"]["rgbd"]["p50_ms"]
+        for g in ("grid", "diagonals")
+        for n in (1, 2)
+    }
+    said = (
+        f"p50 {p50['grid', 1]:,.0f} and {p50['grid', 2]:,.0f} ms with the grid, {p50['diagonals', 1]:,.0f} and "
+        f"{p50['diagonals', 2]:,.0f} ms with the diagonals"
+    )
+    assert said in text
+    for name, shipped in (("test-rgbd", "detect-test-rgbd"), ("test-rgbd-loo", "detect36-test-rgbd-loo-1-8")):
+        new = run(f"{name}-diagonals")["posedesc"]["all"]
+        old = json.loads((RESULTS / f"{shipped}.json").read_text())["posedesc"]["all"]
+        a, b = (" / ".join(pct(r[k]) for k in ("recall", "precision", "ap50")) for r in (new, old))
+        assert (
+            f"{a} against {b}" in text
+            and f"(`screen5-{name}-diagonals.json` against `{shipped}.json`" in text
+        )
