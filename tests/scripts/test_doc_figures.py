@@ -1,7 +1,7 @@
 """The figures docs/experiments.md gives for this session's measurements are those of their committed JSONs
 (docs/results/): the patch windows before and after, the rules per video and the thresholds chosen
 leave-one-video-out, the catalogue objectness network's validation, the second depth network's runs, the five
-screening places."""
+screening places, the two places verified."""
 
 from __future__ import annotations
 
@@ -180,3 +180,24 @@ def test_the_five_screening_places_figures_are_their_jsons() -> None:
             f"{a} against {b}" in text
             and f"(`screen5-{name}-diagonals.json` against `{shipped}.json`" in text
         )
+
+
+def test_the_two_places_verified_figures_are_their_jsons() -> None:
+    text = experiments()
+
+    def cell(name: str) -> str:
+        a = json.loads((RESULTS / f"{name}.json").read_text())["posedesc"]["all"]
+        return " / ".join(pct(a[k]) for k in ("recall", "precision", "ap50"))
+
+    for label, name in (
+        ("YCB-V 0000", "ycbv-0"),
+        ("YCB-V 0001", "ycbv-1"),
+        ("YCB-V 0002", "ycbv-2"),
+        ("LM-O validation, the depth model (rendered depth)", "val-depth"),
+    ):
+        cells = [
+            cell(f"screen5-{name}-grid"),
+            cell(f"verify2-{name}-best-fit"),
+            cell(f"verify2-{name}-second-look"),
+        ]
+        assert f"| {label} | {' | '.join(cells)} | `verify2-{name}-*.json` |" in text, label
