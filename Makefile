@@ -70,9 +70,9 @@ lint: setup
 # of pytest on this 2-core machine on 2026-12-06, second session; 941 took 10:45 before, 789 17:09 on one process). `make check`: the fast
 # tier while working, every package's tests but those marked `slow` (real trainings, container builds,
 # Milvus, the large protocol and evaluation runs, the hostile uploads, the long service load tests, and any
-# test over ~4 s): 859 tests in 1:54 (runs of 1:52-2:19 on 2026-12-07, as the machine's speed varies; 2:05
-# before the modules with costly module fixtures were each given one worker, `xdist_group`; 696 in 3:33 on one
-# process). `make lint check` lints first. A test that takes more than a few seconds is marked `slow` in its file (`@pytest.mark.slow`, or
+# test over ~2-4 s, and every test of a module fixture that costs seconds: the training heads' rendered shapes,
+# the evaluation's tiny dataset, the damaged stores): 841 tests in 1:51 on 2026-12-07 (862 took 1:57-2:15 the
+# same day, 859 1:52-2:19 before, as the machine's speed varies; 696 in 3:33 on one process). `make lint check` lints first. A test that takes more than a few seconds is marked `slow` in its file (`@pytest.mark.slow`, or
 # `pytestmark = pytest.mark.slow` for the module); tests never assert how fast anything is (bench does).
 test: setup lint
 	$(BIN)/pytest -q $(PARALLEL)

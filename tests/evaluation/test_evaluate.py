@@ -17,6 +17,7 @@ from tests.evaluation.conftest import N_FRAMES
 
 # the session's tiny BOP dataset and untrained models: made once, on one worker
 pytestmark = pytest.mark.xdist_group("tiny-bop")
+# every test of the tiny dataset (rendered frames, untrained models made for it) is `slow`: `make test`
 
 
 def check_table(table: dict) -> None:
@@ -66,6 +67,7 @@ def test_json_contract_and_report(tiny_bop, untrained_models, tmp_path):
         assert (report / f"{png}.png").stat().st_size > 5000
 
 
+@pytest.mark.slow
 def test_baselines_on_two_tiny_shapes(tiny_bop, untrained_models):
     """Clean renders of two distinct shapes: both baselines find the object and, mostly, the view."""
     cfg = Config(tiny_bop, untrained_models["rgb"], "rgb", protocol="paper", methods=("hog", "linemod"))
@@ -103,6 +105,7 @@ def test_hog_descriptor_shape():
     np.testing.assert_allclose(np.linalg.norm(d.astype(np.float32), axis=1), 1.0, atol=1e-2)
 
 
+@pytest.mark.slow
 def test_bad_input_is_one_line(tiny_bop, untrained_models, tmp_path, capsys):
     base = ["evaluate", "--dataset", str(tiny_bop), "--json", str(tmp_path / "x.json")]
     assert main([*base, "--modality", "depth", "--model", str(untrained_models["rgb"])]) == 2
@@ -114,6 +117,7 @@ def test_bad_input_is_one_line(tiny_bop, untrained_models, tmp_path, capsys):
     assert main([*base, "--modality", "rgb", "--model", str(Path(tmp_path / "none.onnx"))]) == 2
 
 
+@pytest.mark.slow
 def test_heldout_frames_come_from_the_models_metadata(tiny_bop, untrained_models, tmp_path, capsys):
     from evaluation.splits import heldout_frames
     from posedesc.commands.evaluate import parse_ids
@@ -138,6 +142,7 @@ def test_heldout_frames_come_from_the_models_metadata(tiny_bop, untrained_models
     assert "names no test frames" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_split_frames_come_from_the_models_metadata(tiny_bop):
     from evaluation.splits import split_frames
 
@@ -179,6 +184,7 @@ def test_service_protocol_plumbing(tiny_bop, untrained_models, tmp_path):
     assert "| ours | 1 |" in (tmp_path / "report" / "report.md").read_text()
 
 
+@pytest.mark.slow
 def test_the_true_view_scores_zero(tiny_bop):
     """The service protocol's scoring: an answer giving the annotated view, placed along the ray through
     the object's centre, is the annotated pose (both errors ~0); another object counts 180°."""

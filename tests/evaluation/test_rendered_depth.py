@@ -35,6 +35,7 @@ def test_what_the_service_protocol_sends(lmo):
     assert served_data("rgb", instances, True) == SYNTHETIC
 
 
+@pytest.mark.slow  # over ~2 s (an export, a render): `make test`, not `make check`
 def test_rendered_depth_is_the_annotated_objects_on_their_table(lmo, renderer):
     dataset = BopDataset(lmo)
     instances = select_instances(dataset, 2, 0.5, FRAMES, dataset.obj_ids)
@@ -64,6 +65,7 @@ def test_rendered_depth_is_the_annotated_objects_on_their_table(lmo, renderer):
         assert not depth[~objects & (table == 0)].any()
 
 
+@pytest.mark.slow  # over ~2 s (an export, a render): `make test`, not `make check`
 def test_clean_render_without_the_sensor(lmo, renderer):
     """Without the sensor model every pixel of an object holds its depth; the sensor makes holes."""
     dataset = BopDataset(lmo)

@@ -19,12 +19,14 @@ from posedesc.cli import main
 
 # the session's tiny BOP dataset and untrained models: made once, on one worker
 pytestmark = pytest.mark.xdist_group("tiny-bop")
+# every test of the tiny dataset (rendered frames, untrained models made for it) is `slow`: `make test`
 
 
 def _iou(a: np.ndarray, b: np.ndarray) -> float:
     return float((a & b).sum() / max((a | b).sum(), 1))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("degrees", [30.0, 90.0, 200.0])
 def test_the_turned_frame_shows_the_turned_pose(tiny_bop, renderer, degrees):
     dataset = BopDataset(tiny_bop)
@@ -46,6 +48,7 @@ def test_the_turned_frame_shows_the_turned_pose(tiny_bop, renderer, degrees):
     np.testing.assert_allclose(rolled.R @ rolled.R.T, np.eye(3), atol=1e-9)
 
 
+@pytest.mark.slow
 def test_roll_zero_is_the_frame_itself_and_centres_that_leave_are_dropped(tiny_bop):
     dataset = BopDataset(tiny_bop)
     instances = [i for i in dataset.instances(2) if i.frame_id < 2]
@@ -83,6 +86,7 @@ def test_parse_rolls():
             parse_rolls(bad)
 
 
+@pytest.mark.slow
 def test_service_protocol_sends_every_frame_at_every_roll(tiny_bop, untrained_models, tmp_path, capsys):
     out = tmp_path / "rolled.json"
     args = ["evaluate", "--dataset", str(tiny_bop), "--modality", "rgb", "--methods", "ours"]

@@ -178,6 +178,7 @@ def _damage(path: Path, how: str) -> None:
     path.write_bytes(bytes(data))
 
 
+@pytest.mark.slow  # a store registered, then `posedesc serve` started four times: `make test`, not `make check`
 @pytest.mark.parametrize("how", ["header", "truncated", "templates", "objects"])
 def test_a_damaged_store_stops_serve_with_one_line(tmp_path, posedesc_models, stored, how):
     data_dir = tmp_path / "data"

@@ -51,6 +51,7 @@ def test_templates_turn_like_the_services(rolled):
         r.close()
 
 
+@pytest.mark.slow  # over ~2 s (an export, a render): `make test`, not `make check`
 def test_single_solids_are_added_after_the_shapes_and_change_nothing_before_them(rolled):
     """`simple_shapes` appends one-solid objects drawn from their own stream: the composed shape and its
     samples are those of the config without them, to the pixel."""

@@ -9,6 +9,7 @@ from training.export import export_onnx, torch_descriptors
 from training.model import DescriptorNet, NetConfig
 
 
+@pytest.mark.slow  # over ~2 s (an export, a render): `make test`, not `make check`
 @pytest.mark.parametrize("modality", ["rgb", "depth", "rgbd"])
 def test_onnx_matches_torch(modality, tmp_path):
     torch.manual_seed(0)
@@ -22,6 +23,7 @@ def test_onnx_matches_torch(modality, tmp_path):
     np.testing.assert_allclose(emb(x[:1]), torch_descriptors(net, x[:1]), atol=1e-4)  # dynamic batch
 
 
+@pytest.mark.slow  # over ~2 s (an export, a render): `make test`, not `make check`
 def test_trunk_model_exports_with_its_pretrained_weights(tmp_path):
     """The pretrained trunk travels inside the ONNX file: serving needs no weights package."""
     torch.manual_seed(0)

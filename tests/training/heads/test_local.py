@@ -28,7 +28,8 @@ from training.render_cache import build
 from training.similarity import pose_distances
 from training.trunk import Trunk
 
-pytestmark = pytest.mark.xdist_group("heads-local")  # the module's fixture made once, on one worker
+pytestmark = pytest.mark.xdist_group("heads-local")  # the module's fixture made once, on one worker;
+# every test of the rendered shapes (a render cache, short trainings) is `slow`: `make test`, not `make check`
 
 
 @pytest.fixture(scope="module")
@@ -52,6 +53,7 @@ def test_the_training_distance_is_the_services():
         np.testing.assert_allclose(ours[i], service, atol=1e-5)
 
 
+@pytest.mark.slow
 def test_candidates_are_the_nearest_template_then_negatives(shapes):
     cfg = LocalConfig(same=6, others=2, far=25.0)
     pick, rng = Candidates(shapes, cfg), np.random.default_rng(3)
@@ -63,6 +65,7 @@ def test_candidates_are_the_nearest_template_then_negatives(shapes):
     assert all(d[t] > 25.0 for _, t in row[1:7])
 
 
+@pytest.mark.slow
 def test_other_objects_negatives_come_from_real_objects_at_the_share_asked(shapes, monkeypatch):
     """`--local-others-real`: that share of a query's other-object negatives is drawn from the objects with
     real training frames (here object 2 is given some), the rest from every other object."""
@@ -80,6 +83,7 @@ def test_other_objects_negatives_come_from_real_objects_at_the_share_asked(shape
     assert 1 not in half
 
 
+@pytest.mark.slow
 def test_hard_negatives_are_the_descriptors_nearest_templates_but_the_pose_itself(shapes, posedesc_models):
     """`--hard-negatives`: a query's extra negatives are among the templates nearest it in the model's
     descriptor space, leaving out its own object's templates within `far` of its pose (the template it is
@@ -104,6 +108,7 @@ def test_hard_negatives_are_the_descriptors_nearest_templates_but_the_pose_itsel
     assert (obj, t) not in row and all(o != obj or poses[k] > cfg.far for o, k in row)
 
 
+@pytest.mark.slow
 def test_a_short_run_moves_only_the_stages_it_trains_and_reloads(shapes, tmp_path):
     cfg = LocalConfig(minutes=600.0, max_steps=4, batch=4, same=3, others=1, steps_per_epoch=2, threads=1)
     net = train_local(cfg, shapes, tmp_path)
@@ -128,6 +133,7 @@ def test_a_short_run_moves_only_the_stages_it_trains_and_reloads(shapes, tmp_pat
     assert steps == [0, 2, 4]  # the ImageNet trunk's score first
 
 
+@pytest.mark.slow
 def test_a_local_run_interrupted_and_resumed_ends_as_an_uninterrupted_one(shapes, tmp_path, monkeypatch):
     cfg = LocalConfig(minutes=600.0, max_steps=5, batch=3, same=2, others=1, steps_per_epoch=2, threads=1)
     whole, stopped = tmp_path / "whole", tmp_path / "stopped"
@@ -173,6 +179,7 @@ def test_jitter_moves_the_outline_in_and_out_and_nothing_away_from_it():
     assert not jitter_outline(np.zeros((64, 64), bool), 3.0, rng).any()  # nothing to move
 
 
+@pytest.mark.slow
 def test_an_exported_model_s_mask_blacks_the_queries_and_the_jitter_moves_it(shapes, tmp_path):
     head = OnnxMask(SHIPPED_RGB)
     rng = np.random.default_rng(0)

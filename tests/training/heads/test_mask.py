@@ -22,7 +22,8 @@ from training.heads.mask import (
 )
 from training.render_cache import build
 
-pytestmark = pytest.mark.xdist_group("heads-mask")  # the module's fixture made once, on one worker
+pytestmark = pytest.mark.xdist_group("heads-mask")  # the module's fixture made once, on one worker;
+# every test of the rendered shapes (a render cache, short trainings) is `slow`: `make test`, not `make check`
 
 
 @pytest.fixture(scope="module")
@@ -30,6 +31,7 @@ def shapes() -> TrainingData:
     return build([], DataConfig(shapes=3, shape_views=20, template_inplane_step=90.0, seed=2))
 
 
+@pytest.mark.slow
 def test_a_synthetic_sample_masks_its_own_object_only(shapes):
     """The mask is the sample's render less what an occluder hides: inside the object's silhouette,
     never the background, clutter or occluder that the composite adds around it."""
@@ -59,6 +61,7 @@ def test_soft_edges_blend_the_outline_only():
     assert np.abs(out - hard)[band(1)].mean() > 20.0  # of 200: the edge is smeared, not a step
 
 
+@pytest.mark.slow
 def test_synthetic_samples_go_through_the_soft_edges_with_their_chance(shapes, monkeypatch):
     """`soft_edges` 1: every synthetic sample is blended, 0: none; the mask is the same either way (the
     object's pixels, not how its edge looks)."""
@@ -121,6 +124,7 @@ def test_iou_of_known_masks():
     assert MaskNet(pretrained=False)(torch.zeros(1, 3, 64, 64)).shape == (1, 1, 64, 64)
 
 
+@pytest.mark.slow
 def test_a_mask_run_interrupted_and_resumed_ends_as_an_uninterrupted_one(shapes, tmp_path, monkeypatch):
     """Ctrl-C once the first checkpoint (step 3 of 7) is written; resumed, the run ends with the head, log
     and checkpoints of the run nobody stopped, bit for bit (one thread, the schedule over steps: the
@@ -166,6 +170,7 @@ def test_a_mask_run_interrupted_and_resumed_ends_as_an_uninterrupted_one(shapes,
         train_mask(MaskConfig(**{**cfg.__dict__, "batch": 8, "max_steps": 9}), data, stopped, resume=True)
 
 
+@pytest.mark.slow
 def test_a_fine_tuned_mask_head_trains_and_keeps_its_own_trunk(shapes, tmp_path):
     """`finetune` > 0: the head's trunk copy and later stages move (at the scaled rate), the checkpoint
     keeps the copy and `load_mask` gives it back; frozen (0), the trunk stays ImageNet's."""
