@@ -1,7 +1,7 @@
 """The figures docs/experiments.md gives for this session's measurements are those of their committed JSONs
 (docs/results/): the patch windows before and after, the rules per video and the thresholds chosen
 leave-one-video-out, the catalogue objectness network's validation, the second depth network's runs, the five
-screening places, the two places verified."""
+screening places, the two places verified, the quiet speed run."""
 
 from __future__ import annotations
 
@@ -201,3 +201,33 @@ def test_the_two_places_verified_figures_are_their_jsons() -> None:
             cell(f"verify2-{name}-second-look"),
         ]
         assert f"| {label} | {' | '.join(cells)} | `verify2-{name}-*.json` |" in text, label
+
+
+def test_the_quiet_speed_run_s_figures_are_its_json() -> None:
+    text = experiments()
+    loaded = json.loads((RESULTS / "bench-roll-28.json").read_text())["summary"]
+    quiet = json.loads((RESULTS / "bench-roll-54.json").read_text())["summary"]
+
+    def ms(s: dict, key: str) -> str:
+        return f"{s[key]:.1f} ms"
+
+    rows = [
+        f"| from a decoded patch to the answer, p50 | {ms(loaded, 'decoded_to_answer_p50_ms_100_q1')} | "
+        f"{ms(quiet, 'decoded_to_answer_p50_ms_100_q1')} |",
+        f"| the upright baseline (the descriptor and the search alone), same run | "
+        f"{ms(loaded, 'decoded_to_answer_upright_p50_ms_100_q1')} | {ms(quiet, 'decoded_to_answer_upright_p50_ms_100_q1')} |",
+        f"| the first over the second | {loaded['decoded_to_answer_vs_upright_100_q1']:.1f}× | "
+        f"{quiet['decoded_to_answer_vs_upright_100_q1']:.1f}× |",
+        f"| {ms(loaded, 'roll_http_frame_p50_ms')}; {loaded['roll_http_frame_requests_per_s_4_clients']:.1f} /s | "
+        f"{ms(quiet, 'roll_http_frame_p50_ms')}; {quiet['roll_http_frame_requests_per_s_4_clients']:.1f} /s "
+        f"(1 client: {quiet['roll_http_frame_requests_per_s']:.1f}) |",
+        f"| {loaded['roll_register_20k_faces_s']:.2f} s | {quiet['roll_register_20k_faces_s']:.2f} s "
+        f"({quiet['roll_register_cpu_s']:.2f} CPU-seconds) |",
+    ]
+    for row in rows:
+        assert row in text, row
+    stages = json.loads((RESULTS / "bench-roll-54.json").read_text())["sections"]["roll"]["stages_ms_100_q1"]
+    listed = ", ".join(
+        f"{k} {stages[k]:.2f}" for k in ("cut", "mask", "embed", "search", "local", "sweep", "refine")
+    )
+    assert f"the stages' medians in that run: {listed} ms)" in text, listed
