@@ -16,7 +16,9 @@ into the model's `reject_above` metadata with the settings the answers were made
 The answers are kept in `--cache` (out/openset), read again while the frames, sets and settings are the same.
 With `--leave-one-video-out` (a dataset of videos, such as YCB-V's), every video is measured with the
 calibration chosen on the others and the JSON's test figures are the mean over the videos
-(`evaluation.videos`); the calibration written (`--out`) is chosen on every video.
+(`evaluation.videos`); the calibration written (`--out`) is chosen on every video. With `--choose-weights` too,
+the statistic itself (the lead's weight and the fit term's) is chosen per video on the others and measured on
+it (`weights_left_out` in the JSON; `evaluation.videos.weights_by_video`).
 
 The JSON (docs/results/reject-<model>.json) also holds, on validation, the statistics tried (`explore`: the
 unregistered objects' patches rejected where at most 10 % of the registered ones are) and how one collection
@@ -58,7 +60,7 @@ from evaluation.openset import (  # noqa: E402
     term_of,
 )
 from evaluation.splits import split_frames  # noqa: E402
-from evaluation.videos import mean_of, of_videos  # noqa: E402
+from evaluation.videos import mean_of, of_videos, weights_by_video  # noqa: E402
 from index.data.bop import BopDataset  # noqa: E402
 from index.features.embed import Embedder, graph_digest  # noqa: E402
 from posedesc.commands.evaluate import parse_ids  # noqa: E402
@@ -289,6 +291,11 @@ def main() -> None:
     ap.add_argument("--out", type=Path, default=None, help="model file to write (default: none)")
     ap.add_argument("--json", type=Path, default=None, help="default docs/results/reject-<model>.json")
     ap.add_argument("--picture", type=Path, default=None, help="default docs/reject-<model>.png")
+    ap.add_argument(
+        "--choose-weights",
+        action="store_true",
+        help="with --leave-one-video-out: also choose the lead's and the fit term's weights on the other videos",
+    )
     ap.add_argument("--cache", type=Path, default=ROOT / "out" / "openset", help="collected answers")
     ap.add_argument("--splits-from", type=Path, default=None,
                     help="a model whose split_frames to use (this one has none)")  # fmt: skip
@@ -371,6 +378,8 @@ def main() -> None:
         args.video_split = ",".join(str(int(x)) for x in scenes)  # every video validates; each in turn tests
     elif args.held_out_models is not None:
         sys.exit("--held-out-models: only with --leave-one-video-out")
+    elif args.choose_weights:
+        sys.exit("--choose-weights: only with --leave-one-video-out")
     if args.shipped and args.out is not None:
         sys.exit("--shipped measures the model's own calibration: it writes no model (--out)")
     if args.out is not None and not args.out.parent.is_dir():
@@ -456,6 +465,14 @@ def main() -> None:
             return described(replace(cal, graph=embedder.graph_digest), videos)
 
         report["leave_one_video_out"], report["test"] = held_out(args, a, val_sets, fit, describe)
+        if args.choose_weights:  # the statistic's weights chosen per video too (docs/experiments.md)
+            asked = {k: chosen.get(k, chosen.get("", ("distance", 0.0))) for k in a.kinds}
+            report["weights_left_out"] = {
+                k: weights_by_video(a, k, rule, val_sets, args.fold, (
+                    None if asked[k][0] == "distance" else asked[k][1], weights["fit"].get(k, 0.0)))
+                for k in a.kinds
+            }  # fmt: skip
+            print(json.dumps({k: w["mean"] for k, w in report["weights_left_out"].items()}))
         test_sets = val_sets
     report["test_sets"] = test_sets
     json_path = args.json or ROOT / "docs" / "results" / f"reject-{stem}.json"

@@ -3,10 +3,11 @@ videos is their mean, each share averaged and each count summed."""
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
 from evaluation.openset import Answers
-from evaluation.videos import mean_of, of_videos
+from evaluation.videos import mean_of, of_videos, weights_by_video
 
 
 def answers() -> Answers:
@@ -77,3 +78,37 @@ def test_the_figure_over_videos_is_their_mean_and_their_counts_summed():
         }
         | {"rejected_unknown": 0.0},
     }
+
+
+def test_the_statistic_is_chosen_on_the_other_videos_and_measured_on_the_one_left_out():
+    """Three videos; object 2 left out in run 1. In videos 0 and 1 the unregistered object's best answer is
+    near but its depth explains none of it: only a fit term separates it there. Video 2 is chosen on 0 and 1,
+    so it gets a fit term and its unknown is rejected; the statistic held fixed without one rejects none."""
+    rows = []  # scene, run, obj, ids, distances, unexplained
+    for scene in (0, 1, 2):
+        for k in range(6):
+            near = 0.1 + 0.01 * k
+            rows += [
+                (scene, 0, 1, [1, 1, 2], [near, near + 0.01, 0.5], 0.05),
+                (scene, 0, 2, [2, 2, 1], [near, near + 0.02, 0.5], 0.05),
+                (scene, 1, 1, [1, 1, -1], [near, near + 0.01, np.nan], 0.05),
+                (scene, 1, 2, [1, 1, -1], [near, near + 0.01, np.nan], 0.9),  # unregistered: looks known
+            ]
+    a = Answers(
+        obj=[r[2] for r in rows],
+        registered=[r[1] == 0 or r[2] != 2 for r in rows],
+        run=[r[1] for r in rows],
+        frame=list(range(len(rows))),
+        scene=[r[0] for r in rows],
+        objects={"descriptor": [r[3] for r in rows]},
+        distances={"descriptor": [r[4] for r in rows]},
+        settings={"descriptor": {"level": 3}},
+        data="real",
+        unexplained={"descriptor": [r[5] for r in rows]},
+    )
+    got = weights_by_video(a, "descriptor", ("registered", 0.1), [[1, 2], [1]], 1, (0.5, 0.0))
+    for video in ("0", "1", "2"):
+        chosen, fixed = got["videos"][video]["chosen"], got["videos"][video]["shipped"]
+        assert chosen["fit"] > 0 and chosen["rejected_unknown"] == 1.0, chosen
+        assert fixed["fit"] == 0.0 and fixed["rejected_unknown"] < 1.0, fixed
+    assert got["mean"]["chosen"]["rejected_unknown"] == 1.0

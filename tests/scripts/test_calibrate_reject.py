@@ -185,6 +185,7 @@ def test_each_video_is_measured_with_the_calibration_chosen_on_the_others(script
     "extra, says",
     [
         (["--held-out-models", "held"], "--held-out-models: only with --leave-one-video-out"),
+        (["--choose-weights"], "--choose-weights: only with --leave-one-video-out"),
         (["--leave-one-video-out", "--video-split", "0"], "not with --video-split or --shipped"),
         (["--leave-one-video-out", "--out", "nowhere/posedesc-rgb.onnx"], "--out: no folder nowhere"),
     ],

@@ -231,3 +231,34 @@ def test_the_quiet_speed_run_s_figures_are_its_json() -> None:
         f"{k} {stages[k]:.2f}" for k in ("cut", "mask", "embed", "search", "local", "sweep", "refine")
     )
     assert f"the stages' medians in that run: {listed} ms)" in text, listed
+
+
+def test_the_depth_open_set_s_weights_chosen_per_video_are_their_json() -> None:
+    text = experiments()
+    result = json.loads((RESULTS / "reject-depth-real-weights.json").read_text())["weights_left_out"][
+        "descriptor"
+    ]
+    for video, row in result["videos"].items():
+        chosen, shipped = row["chosen"], row["shipped"]
+        assert f"| {int(video):04d} | " in text
+        figures = (
+            f"| {chosen['auc_others']:.3f} | {pct(chosen['rejected_unknown'])} / {pct(chosen['rejected_registered'])} "
+            f"| {pct(shipped['rejected_unknown'])} / {pct(shipped['rejected_registered'])} |"
+        )
+        assert figures in text, figures
+    mean = result["mean"]
+    assert (
+        f"| **{pct(mean['chosen']['rejected_unknown'])} / {pct(mean['chosen']['rejected_registered'])}** | "
+        f"{pct(mean['shipped']['rejected_unknown'])} / {pct(mean['shipped']['rejected_registered'])} |"
+    ) in text
+
+    def fixed(lead: float | None, fit: float) -> str:
+        rows = [
+            next(r for r in v["tried"] if r["lead"] == lead and r["fit"] == fit)
+            for v in result["videos"].values()
+        ]
+        unknown = sum(r["rejected_unknown"] for r in rows) / len(rows)
+        registered = sum(r["rejected_registered"] for r in rows) / len(rows)
+        return f"{pct(unknown)} / {pct(registered)}"
+
+    assert f"the distance + 0.2 gives {fixed(None, 0.2)} and the distance + 0.6 {fixed(None, 0.6)}" in text
