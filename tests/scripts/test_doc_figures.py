@@ -262,3 +262,36 @@ def test_the_depth_open_set_s_weights_chosen_per_video_are_their_json() -> None:
         return f"{pct(unknown)} / {pct(registered)}"
 
     assert f"the distance + 0.2 gives {fixed(None, 0.2)} and the distance + 0.6 {fixed(None, 0.6)}" in text
+
+
+def test_the_area_weight_by_video_is_its_json() -> None:
+    text = experiments()
+    result = json.loads((RESULTS / "area-weight-lovo.json").read_text())
+    runs = result["runs"]
+    for w in result["weights"]:
+        cells = " | ".join(
+            f"{pct(runs[f'{w}/{v}']['right'])} / {pct(runs[f'{w}/{v}']['right_open_set_off'])}"
+            for v in range(3)
+        )
+        assert f"{cells} |" in text, (w, cells)
+
+    def pooled(w: str, videos: list[int], metric: str) -> float:
+        return sum(runs[f"{w}/{v}"][metric] * runs[f"{w}/{v}"]["n"] for v in videos) / sum(
+            runs[f"{w}/{v}"]["n"] for v in videos
+        )
+
+    for metric in ("right", "right_open_set_off"):  # each video's weight chosen on the other two, again
+        lovo = result["lovo"][metric]
+        for v in range(3):
+            others = [o for o in range(3) if o != v]
+            chosen = max(
+                result["weights"], key=lambda w: (round(pooled(w, others, metric), 4), w == result["shipped"])
+            )
+            assert lovo[str(v)]["chosen"] == chosen
+    off = result["lovo"]["right_open_set_off"]
+    assert (
+        f"pooled {pct(off['pooled_chosen'])} % against the shipped weight's {pct(off['pooled_shipped'])}"
+        in text
+    )
+    on = result["lovo"]["right"]
+    assert f"pooled {pct(on['pooled_chosen'])} % both" in text and on["pooled_chosen"] == on["pooled_shipped"]
