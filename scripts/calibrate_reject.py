@@ -194,6 +194,13 @@ def fitted(
     return cal, rep
 
 
+def as_weights(cal: Calibration) -> tuple[float | None, float]:
+    """A calibration's statistic as `evaluation.videos.weights_by_video` names one: the lead's weight (None: the
+    distance) and its fit term's weight (0: none)."""
+    term = cal.term("fit")
+    return None if cal.statistic == "distance" else cal.weight, 0.0 if term is None else term.weight
+
+
 #: what `held_out` prints of each video: with the fewest objects registered (some left out)
 SAID = ("rejected_unknown", "rejected_registered")
 
@@ -466,12 +473,10 @@ def main() -> None:
 
         report["leave_one_video_out"], report["test"] = held_out(args, a, val_sets, fit, describe)
         if args.choose_weights:  # the statistic's weights chosen per video too (docs/experiments.md)
-            asked = {k: chosen.get(k, chosen.get("", ("distance", 0.0))) for k in a.kinds}
             report["weights_left_out"] = {
-                k: weights_by_video(a, k, rule, val_sets, args.fold, (
-                    None if asked[k][0] == "distance" else asked[k][1], weights["fit"].get(k, 0.0)))
+                k: weights_by_video(a, k, rule, val_sets, args.fold, as_weights(fit(a, k)[0]))
                 for k in a.kinds
-            }  # fmt: skip
+            }
             print(json.dumps({k: w["mean"] for k, w in report["weights_left_out"].items()}))
         test_sets = val_sets
     report["test_sets"] = test_sets
