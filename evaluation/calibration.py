@@ -2,10 +2,12 @@
 score (a distance, smaller is closer) of three kinds of validation patches — the right object answered,
 a wrong object answered while the right one is registered, an object that is not registered — a threshold
 and a confidence curve; the detection confidence's calibration error (`scripts/calibrate_detections.py`);
-and the metadata a calibration is written into. Pure numpy but for the last."""
+the metadata a calibration is written into; and the digest of the code that makes the answers (what a cache
+of collected answers is keyed on). Pure numpy but for the last two."""
 
 from __future__ import annotations
 
+import hashlib
 from pathlib import Path
 
 import numpy as np
@@ -137,3 +139,16 @@ def write_metadata(model: Path, out: Path, props: dict[str, str]) -> None:
     onnx.save(proto, str(out))
     if onnx.load(str(out)).graph.SerializeToString() != graph:
         raise SystemExit(f"{out}: the graph changed while writing the metadata")
+
+
+def code_digest(
+    root: Path = Path(__file__).resolve().parents[1], packages: tuple[str, ...] = ("index", "service")
+) -> str:
+    """A digest of the Python sources of `packages` under `root` (paths and bytes): the code that makes an
+    answer. A stage's constant (`service.pipeline.fit.EXPLAINED_WEIGHT`, say) moves answers without moving
+    any setting, so answers collected under other code are not the same answers."""
+    h = hashlib.sha256()
+    for package in packages:
+        for f in sorted((root / package).rglob("*.py")):
+            h.update(str(f.relative_to(root)).encode() + b"\0" + f.read_bytes())
+    return h.hexdigest()[:16]

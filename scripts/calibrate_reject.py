@@ -13,7 +13,7 @@ rejects at most `--reject-registered` of the registered objects' patches (or kee
 answers), and a logistic fit of "the best answer is the right object" on it gives the confidence. They go
 into the model's `reject_above` metadata with the settings the answers were made with: only
 `metadata_props` is rewritten (the onnx package), the graph and weights are left byte for byte as they were.
-The answers are kept in `--cache` (out/openset), read again while the frames, sets and settings are the same.
+The answers are kept in `--cache` (out/openset), read again while the frames, sets, settings and code are the same.
 With `--leave-one-video-out` (a dataset of videos, such as YCB-V's), every video is measured with the
 calibration chosen on the others and the JSON's test figures are the mean over the videos
 (`evaluation.videos`); the calibration written (`--out`) is chosen on every video. With `--choose-weights` too,
@@ -45,6 +45,7 @@ import onnx
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from evaluation.calibration import code_digest  # noqa: E402
 from evaluation.calibration import write_metadata as write_model_metadata  # noqa: E402
 from evaluation.openset import (  # noqa: E402
     Answers,
@@ -273,13 +274,13 @@ def scenes_of(args: argparse.Namespace, split: str) -> list[int]:
 def answers(args: argparse.Namespace, split: str, frames: list[int] | None, sets: list[list[int]]) -> Answers:
     """The split's answers: read from `--cache` when they were collected by the same network (its graph's
     digest: another network of the same file name, a retrained model, collects its own; a calibration
-    written into the file keeps them) with the same frames, sets and settings, else collected
+    written into the file keeps them) with the same frames, sets, settings and code (`code_digest`), else collected
     (`evaluation.openset.collect`) and written there."""
     scenes = scenes_of(args, split)
     path = args.cache / f"{args.model.stem}-{args.dataset.resolve().name}-{split}.json"
     network = graph_digest(onnx.load(args.model))
     key = {"network": network, "scenes": scenes, "frames": frames, "sets": sets,
-           "settings": Settings().model_dump(mode="json")}  # fmt: skip
+           "settings": Settings().model_dump(mode="json"), "code": code_digest()}  # fmt: skip
     if path.is_file():
         cached = json.loads(path.read_text())
         if cached.get("key") == key:

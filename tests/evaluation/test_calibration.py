@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from evaluation.calibration import (
+    code_digest,
     confidence,
     fit_logistic,
     keep_threshold,
@@ -64,3 +65,20 @@ def test_rejection_curve_counts_each_kind():
     assert c["precision"][1] == pytest.approx(2 / 3)
     # at 1.0 everything: unknowns weigh as much as all registered patches: (2/3) / (1 + 1)
     assert c["precision"][2] == pytest.approx(1 / 3)
+
+
+def test_the_code_digest_moves_with_a_constant_of_the_answering_code_and_nothing_else(tmp_path):
+    """Collected answers are keyed on it (`scripts/calibrate_reject.py --cache`): a stage's constant changed
+    in `service/` gives another digest; a file outside the packages, or not Python, does not."""
+    (tmp_path / "service" / "pipeline").mkdir(parents=True)
+    (tmp_path / "index").mkdir()
+    fit = tmp_path / "service" / "pipeline" / "fit.py"
+    fit.write_text("EXPLAINED_WEIGHT = 0.3\n")
+    before = code_digest(tmp_path)
+    (tmp_path / "service" / "notes.md").write_text("not code")
+    (tmp_path / "scripts").mkdir()
+    (tmp_path / "scripts" / "probe.py").write_text("x = 1\n")
+    assert code_digest(tmp_path) == before
+    fit.write_text("EXPLAINED_WEIGHT = 0.5\n")
+    assert code_digest(tmp_path) != before
+    assert len(code_digest()) == 16  # this checkout's own

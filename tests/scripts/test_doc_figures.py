@@ -1,7 +1,7 @@
 """The figures docs/experiments.md gives for this session's measurements are those of their committed JSONs
 (docs/results/): the patch windows before and after, the rules per video and the thresholds chosen
 leave-one-video-out, the catalogue objectness network's validation, the second depth network's runs, the five
-screening places, the two places verified, the quiet speed run."""
+screening places, the two places verified, the quiet speed run, the area weight made again through the chain."""
 
 from __future__ import annotations
 
@@ -295,3 +295,49 @@ def test_the_area_weight_by_video_is_its_json() -> None:
     )
     on = result["lovo"]["right"]
     assert f"pooled {pct(on['pooled_chosen'])} % both" in text and on["pooled_chosen"] == on["pooled_shipped"]
+
+
+def test_the_area_weight_made_again_through_the_chain_is_its_jsons() -> None:
+    """The per-video rows at 0.3 (the README's runs) and at 0.5 with its own open set, the depth open set's
+    unknowns rejected per video, and the pooled figures."""
+    text = experiments()
+
+    def runs(prefix: str) -> list[dict]:
+        return [
+            json.loads((RESULTS / f"{prefix}ycbv-service-depth-{v}-lovo.json").read_text()) for v in range(3)
+        ]
+
+    def cell(rs: list[dict]) -> str:
+        n = [r["n_samples"] for r in rs]
+        on = [r["methods"]["ours"]["k1"]["180"] for r in rs]
+        off = [r["open_set_off"]["methods"]["ours"]["k1"]["180"] for r in rs]
+        pooled = (
+            sum(a * b for a, b in zip(on, n, strict=True)) / sum(n),
+            sum(a * b for a, b in zip(off, n, strict=True)) / sum(n),
+        )
+        return [f"{pct(a)} / {pct(b)}" for a, b in [*zip(on, off, strict=True), pooled]]
+
+    shipped, again = cell(runs("")), cell(runs("area05-"))
+    for name, a, b in zip(
+        ("0000 (60)", "0001 (80)", "0002 (120)", "pooled (260)"), shipped, again, strict=True
+    ):
+        assert f"| {name} | {a} | {b} |" in text, name
+    for prefix, weight in (("", "0.3"), ("area05-", "0.5")):
+        lovo = json.loads((RESULTS / f"{prefix}reject-posedesc-depth-real.json").read_text())[
+            "leave_one_video_out"
+        ]
+        rows = []
+        for v in "012":
+            by = lovo[v]["test"]["descriptor"]["by_registered"]
+            rows.append(by[min(by, key=int)])
+        unknown = " / ".join(pct(r["rejected_unknown"]) for r in rows)
+        assert f"{unknown} % at {weight}" in text, weight
+    for prefix in ("", "area05-"):
+        rejected = [
+            json.loads((RESULTS / f"{prefix}ycbv-service-depth-{v}-lovo.json").read_text())["rejected"][
+                "ours"
+            ]
+            for v in range(3)
+        ]
+        right, n = sum(r["right_object_first"] for r in rejected), sum(r["n"] for r in rejected)
+        assert f"{right} of {n}" in text, prefix
