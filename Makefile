@@ -74,8 +74,9 @@ lint: setup
 # the evaluation's tiny dataset, the damaged stores): 841 tests in 1:51 on 2026-12-07 (862 took 1:57-2:15 the
 # same day, 859 1:52-2:19 before, as the machine's speed varies; 696 in 3:33 on one process). `make lint check` lints first. A test that takes more than a few seconds is marked `slow` in its file (`@pytest.mark.slow`, or
 # `pytestmark = pytest.mark.slow` for the module); tests never assert how fast anything is (bench does).
+# `make test` ends with its 25 slowest tests (`--durations`): where CI's minutes go, in CI's own log.
 test: setup lint
-	$(BIN)/pytest -q $(PARALLEL)
+	$(BIN)/pytest -q --durations=25 $(PARALLEL)
 
 check: setup
 	$(BIN)/pytest -q -m "not slow" $(PARALLEL)

@@ -51,8 +51,10 @@ def test_check_runs_the_tests_not_marked_slow_and_test_runs_them_all() -> None:
         return [line.strip() for line in run.stdout.splitlines() if "pytest" in line]
 
     assert recipe("check") == ['.venv/bin/pytest -q -m "not slow" -n 2 --dist loadgroup']
-    assert recipe("test") == [".venv/bin/pytest -q -n 2 --dist loadgroup"]  # every tier: nothing deselected
-    assert recipe("test PARALLEL=") == [".venv/bin/pytest -q"]  # one process, on request
+    assert recipe("test") == [
+        ".venv/bin/pytest -q --durations=25 -n 2 --dist loadgroup"
+    ]  # every tier: nothing deselected
+    assert recipe("test PARALLEL=") == [".venv/bin/pytest -q --durations=25"]  # one process, on request
     phony = next(line for line in (ROOT / "Makefile").read_text().splitlines() if line.startswith(".PHONY:"))
     assert "check" in phony.split()
 

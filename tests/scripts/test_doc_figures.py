@@ -341,3 +341,25 @@ def test_the_area_weight_made_again_through_the_chain_is_its_jsons() -> None:
         ]
         right, n = sum(r["right_object_first"] for r in rejected), sum(r["n"] for r in rejected)
         assert f"{right} of {n}" in text, prefix
+
+
+def test_the_query_turns_on_real_depth_are_their_json() -> None:
+    text = experiments()
+    runs = json.loads((RESULTS / "query-turns-depth-ycbv.json").read_text())["runs"]
+    for n in ("1", "2", "3"):
+        cells = " | ".join(
+            f"{pct(runs[f'{n}/{v}']['right'])} / {pct(runs[f'{n}/{v}']['right_open_set_off'])}"
+            for v in range(3)
+        )
+        assert f"| {cells} |" in text, n
+
+
+def test_the_background_work_ab_is_its_json() -> None:
+    text = experiments()
+    runs = json.loads((RESULTS / "register-background-ab.json").read_text())["runs"]
+    for name, r in runs.items():
+        arm, n = name.rsplit("-", 1)
+        row = (
+            f"| {arm}, {n} | {r['wall_s']:.3f} s | {r['cpu_s']} | {r['render_s']:.3f} | {r['embed_s']:.3f} |"
+        )
+        assert row in text, row

@@ -7,6 +7,7 @@ import threading
 
 import cv2
 import faiss
+import trimesh
 from fastapi.testclient import TestClient
 from service_helpers import patch_files, service_settings, wait_ready
 
@@ -53,3 +54,17 @@ def test_recognitions_run_in_those_threads(tmp_path, posedesc_models, monkeypatc
             assert c.post("/recognize", files=files).status_code == 200
     assert len(seen) == 3 and all(name.startswith("recognise") for name, *_ in seen), seen
     assert {tuple(c) for _, *c in seen} == {(n, n)}
+
+
+def test_the_warm_up_skips_an_object_deleted_before_its_turn(tmp_path, posedesc_models):
+    """The fit models made ahead of queries (`AppState.warm`): an object deleted before its turn (here:
+    never registered) gets none, where they would be made for nothing and kept until the cache dropped them."""
+    state = load_state(service_settings(tmp_path, posedesc_models))
+    try:
+        gone = max(state.store.snapshot.objects, default=0) + 1000
+        state.warm([gone], {gone: trimesh.creation.box(extents=(60.0, 40.0, 20.0))})
+        state.fitter.submit(lambda: None).result()  # its jobs, in order, done
+        assert gone not in state.draw_meshes and gone not in state.surfaces
+        assert all(gone not in cache for cache in state.shapes.needed(state.embedders))
+    finally:
+        close_state(state)
