@@ -22,8 +22,9 @@ from index.features.embed import Embedder
 from posedesc.cli import main
 from tests.evaluation.test_evaluate import check_table
 
-# every protocol with the shipped models: about a minute and a half on 2 cores
-pytestmark = pytest.mark.slow
+# every protocol with the shipped models: about a minute and a half on 2 cores; the module's fixtures made
+# once, on one worker (on two, each made the 25 s service runs and the paper runs)
+pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("shipped-models")]
 
 ROOT = Path(__file__).resolve().parents[2]
 MODELS = {m: ROOT / "models" / f"posedesc-{m}.onnx" for m in ("rgb", "depth", "rgbd")}

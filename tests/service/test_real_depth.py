@@ -19,8 +19,9 @@ from service_helpers import ROOT, created, service_settings, wait_ready
 from index.data.bop import BopDataset, instance_patch
 from service.main import create_app
 
-# registers the real LM-O objects and reads real Kinect frames: `make test`, not `make check`
-pytestmark = pytest.mark.slow
+# registers the real LM-O objects and reads real Kinect frames: `make test`, not `make check`; the module's
+# service made once, on one worker
+pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("real-depth")]
 
 LMO_DEPTH = ROOT.parent / "shared" / "data" / "lmo-depth"
 SCENE = LMO_DEPTH / "test" / "000002"

@@ -23,9 +23,12 @@ def _base(lmo: Path, out: Path) -> list[str]:
 
 
 @pytest.mark.slow
-def test_detect_protocol_on_an_lmo_frame(lmo, tmp_path, capsys):
+def test_detect_protocol_on_an_lmo_frame(lmo, tmp_path, capsys, monkeypatch):
     if not (MODEL.parent / OBJECTNESS_FILE).is_file():
         pytest.skip(f"no {OBJECTNESS_FILE} beside the shipped colour model: colour frames need it")
+    # the JSON's contract, not the figures: 81 viewpoints, not 301 (LineMOD's templates, built for the 7
+    # objects and again for the false alarms' 7, were 50 of the test's 86 s; the registrations 26)
+    monkeypatch.setenv("POSEDESC_LEVEL", "2")
     out, csv = tmp_path / "detect.json", tmp_path / "detect.csv"
     args = [*_base(lmo, out), "--protocol", "detect", "--frames", "224", "--linemod", "--false-alarms"]
     args += ["--bop-csv", str(csv)]

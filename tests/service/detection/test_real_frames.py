@@ -21,8 +21,9 @@ from service.main import create_app
 from service.settings import Settings
 from service.threads import worker_pool
 
-# registers the real LM-O objects and searches real frames whole: `make test`, not `make check`
-pytestmark = pytest.mark.slow
+# registers the real LM-O objects and searches real frames whole: `make test`, not `make check`; the module's
+# fixtures made once, on one worker (on two, each built the 30 s one)
+pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("real-frames")]
 
 SHARED = ROOT.parent / "shared" / "data"
 MODELS = ROOT / "models"
