@@ -46,8 +46,13 @@ def answered(tmp_path_factory, renderer, l_shape):
     rgb, _ = renderer.render_frame(scene, K, 640, 480)
     frame = tmp / "frame.png"
     cv2.imwrite(str(frame), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
-    settings = Settings(
-        data_dir=tmp / "data", models_dir=ROOT / "models", demo_objects=False, level=1, reject_above="off"
+    settings = Settings(  # answered at once however busy the machine (no test may depend on speed)
+        data_dir=tmp / "data",
+        models_dir=ROOT / "models",
+        demo_objects=False,
+        level=1,
+        reject_above="off",
+        sync_seconds=300.0,
     )
     answers = []
     with TestClient(create_app(settings)) as c:

@@ -363,3 +363,26 @@ def test_the_background_work_ab_is_its_json() -> None:
             f"| {arm}, {n} | {r['wall_s']:.3f} s | {r['cpu_s']} | {r['render_s']:.3f} | {r['embed_s']:.3f} |"
         )
         assert row in text, row
+
+
+def test_the_kinect_frame_with_the_depth_model_is_its_jsons() -> None:
+    text = experiments()
+    centre = json.loads((RESULTS / "kinect-depth-model-centre.json").read_text())
+    n = centre["n_samples"]
+    on = round(centre["methods"]["ours"]["k1"]["180"] * n)
+    off = round(centre["open_set_off"]["methods"]["ours"]["k1"]["180"] * n)
+    rejected = centre["rejected"]["ours"]
+    assert (
+        f"names {off} of the {n} instances at least half visible right with the open set off, {on} with it on"
+        in text
+    )
+    assert (
+        f"(it rejects {rejected['n']} right answers)" in text
+        and rejected["right_object_first"] == rejected["n"]
+    )
+    whole = json.loads((RESULTS / "kinect-depth-model-detect.json").read_text())["posedesc"]["all"]
+    assert whole["targets"] == n
+    assert (
+        f"finds {whole['true_positives']} of {n} and reports {whole['false_positives']} false detections"
+        in text
+    )
