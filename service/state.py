@@ -180,31 +180,25 @@ class AppState:
         from the store (`DrawMesh.as_stored`). The detection's colour check's surface colours too (a model that
         reads colour), whether the pose fit is on or not."""
 
-        def ahead(oid: int, make: Callable[[], object]) -> None:
-            """`make` on the fit thread, unless the object was deleted by then: its models would be made for
-            nothing, and kept until the cache dropped them."""
-            self.fitter.submit(lambda: make() if oid in self.store.snapshot.objects else None)
+        def ahead(oid: int, make: Callable[..., object], *args: object) -> None:
+            """`make(*args)` on the fit thread, unless the object was deleted by then: its models would be
+            made for nothing, and kept until the cache dropped them."""
+            self.fitter.submit(lambda: make(*args) if oid in self.store.snapshot.objects else None)
 
         if {"rgb", "rgbd"} & set(self.embedders):  # the detection's colour check reads colour frames
             for oid in list(object_ids)[:CAPACITY]:
                 if meshes is not None and oid in meshes:
-                    ahead(
-                        oid,
-                        partial(lambda o, m: self.surfaces.put(o, SurfaceColours.of(m)), oid, meshes[oid]),
-                    )
+                    ahead(oid, lambda o, m: self.surfaces.put(o, SurfaceColours.of(m)), oid, meshes[oid])
                 else:
-                    ahead(oid, partial(self.surfaces.get, oid))
+                    ahead(oid, self.surfaces.get, oid)
         if self.settings.pose_fit == 0:
             return
         caches = self.shapes.needed(self.embedders)
         for oid in list(object_ids)[:CAPACITY]:
             if meshes is not None and oid in meshes:  # the fit thread takes its jobs in order: first this
-                ahead(
-                    oid,
-                    partial(lambda o, m: self.draw_meshes.put(o, DrawMesh.as_stored(m)), oid, meshes[oid]),
-                )
+                ahead(oid, lambda o, m: self.draw_meshes.put(o, DrawMesh.as_stored(m)), oid, meshes[oid])
             for cache in caches:
-                ahead(oid, partial(cache.get, oid))
+                ahead(oid, cache.get, oid)
 
     @property
     def model_names(self) -> dict[str, str]:
