@@ -18,7 +18,7 @@ from service_helpers import Server, depth_png, png
 from benchmarks.serving.hostile import UPLOADS, ply_polygons
 
 # uploads of tens of MB, parses of 12 M triangles: `make test`, not `make check`
-pytestmark = pytest.mark.slow
+pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("hostile")]  # one server, on one worker
 
 
 @pytest.fixture(scope="module")

@@ -25,7 +25,7 @@ from service_helpers import Server, register
 from service.main import app
 
 # schemathesis against a real server, hundreds of requests: `make test`, not `make check`
-pytestmark = pytest.mark.slow
+pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("no-5xx")]  # one server, on one worker
 
 CHECKS = [
     not_a_server_error,

@@ -15,7 +15,7 @@ import pytest
 from service_helpers import ROOT, Server
 
 # runs the README's examples against real servers: `make test`, not `make check`
-pytestmark = pytest.mark.slow
+pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("readme")]  # its two servers started once each
 
 MODELS = ROOT / "models"
 DEMO = ["demo-mug", "demo-lamp", "demo-robot", "demo-duck"]

@@ -23,6 +23,9 @@ from service_helpers import ROOT, K, Server, W, service_settings
 from service.main import create_app
 from service.routes.page import EXAMPLE_FILES, STATIC, STATIC_FILES
 
+# the module's server and browser started once, on one worker
+pytestmark = pytest.mark.xdist_group("page")
+
 MODELS = ROOT / "models"
 EXAMPLES = ROOT / "service" / "examples"
 API_KEY = "page-test-key"

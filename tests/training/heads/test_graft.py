@@ -15,7 +15,8 @@ from training.heads.local import LocalTrunk
 from training.heads.mask import MaskNet
 from training.model import DescriptorNet, NetConfig
 
-pytestmark = pytest.mark.slow  # trains and grafts real heads: `make test`, not `make check`
+# trains and grafts real heads: `make test`, not `make check`; the module's models exported once, on one worker
+pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("graft")]
 
 
 @pytest.fixture(scope="module")
