@@ -211,7 +211,7 @@ def collect(
                 state = load_state(replace_dir(settings, folder), {embedder.modality: embedder})
                 try:
                     for o in set(obj_ids) - set(subset):
-                        state.store.remove_object(store_id[o])
+                        state.remove(store_id[o])
                     _ask(state, sent, dataset_ids, kinds, set(subset), run, out, b.update)
                 finally:
                     close_state(state)

@@ -19,6 +19,7 @@ from index.features.embed import Embedder, load_models, store_keys
 from index.features.objectness import OBJECTNESS_FILE, Colour, ObjectnessNet
 from index.features.objectness import propose as propose_objects
 from index.refine.chroma import SurfaceColours
+from index.refine.files import ColourFiles
 from index.store import EMBEDDED, TemplateStore, open_store
 from index.store.shared_files import SharedFiles
 from index.templates.mesh import load_mesh
@@ -64,6 +65,8 @@ class AppState:
     draw_meshes: MeshCache[DrawMesh] = field(init=False)
     #: what the pose fit needs of each object, made from `draw_meshes` (`service.pipeline.fit`)
     shapes: Shapes = field(init=False)
+    #: the colour fit models kept in the data dir, read back instead of made again (`index.refine.files`)
+    fit_files: ColourFiles = field(init=False)
     #: each coloured object's surface colours, for the detection's colour check (`service.detection.agree`)
     surfaces: MeshCache[SurfaceColours] = field(init=False)
     #: each object's drawing mesh cut to `MASK_FACES`, for the detections' masks (`service.detection.mask`)
@@ -94,9 +97,21 @@ class AppState:
         self.verifier = worker_pool(self.settings.detect_threads, "verify", n)
         self.fitter = worker_pool(1, "fit", n)
         self.draw_meshes = MeshCache(lambda oid: DrawMesh.from_glb(self.store.mesh_bytes(oid)))
-        self.shapes = Shapes(self.draw_meshes)
+        self.fit_files = ColourFiles(self.settings.data_dir, self._registered)
+        self.shapes = Shapes(self.draw_meshes, files=self.fit_files)
         self.surfaces = MeshCache(self._surface, CAPACITY)
         self.mask_meshes = MeshCache(self._mask_mesh, CAPACITY)
+
+    def _registered(self, object_id: int) -> float | None:
+        rec = self.store.snapshot.objects.get(object_id)
+        return None if rec is None else rec.created
+
+    def remove(self, object_id: int) -> bool:
+        """Removes an object from the store, and its kept fit model; False when it is not registered."""
+        if not self.store.remove_object(object_id):
+            return False
+        self.fit_files.remove(object_id)
+        return True
 
     def forget_deleted(self) -> None:
         """The caches of each object's meshes and models (the fit's, the colours', the masks') cut to the
@@ -240,7 +255,10 @@ def load_state(settings: Settings, embedders: dict[str, Embedder] | None = None)
     # behind a load balancer a job is polled on any replica: with a shared store, job states are shared files
     jobs = Jobs() if settings.store == EMBEDDED else Jobs(files=SharedFiles(settings.data_dir))
     colour = colour_proposals(objectness_path(settings), settings.detect_threads, settings.objectness_levels)
-    return AppState(settings, embedders, store, worker, cfg, jobs=jobs, colour_proposals=colour)
+    state = AppState(settings, embedders, store, worker, cfg, jobs=jobs, colour_proposals=colour)
+    # the kept fit models of objects deleted while no process served this data dir, or by other code
+    state.fit_files.sweep({oid: rec.created for oid, rec in store.snapshot.objects.items()})
+    return state
 
 
 def objectness_path(settings: Settings) -> Path:

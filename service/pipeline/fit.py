@@ -22,6 +22,7 @@ import numpy as np
 from index.draw import DrawMesh, MeshCache
 from index.refine.colour import ColourModel, fit_colour
 from index.refine.depth import DepthModel, Outline, fit_depth, outline_of
+from index.refine.files import ColourFiles
 from index.refine.fit import Fit, failed_at
 from service.pipeline.answer import Result
 from service.pipeline.context import Context, Decoded, Query
@@ -30,7 +31,8 @@ from service.settings import Settings
 T = TypeVar("T")
 log = logging.getLogger("service")
 
-#: objects whose fit models are kept (each under 1 MB); a query fits a handful of objects
+#: objects whose fit models are kept in memory (each under 1 MB); a query fits a handful of objects. The colour
+#: ones are kept in the data dir too (`index.refine.files`): a miss reads one back in about a millisecond
 CAPACITY = 64
 
 #: the depth re-ordering's first look at each of its answers (`PoseFit.coarse`): ICP of this many iterations
@@ -57,12 +59,23 @@ DEPTH_REFINE = 3
 
 class Shapes:
     """Each object's fit models, made from its drawing mesh (`index.draw.MeshCache`, the store's mesh cut
-    to the faces a drawing needs) on first use and kept for the `CAPACITY` used most recently."""
+    to the faces a drawing needs) on first use and kept for the `CAPACITY` used most recently. With `files`,
+    a colour model (0.2-0.5 s to make) is read from its file when one was kept, and kept when made."""
 
-    def __init__(self, meshes: MeshCache[DrawMesh], capacity: int = CAPACITY):
-        self.meshes = meshes
-        self.colour: MeshCache[ColourModel] = MeshCache(self._made(ColourModel.of), capacity)
+    def __init__(
+        self, meshes: MeshCache[DrawMesh], capacity: int = CAPACITY, files: ColourFiles | None = None
+    ):
+        self.meshes, self.files = meshes, files
+        self.colour: MeshCache[ColourModel] = MeshCache(self._colour, capacity)
         self.depth: MeshCache[DepthModel] = MeshCache(self._made(DepthModel.of), capacity)
+
+    def _colour(self, object_id: int) -> ColourModel | None:
+        if self.files is not None and (kept := self.files.read(object_id)) is not None:
+            return kept
+        made = self._made(ColourModel.of)(object_id)
+        if made is not None and self.files is not None:
+            self.files.write(object_id, made)
+        return made
 
     def _made(self, of: Callable[[DrawMesh], T]) -> Callable[[int], T | None]:
         """What makes an object's model from its drawing mesh: None for an object without a mesh."""

@@ -280,7 +280,7 @@ def delete_demo_objects(
         )
     snap = state.store.snapshot
     gone = [oid for oid, rec in sorted(snap.objects.items()) if rec.extra.get(DEMO_KEY)]
-    removed = [oid for oid in gone if state.store.remove_object(oid)]  # one may go meanwhile (a replica)
+    removed = [oid for oid in gone if state.remove(oid)]  # one may go meanwhile (a replica)
     return ObjectsRemoved(removed=removed)
 
 
@@ -291,6 +291,6 @@ def delete_demo_objects(
     responses=responses(401, 404, 422, 507),
 )
 def delete_object(object_id: int, state: StateDep, _key: ApiKeyDep) -> Response:
-    if not state.store.remove_object(object_id):
+    if not state.remove(object_id):
         raise ApiError(404, f"no object {object_id}")
     return Response(status_code=204)

@@ -1,7 +1,8 @@
 """The figures docs/experiments.md gives for this session's measurements are those of their committed JSONs
 (docs/results/): the patch windows before and after, the rules per video and the thresholds chosen
 leave-one-video-out, the catalogue objectness network's validation, the second depth network's runs, the five
-screening places, the two places verified, the quiet speed run, the area weight made again through the chain."""
+screening places, the two places verified, the quiet speed run, the area weight made again through the chain,
+the colour fit models kept on disk."""
 
 from __future__ import annotations
 
@@ -386,3 +387,17 @@ def test_the_kinect_frame_with_the_depth_model_is_its_jsons() -> None:
         f"finds {whole['true_positives']} of {n} and reports {whole['false_positives']} false detections"
         in text
     )
+
+
+def test_the_colour_fit_files_ab_is_its_json() -> None:
+    text = experiments()
+    runs = json.loads((RESULTS / "fit-files-ab.json").read_text())["runs"]
+    for name, r in runs.items():
+        arm, n = name.rsplit("-", 1)
+        a, b = r["colour_8"], r["colour_100"]
+        row = (
+            f"| {arm}, {n} | {a['p50_ms']} / {a['max_ms']} ms | {b['p50_ms']} / {b['p90_ms']} / {b['max_ms']} ms "
+            f"| {r['register_median_s']} s |"
+        )
+        assert row in text, row
+        assert a["detections"] == [6, 7, 2] and b["detections"] == [5, 5, 2]  # the same answers in every run
