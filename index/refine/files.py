@@ -8,25 +8,28 @@ made, 2.5 of their 5.1 s; the worst frame 1.6-1.7 s against 0.6-0.8 s with the f
 Read from its file, a model takes about a millisecond.
 
 The files are a cache of what the mesh gives, never the truth: `<data_dir>/fit/colour-<version>/<object
-id>-<registered>.npz`. The version is a digest of the model's constants, so a file made by other code is
-never read; the registration's time (`ObjectRecord.created`, seconds) tells an object from another of the
+id>-<registered>.npz`. The version is a digest of the code that makes a model, so a file made by other code
+is never read; the registration's time (`ObjectRecord.created`, seconds) tells an object from another of the
 same id in a store made anew in the same data dir. A file that cannot be read is made again; one that
 cannot be written is only not kept. Replicas sharing a data dir share the files (each written whole, then
 renamed: `write_atomic`)."""
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import io
 import logging
 import re
 import shutil
+import time
 import zipfile
 from collections.abc import Callable, Mapping
 from pathlib import Path
 
 import numpy as np
 
+from index import draw
 from index.refine import colour
 from index.refine.colour import ColourModel
 from index.store.snapshot_files import write_atomic
@@ -36,14 +39,19 @@ log = logging.getLogger("index.refine")
 FIT_DIR = "fit"
 #: the files' layout; counted up when it changes
 FORMAT = 1
+#: a temporary file this old was left by a writer that died (a live one renames it within a second)
+STALE_SECONDS = 600
 _NAME = re.compile(r"^(\d+)-(\d+)\.npz$")
 
 
 def version() -> str:
-    """A digest of what a colour model's arrays depend on besides the mesh."""
-    constants = (FORMAT, colour.VIEWS, colour.POINTS, colour.MODEL_FACES, colour.MODEL_PX, colour.TANGENT_PX,
-                 colour.CODE_MAX)  # fmt: skip
-    return hashlib.sha256(repr(constants).encode()).hexdigest()[:12]
+    """A digest of what a colour model's arrays depend on besides the mesh: its constants and the code that
+    makes it (the colour fit's module and the drawing mesh's, which cuts the mesh it is made from). Any change
+    there leaves the kept models unread: they are made again as needed, and the next start sweeps them."""
+    h = hashlib.sha256(repr((FORMAT, colour.VIEWS, colour.POINTS, colour.MODEL_FACES)).encode())
+    for module in (colour, draw):
+        h.update(Path(module.__file__ or "").read_bytes())
+    return h.hexdigest()[:12]
 
 
 class ColourFiles:
@@ -94,22 +102,31 @@ class ColourFiles:
     def remove(self, object_id: int) -> None:
         """Removes the files of an object (every registration of its id)."""
         for path in self.dir.glob(f"{int(object_id)}-*.npz"):
-            path.unlink(missing_ok=True)
+            _unlink(path)
 
     def sweep(self, objects: Mapping[int, float]) -> None:
-        """Removes the files of other versions, and of objects not in `objects` (id -> registration time)
-        up to its highest id: a higher id may be another process's newer object."""
+        """Removes the files of other versions, of objects not in `objects` (id -> registration time) up to
+        its highest id (a higher id may be another process's newer object), and temporary files left by a
+        writer that died."""
         if not self.root.is_dir():
             return
         for other in self.root.glob("colour-*"):
             if other != self.dir:
                 shutil.rmtree(other, ignore_errors=True)
         top = max(objects, default=0)
+        for path in self.dir.glob("*.tmp") if self.dir.is_dir() else ():  # a writer killed before its rename
+            with contextlib.suppress(OSError):
+                if time.time() - path.stat().st_mtime > STALE_SECONDS:
+                    _unlink(path)
         for path in self.dir.glob("*.npz") if self.dir.is_dir() else ():
             m = _NAME.match(path.name)
-            if m is None:
-                path.unlink(missing_ok=True)
-                continue
-            oid, created = int(m[1]), int(m[2])
-            if oid <= top and (oid not in objects or round(objects[oid]) != created):
-                path.unlink(missing_ok=True)
+            if m is None or (int(m[1]) <= top and round(objects.get(int(m[1]), -1)) != int(m[2])):
+                _unlink(path)
+
+
+def _unlink(path: Path) -> None:
+    """Removes a kept model; one the disk will not let go of is only logged (what it caches is gone)."""
+    try:
+        path.unlink(missing_ok=True)
+    except OSError as e:
+        log.warning("%s cannot be removed (%s)", path, e)

@@ -401,3 +401,12 @@ def test_the_colour_fit_files_ab_is_its_json() -> None:
         )
         assert row in text, row
         assert a["detections"] == [6, 7, 2] and b["detections"] == [5, 5, 2]  # the same answers in every run
+
+
+def test_the_colour_fit_files_at_a_start_are_their_json() -> None:
+    text = experiments()
+    runs = json.loads((RESULTS / "fit-files-warm.json").read_text())["runs"]
+    first, then = (runs[k] for k in sorted(runs))
+    assert first["objects"] == then["objects"] == 64
+    assert f"{first['wall_s']} s ({first['cpu_s']} CPU-seconds)" in text
+    assert f"{then['wall_s']} s ({then['cpu_s']} CPU-seconds)" in text

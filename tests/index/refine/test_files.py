@@ -3,11 +3,15 @@ object that is not registered or was registered anew under the same id, and swep
 
 from __future__ import annotations
 
+import os
+import time
+
 import numpy as np
 import pytest
 import trimesh
 
 from index.draw import DrawMesh
+from index.refine import colour
 from index.refine.colour import ColourModel
 from index.refine.files import FIT_DIR, ColourFiles
 
@@ -58,10 +62,34 @@ def test_remove_and_sweep_leave_the_registered_objects_and_newer_ids(tmp_path, m
         files.write(oid, model)
     files.remove(2)
     assert files.read(2) is None and files.read(1) is not None
+    dead = files.dir / "9-90.npz.0123.tmp"  # a writer killed before its rename, long ago
+    dead.write_bytes(b"half")
+    os.utime(dead, (time.time() - 3600, time.time() - 3600))
+    live = files.dir / "9-90.npz.4567.tmp"  # one writing now
+    live.write_bytes(b"half")
     old = tmp_path / FIT_DIR / "colour-0123456789ab"  # another version's models
     old.mkdir()
     (old / "1-10.npz").write_bytes(b"x")
     # 5 was deleted, 1 registered anew (another time), 9 is another process's newer object
     ColourFiles(tmp_path, {1: 11.0}.get).sweep({1: 11.0, 6: 60.0})
     names = sorted(p.name for p in files.dir.iterdir())
-    assert names == ["9-90.npz"] and not old.exists()
+    assert names == ["9-90.npz", "9-90.npz.4567.tmp"] and not old.exists()
+
+
+def test_a_file_the_disk_will_not_remove_is_logged_not_raised(tmp_path, model, caplog):
+    """A DELETE must not fail on a cache (a 500 after the object is gone): what cannot be removed is logged."""
+    files = ColourFiles(tmp_path, {4: 40.0}.get)
+    stuck = files.dir / "4-40.npz"
+    (stuck / "inside").mkdir(parents=True)  # a directory where the file would be: unlink refuses it
+    files.remove(4)
+    files.sweep({5: 50.0})  # 4 was deleted
+    assert stuck.is_dir() and caplog.text.count("cannot be removed") == 2
+
+
+def test_models_made_by_other_code_are_not_read(tmp_path, model, monkeypatch):
+    ColourFiles(tmp_path, {6: 60.0}.get).write(6, model)
+    monkeypatch.setattr(colour, "VIEWS", colour.VIEWS + 1)  # the models are made otherwise now
+    files = ColourFiles(tmp_path, {6: 60.0}.get)
+    assert files.read(6) is None
+    files.sweep({6: 60.0})  # and the next start removes them
+    assert not any((tmp_path / FIT_DIR).iterdir())
