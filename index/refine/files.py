@@ -12,7 +12,8 @@ id>-<registered>.npz`. The version is a digest of the code that makes a model, s
 is never read; the registration's time (`ObjectRecord.created`, seconds) tells an object from another of the
 same id in a store made anew in the same data dir. A file that cannot be read is made again; one that
 cannot be written is only not kept. Replicas sharing a data dir share the files (each written whole, then
-renamed: `write_atomic`)."""
+renamed: `write_atomic`); during an upgrade, a replica that starts sweeps the other version's files, which
+are made again as needed."""
 
 from __future__ import annotations
 
@@ -50,7 +51,10 @@ def version() -> str:
     there leaves the kept models unread: they are made again as needed, and the next start sweeps them."""
     h = hashlib.sha256(repr((FORMAT, colour.VIEWS, colour.POINTS, colour.MODEL_FACES)).encode())
     for module in (colour, draw):
-        h.update(Path(module.__file__ or "").read_bytes())
+        try:
+            h.update(Path(module.__file__ or "-").read_bytes())
+        except OSError:  # no source beside the code (a frozen build): the constants alone
+            h.update(module.__name__.encode())
     return h.hexdigest()[:12]
 
 
