@@ -410,3 +410,6 @@ def test_the_colour_fit_files_at_a_start_are_their_json() -> None:
     assert first["objects"] == then["objects"] == 64
     assert f"{first['wall_s']} s ({first['cpu_s']} CPU-seconds)" in text
     assert f"{then['wall_s']} s ({then['cpu_s']} CPU-seconds)" in text
+    one = json.loads((RESULTS / "fit-files-warm.json").read_text())["one_model"]
+    made = f"made in {min(one['make_s']):.2f}-{max(one['make_s']):.2f} s, read back in {one['read_ms_median']} ms"
+    assert made in text, made
