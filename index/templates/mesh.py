@@ -78,6 +78,7 @@ def load_mesh(
             _refuse(mesh_limits.parsed(loaded), max_input_faces, "holds")
         mesh = _as_single_mesh(loaded)
         _check(mesh)
+        mesh = _face_colours_to_corners(mesh)
     except MeshError:
         raise
     except Exception as e:  # trimesh raises anything from KeyError to struct.error on garbage
@@ -161,6 +162,26 @@ def _as_single_mesh(loaded: object) -> trimesh.Trimesh:
     if not isinstance(loaded, trimesh.Trimesh):
         raise MeshError(f"the file holds a {type(loaded).__name__}, not a triangle mesh")
     return loaded
+
+
+def _face_colours_to_corners(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
+    """A mesh coloured per face (a PLY's or an OFF's face colours, an STL's facet colours) as one coloured per
+    vertex: each vertex split into one per colour of the faces that meet there, so every face keeps its own
+    colour and a region of one colour stays one surface. The renderer shades by vertex (a mesh with face
+    colours was refused by it, a registration's 500), and averaging the faces' colours at shared vertices
+    would blur a box of six coloured sides to one grey."""
+    visual = mesh.visual
+    if not isinstance(visual, trimesh.visual.ColorVisuals) or visual.kind != "face":
+        return mesh
+    colours = np.asarray(visual.face_colors, np.uint8)
+    corners = np.column_stack([mesh.faces.reshape(-1), np.repeat(colours, 3, axis=0)])
+    kept, faces = np.unique(corners, axis=0, return_inverse=True)
+    return trimesh.Trimesh(
+        mesh.vertices[kept[:, 0]],
+        np.asarray(faces).reshape(-1, 3),
+        vertex_colors=kept[:, 1:].astype(np.uint8),
+        process=False,
+    )
 
 
 def _check(mesh: trimesh.Trimesh) -> None:

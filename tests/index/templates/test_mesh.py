@@ -93,6 +93,30 @@ def test_heavy_mesh_is_simplified_with_colours(l_shape):
     assert np.all(m.visual.vertex_colors[:, 1] == 200)
 
 
+def test_face_colours_are_kept_per_face_and_render(renderer):
+    """A mesh coloured per face (a PLY's face colours): each face keeps its colour at its
+    corners, a vertex split only where faces of other colours meet, and it renders (the renderer refused
+    face colours: a registration's 500)."""
+    from index.geometry.pose import View
+
+    box = trimesh.creation.box(extents=[60, 60, 60])  # 12 faces, 8 corners
+    sides = np.array([[220, 40, 40, 255], [40, 200, 60, 255], [40, 60, 220, 255]], np.uint8)
+    box.visual = trimesh.visual.ColorVisuals(box, face_colors=np.repeat(sides, 4, axis=0))
+    m = load_mesh(box.export(file_type="ply"), file_type="ply")
+    assert m.visual.kind == "vertex" and len(m.faces) == 12
+    corners = m.visual.vertex_colors[m.faces]  # (12, 3, 4)
+    assert np.array_equal(corners, np.repeat(np.repeat(sides, 4, axis=0)[:, None], 3, axis=1))
+    assert len(m.vertices) < 36  # faces of one colour share their corners
+    one = trimesh.creation.box(extents=[60, 60, 60])
+    one.visual = trimesh.visual.ColorVisuals(one, face_colors=np.tile(sides[0], (12, 1)))
+    assert len(load_mesh(one.export(file_type="ply"), file_type="ply").vertices) == 8
+    shots = renderer.render_upright(m, [View(azimuth=30.0, elevation=40.0, inplane=0.0, distance=400.0)])
+    seen = shots.rgb[0].reshape(-1, 3)
+    seen = seen[seen.sum(axis=1) > 0]  # the object's pixels, not the black background
+    dominant = np.bincount(seen.argmax(axis=1), minlength=3) / len(seen)
+    assert (dominant > 0.1).sum() >= 2  # sides of two colours in view at least, each its own colour
+
+
 def test_a_mesh_that_simplifies_to_nothing_is_refused():
     copies = b"v 0 0 0\nv 100 0 0\nv 0 100 0\n" + b"f 1 2 3\n" * 1000  # one triangle, a thousand times
     with pytest.raises(MeshError, match="left none"):
