@@ -8,10 +8,12 @@
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 
 from service.errors import ApiError
 from service.pipeline.answer import Result
-from service.pipeline.query import Decoded, Query, decode
+from service.pipeline.fit import best_part
+from service.pipeline.query import Decoded, Query, by_model, decode
 from service.state import AppState
 
 
@@ -36,8 +38,59 @@ def recognise_decoded(state: AppState, q: Query, d: Decoded, decode_s: float | N
     pipeline of the model the query's modality picked. `posedesc bench` times this call. `decode_s`: the
     seconds decoding took, reported as `decode` and counted in `total` (omitted when None).
 
-    An RGB-D query with a centre of a store holding shape-only and textured objects is answered by the RGB-D
-    model over them all, as before: asked apart (`service.pipeline.query.by_model`, as a whole frame is),
-    its answer would hold one part's objects only, and the two models' confidences are calibrated apart, so
-    neither answer can overrule the other (docs/experiments.md, 2026-12-06)."""
-    return state.pipelines[d.modality](q, d, state.store.snapshot, decode_s)
+    An RGB-D frame sent with its camera and the object's centre, of a store holding shape-only and textured
+    objects, is asked of each part's model, as a whole frame is (`service.pipeline.query.by_model`: the
+    shape-only objects of the depth model, whose templates have no colours to miss), and the answer is the
+    part's whose best answer shows the most (`service.pipeline.fit.best_part`: accepted with its colours,
+    accepted, then what the depth explains at its fitted pose), its other answers after. Asked of the RGB-D
+    model alone, as before, a shape-only object was never named on YCB-V's real frames with LM-O's objects
+    registered beside (docs/experiments.md, "A store of shape-only and textured objects, centre given")."""
+    parts = by_model(state, d) if split(q, d) else []
+    if len(parts) < 2:
+        return state.pipelines[d.modality](q, d, state.store.snapshot, decode_s)
+    results: list[Result] = []
+    refused: list[ApiError] = []
+    for i, (part, snapshot) in enumerate(parts):
+        try:  # a part whose windows the depth finds implausible is left out while the other answers
+            results.append(state.pipelines[part.modality](q, part, snapshot, decode_s if i == 0 else None))
+        except ApiError as e:
+            refused.append(e)
+    if not results:
+        raise refused[0]
+    assert d.depth is not None and q.camera is not None  # `split`
+    ceiling = state.settings.detect_colour_ceiling
+    best = best_part(results, state.shapes, d.depth, q.camera, ceiling) if len(results) > 1 else 0
+    return followed(results[best], [r for i, r in enumerate(results) if i != best], q.k)
+
+
+def split(q: Query, d: Decoded) -> bool:
+    """Whether the query is asked of each part of a mixed store (`recognise_decoded`): an RGB-D frame with
+    its camera and centre, which the depth can judge each part's answer on."""
+    return d.modality == "rgbd" and d.depth is not None and q.camera is not None and q.u is not None
+
+
+def followed(result: Result, others: list[Result], k: int) -> Result:
+    """`result` with the answers of `others` after its own, cut to `k`; the verdict, the measures of the best
+    answer and the model are `result`'s, the stages' times those of all of them."""
+    fits = list(result.fits) + [None] * (len(result.matches) - len(result.fits))
+    matches = list(result.matches)
+    confidences = list(result.confidences) + [None] * (len(matches) - len(result.confidences))
+    statistics, origins = list(result.statistics), list(result.origins_mm)
+    timings = dict(result.timings_ms)
+    for o in others:
+        matches += o.matches
+        confidences += o.confidences + [None] * (len(o.matches) - len(o.confidences))
+        statistics += o.statistics if len(statistics) == len(matches) - len(o.matches) else []
+        origins += o.origins_mm
+        fits += list(o.fits) + [None] * (len(o.matches) - len(o.fits))
+        for name, ms in o.timings_ms.items():
+            timings[name] = round(timings.get(name, 0.0) + ms, 2)
+    return replace(
+        result,
+        matches=matches[:k],
+        confidences=confidences[:k],
+        statistics=statistics[:k],
+        origins_mm=origins[:k],
+        fits=fits[:k],
+        timings_ms=timings,
+    )

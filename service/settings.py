@@ -202,10 +202,14 @@ class Settings(BaseSettings):
     # a confidence): one whose colours are farther than this from its object's is not reported. LM-O's
     # validation frames, real colour, rendered depth, RGB-D model: none 0.852 / 0.726 / 2.80 false a frame
     # with only absent objects registered; 0.3: 0.852 / 0.838 / 0.25; 0.25: 0.835 / 0.857 / 0.05; 0.2:
-    # 0.826 / 0.905 / 0 (recall / precision / false; the most found at <= 0.2 false a frame, as in colour)
+    # 0.826 / 0.905 / 0 (recall / precision / false; the most found at <= 0.2 false a frame, as in colour).
+    # The same bound says whether a textured answer's colours are its object's where an RGB-D frame with a
+    # centre is asked of each part of a mixed store (`service.pipeline.fit.best_part`)
     detect_colour_ceiling: float = Field(
         0.25, ge=0, le=2, description="a frame without u and v, with depth, without min_confidence: a "
-        "detection whose colours are farther than this from its object's is not reported (2: no ceiling)",
+        "detection whose colours are farther than this from its object's is not reported; with u and v, of a "
+        "store of shape-only and textured objects, such an answer does not take the answer from the shape-only "
+        "part's (2: no ceiling)",
     )  # fmt: skip
     # A colour frame's detection confidence is weighed by its colours (`service.detection.agree`). Chosen with
     # the weight and the allowance there (the most found at <= 0.2 false detections a frame where only objects

@@ -276,6 +276,43 @@ def reranked(result: Result, n: int, outlines: Sequence[Outline] = ()) -> Result
     )
 
 
+def best_part(
+    results: Sequence[Result], shapes: Shapes, depth: np.ndarray, K: np.ndarray, ceiling: float
+) -> int:
+    """Which of several models' results, each over its own part of the store (a shape-only part of the depth
+    model, a textured part of the RGB-D model: `service.recognition`), gives the answer: the index of the one
+    whose best answer has the most evidence. First what each kind of answer can show: one its model accepts
+    whose colours at its fitted pose are its object's (`Result.colour_distance` at most `ceiling`, the
+    service's `detect_colour_ceiling`), then one its model accepts without colours to check (a shape-only
+    object), then the rest (rejected, or colours that are another object's). Among equals, what the depth
+    shows of any answer alike: the share of its seen points the depth explains, less how far the measured
+    surface goes on past it, plus `EXPLAINED_WEIGHT` times the area it explains as a share of the largest of
+    them (as `reranked` orders one model's answers, without the confidence: the models are calibrated apart,
+    each on its own objects). Chosen on LM-O's validation frames and YCB-V video 0000 among the depth alone and
+    acceptance first (docs/experiments.md, "A store of shape-only and textured objects, centre given").
+    Ties: the first; a result without answers is never chosen."""
+    outlines: list[Outline | None] = []
+    for r in results:
+        model = shapes.depth.get(r.matches[0].object_id) if r.matches else None
+        outlines.append(None if model is None else outline_of(model, *r.pose(0), K, depth))
+    largest = max((o.explained for o in outlines if o is not None), default=0.0)
+
+    def evidence(j: int) -> tuple[int, float, int]:
+        o, r = outlines[j], results[j]
+        if not r.matches:
+            return (-1, 0.0, -j)
+        if r.reason is not None or (r.colour_distance is not None and r.colour_distance > ceiling):
+            shown = 0
+        else:
+            shown = 2 if r.colour_distance is not None else 1
+        fit = r.fits[0] if r.fits else None
+        area = o.explained / largest if o is not None and largest > 0 else 0.0
+        depth_says = (fit.score if fit is not None else 0.0) - (o.beyond if o is not None else 0.0)
+        return (shown, depth_says + EXPLAINED_WEIGHT * area, -j)
+
+    return max(range(len(results)), key=evidence)
+
+
 def first(result: Result, k: int) -> Result:
     """`result` cut to its first `k` answers."""
     return replace(

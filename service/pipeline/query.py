@@ -79,7 +79,8 @@ def by_model(state: Loaded, d: Decoded) -> list[tuple[Decoded, Snapshot]]:
     a grey render matches no real surface, and adding colour to a frame must never lose what its depth
     alone finds. Costs a second pass (its proposals verified twice) for such stores only. A colour frame
     has no part for shape-only objects, and none at all when every object is shape-only
-    (`COLOUR_SHAPE_ONLY`). A query with a centre is not split (`service.recognition.recognise_decoded`)."""
+    (`COLOUR_SHAPE_ONLY`). An RGB-D frame with its camera and a centre is split alike, and answered by the
+    part whose answer the depth explains better (`service.recognition.recognise_decoded`)."""
     snapshot = state.store.snapshot
     bare = frozenset(oid for oid, rec in snapshot.objects.items() if untextured(rec))
     if d.modality == "rgb" and bare:  # colour alone: no part for shape-only objects (`COLOUR_SHAPE_ONLY`)

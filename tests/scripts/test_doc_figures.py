@@ -2,7 +2,7 @@
 (docs/results/): the patch windows before and after, the rules per video and the thresholds chosen
 leave-one-video-out, the catalogue objectness network's validation, the second depth network's runs, the five
 screening places, the two places verified, the quiet speed run, the area weight made again through the chain,
-the colour fit models kept on disk."""
+the colour fit models kept on disk, a mixed store's RGB-D queries with a centre."""
 
 from __future__ import annotations
 
@@ -413,3 +413,29 @@ def test_the_colour_fit_files_at_a_start_are_their_json() -> None:
     one = json.loads((RESULTS / "fit-files-warm.json").read_text())["one_model"]
     made = f"made in {min(one['make_s']):.2f}-{max(one['make_s']):.2f} s, read back in {one['read_ms_median']} ms"
     assert made in text, made
+
+
+def test_the_mixed_store_s_rules_and_runs_are_their_jsons() -> None:
+    """The rules compared for a mixed store's RGB-D query with a centre (the session probe's table) and the
+    evaluations before and after the change."""
+    text = experiments()
+    plain = text.replace("**", "")
+    rules = json.loads((RESULTS / "mixed-store-rules.json").read_text())["sets"]
+    for name in rules["lmo-val"]["rules"]:
+        cells = [rules[s]["rules"][name] for s in ("lmo-val", "ycbv-0000", "ycbv-0001", "ycbv-0002")]
+        row = " | ".join(f"{c['open_set_on']:.1f} / {c['open_set_off']:.1f}" for c in cells)
+        assert f"| {row} |" in plain, (name, row)
+
+    def cells(path: str) -> str:
+        d = json.loads((RESULTS / path).read_text())
+        k, off = d["methods"]["ours"]["k1"], d["open_set_off"]["methods"]["ours"]["k1"]
+        return (
+            f"{pct(k['180'])} / {pct(off['180'])} | {pct(k['20'])} | {d['bop']['ar']:.3f} | "
+            f"{d['timing_ms']['recognise_median']:.0f}"
+        )
+
+    for key in ("lmo-val", "lmo-test", "ycbv-0", "ycbv-1", "ycbv-2"):
+        row = f"| {cells(f'mixed-before-{key}.json')} | {cells(f'mixed-after-{key}.json')} |"
+        assert row in text, row
+    alone = [json.loads((RESULTS / f"mixed-depth-all-ycbv-{s}.json").read_text()) for s in range(3)]
+    assert " / ".join(pct(d["methods"]["ours"]["k1"]["180"]) for d in alone) + " %" in text

@@ -6,6 +6,7 @@ apart, so a template's pose is visibly off), a rendered frame at a pose between 
 from __future__ import annotations
 
 from dataclasses import replace
+from typing import Any
 
 import numpy as np
 import pytest
@@ -218,3 +219,47 @@ def test_a_fit_that_fails_leaves_the_answer_at_its_template(client, shot, monkey
     assert m["name"] == "ell" and m["refined"] is False
     assert (m["azimuth"], m["elevation"], m["inplane"]) == tuple(m["template"].values())
     assert failures() == before + 1  # logged and counted: /metrics says the pipeline failed inside
+
+
+def test_of_two_parts_the_answer_shown_best_is_chosen_first_by_what_its_kind_can_show():
+    """`best_part` (a store of shape-only and textured objects, an RGB-D frame with its centre): an answer its
+    model accepts with its object's colours, then one accepted without colours to check, then the rest; the
+    depth's evidence only among equals."""
+    from types import SimpleNamespace
+
+    from index.draw import MeshCache
+    from service.pipeline.fit import best_part
+
+    shapes: Any = SimpleNamespace(depth=MeshCache(lambda _: None))  # no depth models: no outlines
+    depth, K = np.zeros((48, 64), np.float32), np.eye(3)
+
+    def part(score: float, colour: float | None = None, reason: str | None = None) -> Result:
+        return replace(result_of([score], [0.5], 1), colour_distance=colour, reason=reason)
+
+    textured, shape = part(0.5, colour=0.1), part(0.9)
+    assert best_part([shape, textured], shapes, depth, K, ceiling=0.25) == 1  # its colours agree: first
+    assert best_part([shape, part(0.5, colour=0.4)], shapes, depth, K, ceiling=0.25) == 0  # another's colours
+    assert best_part([shape, part(0.5, colour=0.4)], shapes, depth, K, ceiling=2.0) == 1  # no ceiling
+    assert best_part([part(0.9, reason="far"), part(0.2)], shapes, depth, K, ceiling=0.25) == 1  # rejected
+    assert best_part([part(0.3), part(0.8)], shapes, depth, K, ceiling=0.25) == 1  # equals: the depth's say
+    assert best_part([part(0.5), part(0.5)], shapes, depth, K, ceiling=0.25) == 0  # ties: the first
+    empty = replace(part(0.9), matches=[], fits=[], confidences=[], origins_mm=[])
+    assert best_part([empty, part(0.1, reason="far")], shapes, depth, K, ceiling=0.25) == 1
+
+
+def test_two_parts_answers_follow_the_chosen_ones_each_field_with_its_answer():
+    """`service.recognition.followed`: the chosen result's answers, then the other's, every per-answer list
+    padded where it was shorter (fits of answers not fitted), cut to k; its verdict and model; times summed."""
+    from service.recognition import followed
+
+    a = replace(
+        result_of([0.9], [0.8, 0.7], 2), model="posedesc-depth", timings_ms={"fit": 2.0, "total": 5.0}
+    )
+    b = result_of([0.4, 0.3], [0.6, 0.5], 2)
+    b = replace(b, matches=[replace(m, object_id=7 + i) for i, m in enumerate(b.matches)])
+    b = replace(b, timings_ms={"fit": 1.0, "local": 3.0, "total": 4.0}, reason="far")
+    out = followed(a, [b], 3)
+    assert [m.object_id for m in out.matches] == [0, 1, 7] and out.model == "posedesc-depth"
+    assert out.confidences == [0.8, 0.7, 0.6] and out.origins_mm == [500.0, 501.0, 500.0]
+    assert [f.score if f else None for f in out.fits] == [0.9, None, 0.4]
+    assert out.reason is None and out.timings_ms == {"fit": 3.0, "total": 9.0, "local": 3.0}
