@@ -1,6 +1,7 @@
 """Shape-only objects and RGB-D frames: while every registered object's mesh is without colours, an RGB-D
 frame is answered by the depth model (the colour could only be matched against grey renders), centre given
-or the frame searched whole; once a textured object is registered too, by the RGB-D model again."""
+or the frame searched whole; beside textured objects, the shape-only ones still by the depth model, each part
+asked of its own model (a frame with its centre answered by the part whose answer shows the most)."""
 
 from __future__ import annotations
 
@@ -31,9 +32,23 @@ def shape_only_part() -> trimesh.Trimesh:
     return m
 
 
+def coloured_box() -> trimesh.Trimesh:
+    """A small box of three colours, one per face (as a PLY gives them), as the service reads it."""
+    box = trimesh.creation.box(extents=[45, 45, 45])
+    box.visual = trimesh.visual.ColorVisuals(
+        box, face_colors=np.array([[220, 40, 40, 255], [40, 200, 60, 255], [40, 60, 220, 255]] * 4)
+    )
+    return load_mesh(box.export(file_type="ply"), file_type="ply")
+
+
 def test_rgbd_frames_of_shape_only_objects_are_answered_by_the_depth_model(
-    tmp_path, posedesc_models, renderer, l_shape
+    tmp_path, posedesc_models, renderer
 ):
+    """Every object shape-only: an RGB-D frame is the depth model's, centre given or searched whole. Then a
+    textured box beside: a frame with its centre is asked of each part's model (the L of the depth model, the
+    box of the RGB-D model) and the part whose best answer shows the most answers
+    (`service.pipeline.fit.best_part`): the L's frame is the L's, the box's the box's. Before, the RGB-D
+    model answered both, the L through grey renders, and named the box on the L's frame."""
     part = shape_only_part()
     rgb, depth = frame(renderer, part, VIEW, UV, wall_mm=1500.0)
     files = {"rgb": ("f.png", png(rgb)), "depth": ("d.png", depth_png(depth))}
@@ -51,39 +66,15 @@ def test_rgbd_frames_of_shape_only_objects_are_answered_by_the_depth_model(
         assert whole.json()["model"] == "posedesc-depth"
         drawn = c.post("/recognize/draw", files=files, data=frame_fields(UV, k=3))
         assert drawn.status_code == 200 and drawn.content[:4] == b"\x89PNG"
-        register(c, l_shape, "L")  # coloured: each part asked of its model, one answers
-        again = c.post("/recognize", files=files, data=frame_fields(UV, k=3)).json()
-        named = {"posedesc-depth": "part", "posedesc-rgbd": "L"}
-        assert again["matches"][0]["name"] == named[again["model"]], again
-        assert np.isfinite(again["matches"][0]["distance"])
-
-
-def test_beside_textured_objects_an_rgbd_frame_with_its_centre_is_answered_by_the_part_its_depth_explains(
-    tmp_path, posedesc_models, renderer
-):
-    """A store of a shape-only L and a small textured box: an RGB-D frame with its centre is asked of each
-    part's model (the L of the depth model, the box of the RGB-D model), and the part whose best answer the
-    depth explains better at its fitted pose answers (`service.pipeline.fit.explained_best`): the L's frame
-    is the L's, the box's frame the box's. Before, the RGB-D model answered both, over grey renders of the L."""
-    box = trimesh.creation.box(extents=[45, 45, 45])
-    box.visual = trimesh.visual.ColorVisuals(
-        box, face_colors=np.array([[220, 40, 40, 255], [40, 200, 60, 255], [40, 60, 220, 255]] * 4)
-    )
-    box = load_mesh(box.export(file_type="ply"), file_type="ply")  # as the service reads it: drawable
-    with TestClient(create_app(service_settings(tmp_path, posedesc_models, level=1))) as c:
-        wait_ready(c)
-        assert register(c, shape_only_part(), "part")["textured"] is False
+        box = coloured_box()
         assert register(c, box, "box")["textured"] is True
-        for mesh, name, model in (
-            (shape_only_part(), "part", "posedesc-depth"),
-            (box, "box", "posedesc-rgbd"),
-        ):
+        for mesh, name, model in ((part, "part", "posedesc-depth"), (box, "box", "posedesc-rgbd")):
             rgb, depth = frame(renderer, mesh, VIEW, UV, wall_mm=1500.0)
-            files = {"rgb": ("f.png", png(rgb)), "depth": ("d.png", depth_png(depth))}
-            r = c.post("/recognize", files=files, data=frame_fields(UV, k=3))
+            sent = {"rgb": ("f.png", png(rgb)), "depth": ("d.png", depth_png(depth))}
+            r = c.post("/recognize", files=sent, data=frame_fields(UV, k=3))
             assert r.status_code == 200, r.text
             assert (r.json()["model"], r.json()["matches"][0]["name"]) == (model, name), r.json()
-            assert r.json()["matches"][0]["refined"]
+            assert r.json()["matches"][0]["refined"] and np.isfinite(r.json()["matches"][0]["distance"])
 
 
 def test_beside_textured_objects_an_rgbd_frames_shape_only_objects_are_found_by_the_depth_model(
