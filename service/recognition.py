@@ -48,13 +48,18 @@ def recognise_decoded(state: AppState, q: Query, d: Decoded, decode_s: float | N
     parts = by_model(state, d) if split(q, d) else []
     if len(parts) < 2:
         return state.pipelines[d.modality](q, d, state.store.snapshot, decode_s)
-    results: list[Result] = []
-    refused: list[ApiError] = []
-    for i, (part, snapshot) in enumerate(parts):
+
+    def asked(i: int) -> Result | ApiError:
+        part, snapshot = parts[i]
         try:  # a part whose windows the depth finds implausible is left out while the other answers
-            results.append(state.pipelines[part.modality](q, part, snapshot, decode_s if i == 0 else None))
+            return state.pipelines[part.modality](q, part, snapshot, decode_s if i == 0 else None)
         except ApiError as e:
-            refused.append(e)
+            return e
+
+    # side by side on the pool a frame's places are verified on (`Settings.detect_threads`), this thread waiting
+    outcomes = list(state.verifier.map(asked, range(len(parts))))
+    results = [r for r in outcomes if isinstance(r, Result)]
+    refused = [e for e in outcomes if isinstance(e, ApiError)]
     if not results:
         raise refused[0]
     assert d.depth is not None and q.camera is not None  # `split`

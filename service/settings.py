@@ -181,7 +181,8 @@ class Settings(BaseSettings):
     # cores, and the extra threads share them
     detect_threads: int = Field(
         2, ge=1, le=16, description="a frame without u and v: the objectness network's threads and the "
-        "places verified at once (1: one core)",
+        "places verified at once; with u and v, the parts of a store of shape-only and textured objects asked "
+        "at once (1: one core)",
     )  # fmt: skip
     # Depth segments rank worse than the network's proposals in clutter (the real Kinect frame: 5 of its 6
     # instances in the first 30 segments, 1 in the first 10; docs/results/depth_proposals.json)

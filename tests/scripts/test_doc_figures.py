@@ -439,3 +439,18 @@ def test_the_mixed_store_s_rules_and_runs_are_their_jsons() -> None:
         assert row in text, row
     alone = [json.loads((RESULTS / f"mixed-depth-all-ycbv-{s}.json").read_text()) for s in range(3)]
     assert " / ".join(pct(d["methods"]["ours"]["k1"]["180"]) for d in alone) + " %" in text
+
+
+def test_the_mixed_store_s_parts_side_by_side_are_their_json() -> None:
+    text = experiments()
+    runs = json.loads((RESULTS / "mixed-parts-threads-ab.json").read_text())["runs"]
+    for n in (1, 2):
+        one, two = runs[f"one thread, {n}"], runs[f"two threads, {n}"]
+        assert (
+            one["right_object"] == two["right_object"] and one["bop_ar"] == two["bop_ar"]
+        )  # the same answers
+        row = (
+            f"| {n} | {one['recognise_median_ms']} / {one['recognise_p90_ms']} ms | "
+            f"{two['recognise_median_ms']} / {two['recognise_p90_ms']} ms |"
+        )
+        assert row in text, row
