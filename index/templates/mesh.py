@@ -165,11 +165,11 @@ def _as_single_mesh(loaded: object) -> trimesh.Trimesh:
 
 
 def _face_colours_to_corners(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
-    """A mesh coloured per face (a PLY's or an OFF's face colours, an STL's facet colours) as one coloured per
-    vertex: each vertex split into one per colour of the faces that meet there, so every face keeps its own
-    colour and a region of one colour stays one surface. The renderer shades by vertex (a mesh with face
-    colours was refused by it, a registration's 500), and averaging the faces' colours at shared vertices
-    would blur a box of six coloured sides to one grey."""
+    """A mesh coloured per face (a PLY's face colours, for one) as one coloured per vertex: each vertex split
+    into one per colour of the faces that meet there, so every face keeps its own colour and a region of one
+    colour stays one surface. The renderer shades by vertex (a mesh with face colours was refused by it, a
+    registration's 500), and averaging the faces' colours at shared vertices would blur a box of six coloured
+    sides to one grey."""
     visual = mesh.visual
     if not isinstance(visual, trimesh.visual.ColorVisuals) or visual.kind != "face":
         return mesh

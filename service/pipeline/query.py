@@ -80,7 +80,7 @@ def by_model(state: Loaded, d: Decoded) -> list[tuple[Decoded, Snapshot]]:
     alone finds. Costs a second pass (its proposals verified twice) for such stores only. A colour frame
     has no part for shape-only objects, and none at all when every object is shape-only
     (`COLOUR_SHAPE_ONLY`). An RGB-D frame with its camera and a centre is split alike, and answered by the
-    part whose answer the depth explains better (`service.recognition.recognise_decoded`)."""
+    part whose best answer shows the most (`service.recognition.recognise_decoded`)."""
     snapshot = state.store.snapshot
     bare = frozenset(oid for oid, rec in snapshot.objects.items() if untextured(rec))
     if d.modality == "rgb" and bare:  # colour alone: no part for shape-only objects (`COLOUR_SHAPE_ONLY`)
