@@ -1,8 +1,8 @@
 """What a new user meets, on a real server (`posedesc serve` on loopback, the shipped models, the demo objects):
 their own mesh registered, its `posedesc render --patches` queries sent as written. Its patches, sent with the
 window the JSON says, are answered as that object and never as another one with confidence; registered
-shape-only beside the textured demo objects, it is found in a whole frame with colour and depth as with
-depth alone; deleted, it is never named again."""
+shape-only beside the textured demo objects, it is found in a whole frame, and named with its centre, with colour
+and depth as with depth alone; deleted, it is never named again."""
 
 from __future__ import annotations
 
@@ -95,6 +95,14 @@ def test_a_shape_only_part_beside_textured_objects_is_found_with_colour_as_with_
             ).json()
             found[kind] += any(d["best"]["name"] == "bare-part" for d in a["detections"])
     assert found["depth"] >= 3 and found["rgb+depth"] >= found["depth"], found
+    named = {"rgb+depth": 0, "depth": 0}  # with its centre too: each part asked of its own model
+    for q in qs:
+        for kind, keys in (("rgb+depth", ("rgb", "depth")), ("depth", ("depth",))):
+            a = httpx.post(
+                f"{server.url}/recognize", files=files(tmp_path / "q", q, *keys), data=q["form"], timeout=120
+            ).json()
+            named[kind] += a["best"] is not None and a["best"]["name"] == "bare-part"
+    assert named["depth"] >= 3 and named["rgb+depth"] >= named["depth"], named
     assert httpx.delete(f"{server.url}/objects/{oid}").status_code == 204
     after = httpx.post(
         f"{server.url}/recognize",
