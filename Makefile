@@ -66,7 +66,7 @@ lint: setup
 	$(BIN)/ruff format --check .
 	$(BIN)/mypy
 
-# Two tiers, both on two processes (PARALLEL). `make test` (CI, .ci/run): lint, then every test (1,043: 9:24-9:48
+# Two tiers, both on two processes (PARALLEL). `make test` (CI, .ci/run): lint, then every test (1,043: 9:24-10:19
 # of pytest on this 2-core machine late on 2026-12-07; 1,038 took 11:42 that evening, its benches at about half the
 # README run's speed; 1,028-1,029 took 11:00-12:33; 12:46 before three modules' fixtures were made on one worker only; 985 took 10:32
 # on 2026-12-06, 789 17:09 on one process). `make check`: the fast

@@ -44,8 +44,9 @@ def recognise_decoded(state: AppState, q: Query, d: Decoded, decode_s: float | N
     part's whose best answer shows the most (`service.pipeline.fit.best_part`: accepted with its colours,
     accepted, then what the depth explains at its fitted pose), its other answers after. Asked of the RGB-D
     model alone, as before, YCB-V's shape-only objects beside LM-O's textured ones were named right 0, 0 and
-    20 % of the time on its three videos; now 95.0, 73.8 and 77.5 % (docs/experiments.md, "A store of
-    shape-only and textured objects, centre given")."""
+    20 % of the time on its three videos; now 95.0 % on video 0000, which chose the rule with LM-O's
+    validation frames, and 73.8 and 77.5 % on the other two (docs/experiments.md, "A store of shape-only and
+    textured objects, centre given")."""
     parts = by_model(state, d) if split(q, d) else []
     if len(parts) < 2:
         return state.pipelines[d.modality](q, d, state.store.snapshot, decode_s)

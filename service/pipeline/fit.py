@@ -255,11 +255,10 @@ def reranked(result: Result, n: int, outlines: Sequence[Outline] = ()) -> Result
     largest = max((o.explained for o in outlines[:n]), default=0.0)
 
     def key(i: int) -> float:
-        fit = result.fits[i]
         conf = result.confidences[i] if i < len(result.confidences) else None
         past = least.get(result.matches[i].object_id, 0.0)
         area = outlines[i].explained / largest if i < len(outlines) and largest > 0 else 0.0
-        return -((fit.score if fit is not None else 0.0) + (conf or 0.0) - past + EXPLAINED_WEIGHT * area)
+        return -(depth_evidence(result.fits[i], past, area) + (conf or 0.0))
 
     order = sorted(range(n), key=key) + list(range(n, len(result.matches)))
 
@@ -276,6 +275,13 @@ def reranked(result: Result, n: int, outlines: Sequence[Outline] = ()) -> Result
     )
 
 
+def depth_evidence(fit: Fit | None, beyond: float, area: float) -> float:
+    """What the depth says for an answer at its fitted pose, alike for any model's: the share of its seen
+    points the depth explains (none fitted: 0), less how far the measured surface goes on past it (`beyond`),
+    plus `EXPLAINED_WEIGHT` times the area it explains as a share of the largest among those compared."""
+    return (fit.score if fit is not None else 0.0) - beyond + EXPLAINED_WEIGHT * area
+
+
 def best_part(
     results: Sequence[Result], shapes: Shapes, depth: np.ndarray, K: np.ndarray, ceiling: float
 ) -> int:
@@ -284,11 +290,9 @@ def best_part(
     whose best answer has the most evidence. First what each kind of answer can show: one its model accepts
     whose colours at its fitted pose are its object's (`Result.colour_distance` at most `ceiling`, the
     service's `detect_colour_ceiling`), then one its model accepts without colours to check (a shape-only
-    object), then the rest (rejected, or colours that are another object's). Among equals, what the depth
-    shows of any answer alike: the share of its seen points the depth explains, less how far the measured
-    surface goes on past it, plus `EXPLAINED_WEIGHT` times the area it explains as a share of the largest of
-    them (as `reranked` orders one model's answers, without the confidence: the models are calibrated apart,
-    each on its own objects). Chosen on LM-O's validation frames and YCB-V video 0000 among the depth alone and
+    object), then the rest (rejected, or colours that are another object's). Among equals, `depth_evidence`
+    (as `reranked` orders one model's answers, without the confidence: the models are calibrated apart, each
+    on its own objects). Chosen on LM-O's validation frames and YCB-V video 0000 among the depth alone and
     acceptance first (docs/experiments.md, "A store of shape-only and textured objects, centre given").
     Ties: the first; a result without answers is never chosen."""
     outlines: list[Outline | None] = []
@@ -305,10 +309,9 @@ def best_part(
             shown = 0
         else:
             shown = 2 if r.colour_distance is not None else 1
-        fit = r.fits[0] if r.fits else None
         area = o.explained / largest if o is not None and largest > 0 else 0.0
-        depth_says = (fit.score if fit is not None else 0.0) - (o.beyond if o is not None else 0.0)
-        return (shown, depth_says + EXPLAINED_WEIGHT * area, -j)
+        beyond = o.beyond if o is not None else 0.0
+        return (shown, depth_evidence(r.fits[0] if r.fits else None, beyond, area), -j)
 
     return max(range(len(results)), key=evidence)
 
