@@ -40,6 +40,9 @@ class Config:
     #: service protocol: a second BOP dataset whose every object is registered too and never queried (an
     #: answer naming one is wrong): how much registering other objects takes from these ones
     distractors: Path | None = None
+    #: service protocol: each instance sent as the patch a user would cut from its frame, through its object's
+    #: registered window, with that window and the distance, no camera (`evaluation.queries.patch_query`)
+    patches: bool = False
     seed: int = 0
 
 

@@ -7,6 +7,7 @@ with depth, the frame's depth image and no distance (the service measures it).""
 from __future__ import annotations
 
 from collections.abc import Iterator, Sequence
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
@@ -17,7 +18,7 @@ from evaluation.paper.metric import K_MAX
 from evaluation.paper.samples import RENDERED, SYNTHETIC, by_frame, rendered_depth_frames, synthetic_frames
 from index.data.bop import BopDataset, Instance
 from index.templates.render import Renderer
-from service.pipeline.query import Query
+from service.pipeline.query import Decoded, Query, cut
 
 #: what a user may send as an image file; anything else is encoded as PNG first
 SENDABLE = (".png", ".jpg", ".jpeg")
@@ -71,6 +72,19 @@ def query(inst: Instance, rgb: bytes | None, depth: bytes | None, depth_scale: f
         distance_mm=float(np.linalg.norm(inst.t)) if depth is None else None,
         k=K_MAX,
     )
+
+
+def patch_query(q: Query, d: Decoded, window_mm: float) -> Query:
+    """What a user who cuts patches sends about an instance: the patch the service cuts from the frame query
+    `q` (`d`: its decoded images, as `service.pipeline.query.cut` takes them) through `window_mm` (its object's
+    registered window) at the distance `q` gives (or its depth at the centre), sent with that window and
+    distance and no camera (colour as PNG, depth as 16-bit PNG in mm), as `posedesc render --patches` writes
+    it."""
+    spec = replace(d.embedder.info.spec, window_mm=window_mm)
+    p = cut(q, d.rgb, d.depth, spec, patch_distance_mm=0.0)  # (a frame's distance: sent, or its depth's)
+    rgb = None if p.rgb is None else png(np.ascontiguousarray(p.rgb[0][..., ::-1]))
+    depth = None if p.depth is None else png(np.round(p.depth[0]).astype(np.uint16))
+    return Query(rgb=rgb, depth=depth, window_mm=window_mm, distance_mm=float(p.distance), k=q.k)
 
 
 def png(image: np.ndarray) -> bytes:

@@ -46,7 +46,7 @@ from evaluation.paper.neighbours import distinct_rows
 from evaluation.paper.samples import RENDERED, SYNTHETIC, SYNTHETIC_NOTE, Samples, instances_of, served_data
 from evaluation.paper.templates import render_template_set, service_symmetry
 from evaluation.progress import bar
-from evaluation.queries import frame_files, png, query
+from evaluation.queries import frame_files, patch_query, png, query
 from evaluation.results import Evaluation, MethodResult, open_set
 from evaluation.rolls import RolledFrames
 from index.data.bop import BopDataset, Instance
@@ -56,6 +56,7 @@ from index.geometry.pose_error import rotation_errors, view_errors
 from index.geometry.symmetry import Symmetry
 from index.templates.register import template_views
 from index.templates.render import Renderer
+from index.templates.windows import object_window
 from service.errors import ApiError
 from service.pipeline.answer import Result
 from service.pipeline.query import Query, cut, decode, shape_only
@@ -108,7 +109,7 @@ def evaluate_served(cfg: Config) -> Evaluation:
             seconds["register"] = time.perf_counter() - t0
             t0 = time.perf_counter()
             depth_errors: list[tuple[float, float]] = []
-            bop = _BopAnswers()
+            bop = None if cfg.patches else _BopAnswers()  # a patch's poses are in its own camera
             samples, answers, call_ms, refused, instances, dropped = _ask(
                 state, dataset, instances, kind, cfg, dataset_ids, meshes, depth_errors, bop
             )
@@ -160,8 +161,15 @@ def evaluate_served(cfg: Config) -> Evaluation:
     }
     if depth_errors:  # measured from depth: where the answers put the origin, against ‖t‖
         ev.extra["origin_distance_mm"] = origin_errors(np.array(depth_errors))
-    ev.extra["bop"] = _bop_scores(dataset, instances, bop, cfg.min_visib, cfg.modality, kind)
-    ev.bop_estimates = estimates(instances, bop.bests)
+    if bop is not None:
+        ev.extra["bop"] = _bop_scores(dataset, instances, bop, cfg.min_visib, cfg.modality, kind)
+        ev.bop_estimates = estimates(instances, bop.bests)
+    else:
+        ev.notes.append(
+            "patches: each instance sent as the patch a user would cut from its frame through its object's "
+            "window, with that window and the distance, no camera (evaluation.queries.patch_query); no BOP "
+            "block (a patch's pose is in the patch's own camera)"
+        )
     obj, views, rejected = answers
     rot, view, same = score(obj, views, instances, symmetries)
     ranked = MethodResult(rot, same, seconds["ours"], view_errors=view, call_ms=np.asarray(call_ms))
@@ -325,6 +333,8 @@ def _ask(
     rolled = RolledFrames(frames, cfg.rolls or (0.0,))
     embedder = state.embedders[cfg.modality]
     spec = embedder.info.spec
+    records = state.store.snapshot.objects
+    windows = {o: object_window(records[s].extra, spec.window_mm) for s, o in dataset_ids.items()}
     ordered: list[Instance] = []
     views, rgbs, depths, cut_mm, call_ms, refused = [], [], [], [], [], []
     n = len(instances) * len(rolled.rolls)  # at most: a rolled centre may leave the frame
@@ -353,6 +363,8 @@ def _ask(
                 t0 = time.perf_counter()
                 best = None
                 try:
+                    if cfg.patches and decoded is not None:
+                        q = patch_query(q, decoded, windows[inst.obj_id])
                     result = recognise(state, q)
                     call_ms.append(1000 * (time.perf_counter() - t0))
                     obj[i], answer_views[i], _ = ours.answers(result.matches, dataset_ids, K_MAX)
@@ -362,7 +374,7 @@ def _ask(
                     if depth_errors is not None and q.distance_mm is None and obj[i, 0] == inst.obj_id:
                         true = float(np.linalg.norm(inst.t))
                         depth_errors.append((result.distance_mm - true, result.origins_mm[0] - true))
-                    p = (
+                    p = (  # (a patch query was cut from the frame already: `patch_query`)
                         cut(
                             q,
                             decoded.rgb,
@@ -370,7 +382,7 @@ def _ask(
                             spec,
                             patch_distance_mm=state.settings.patch_distance_mm,
                         )
-                        if decoded is not None
+                        if decoded is not None and not cfg.patches
                         else None
                     )
                 except ApiError as e:

@@ -105,6 +105,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="service protocol: send each frame black outside the instance's true visible mask "
         "(the clutter-free bound; colour only)",
     )
+    p.add_argument(
+        "--patches",
+        action="store_true",
+        help="service protocol: send each instance as the patch a user would cut from its frame through its "
+        "object's registered window, with that window and the distance, no camera (--methods ours)",
+    )
     p.add_argument("--rolls", default=None,
                    help="service protocol: send every frame again turned about the principal point by "
                    "each of these camera rolls, degrees, e.g. 0,72,144,216,288, the poses turned with it "
@@ -168,6 +174,12 @@ def run(args: argparse.Namespace) -> int:
         raise UserError("--inplane-step must be in (0, 180] for the full protocol")
     if args.oracle_mask and (args.protocol != "service" or args.modality == "depth"):
         raise UserError("--oracle-mask needs the service protocol and colour (rgb or rgbd)")
+    if args.patches and (
+        args.protocol != "service" or methods != ("ours",) or args.rolls or args.oracle_mask
+    ):
+        raise UserError(
+            "--patches needs the service protocol and --methods ours, without --rolls or --oracle-mask"
+        )
     rolls: tuple[float, ...] = ()
     if args.rolls is not None:
         if args.protocol != "service":
@@ -207,6 +219,7 @@ def run(args: argparse.Namespace) -> int:
         oracle_mask=args.oracle_mask,
         rolls=rolls,
         distractors=args.distractors,
+        patches=args.patches,
         seed=args.seed,
     )
     t0 = time.perf_counter()
@@ -254,11 +267,11 @@ def _detect(args: argparse.Namespace, embedder) -> int:
                if getattr(args, k) not in (None, "", ",".join(METHODS))]  # fmt: skip
     if args.min_visib != 0.5:
         raise UserError("--min-visib: the detect protocol's targets are the instances at least 0.5 visible")
-    if args.oracle_mask or args.synthetic or ignored:
-        raise UserError(
-            f"{', '.join(ignored + ['--oracle-mask'] * args.oracle_mask + ['--synthetic'] * args.synthetic)}: "
-            "not with --protocol detect"
-        )
+    ignored += (
+        ["--oracle-mask"] * args.oracle_mask + ["--synthetic"] * args.synthetic + ["--patches"] * args.patches
+    )
+    if ignored:
+        raise UserError(f"{', '.join(ignored)}: not with --protocol detect")
     cfg = DetectConfig(
         dataset=args.dataset,
         model=args.model,

@@ -7,18 +7,22 @@ The distance is the answer's `colour_distance`. Where the model's calibration ha
 (`service.rejection.Term`) and the frame has no depth, it also enters the open-set verdict: the best
 answer's statistic plus the term's weight times the distance, on the term's threshold and confidence
 curve. An object not registered is named after the registered one whose views it resembles most, with that
-one's distance and lead, but not with its colours. A patch (no camera), a shape-only object (no colours to
-check) and a detection's verification (its own colour check weighs it, `service.detection.agree`) are
-judged as before, on the statistic alone."""
+one's distance and lead, but not with its colours. A patch (no camera; its colours tell the parts of a mixed
+store apart: `patch_colour_distance`), a shape-only object (no colours to check) and a detection's
+verification (its own colour check weighs it, `service.detection.agree`) are judged as before, on the
+statistic alone."""
 
 from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 
+import cv2
+
+from index.features.patches import patch_camera
 from index.refine.chroma import SurfaceColours, chroma_distance
 from service.pipeline.answer import Result, rejudged
-from service.pipeline.context import Context
+from service.pipeline.context import Context, Decoded
 
 
 @dataclass(frozen=True)
@@ -54,3 +58,22 @@ class Colours:
         if d.depth is not None:  # a frame with depth: judged by what the depth shows (`unexplained`)
             return measured
         return rejudged(measured, d.embedder, "colour", distance, self.setting)
+
+
+def patch_colour_distance(
+    surfaces: Callable[[int], SurfaceColours | None], d: Decoded, window_mm: float, result: Result
+) -> float | None:
+    """How far a patch's colours (no camera) are from the best answer's object's where its pose shows it
+    (`chroma_distance`, 0-2), in the virtual camera of the patch as the network saw it (`patch_camera`: the
+    patch at the model's size spanning `window_mm` at the distance it was answered at); None without colour,
+    an object without colours, or too little of it in view. The template's pose, not a fitted one: a patch
+    has no frame to fit against. What tells the parts of a mixed store apart for a patch
+    (`service.recognition.best_patch_part`)."""
+    if d.rgb is None or not result.matches:
+        return None
+    surface = surfaces(result.matches[0].object_id)
+    if surface is None:
+        return None
+    spec = replace(d.embedder.info.spec, window_mm=window_mm)
+    rgb = cv2.resize(d.rgb, (spec.size, spec.size), interpolation=cv2.INTER_AREA)  # as the cut resizes it
+    return chroma_distance(rgb, patch_camera(spec, result.distance_mm), surface, *result.pose(0))

@@ -305,15 +305,22 @@ def best_part(
         o, r = outlines[j], results[j]
         if not r.matches:
             return (-1, 0.0, -j)
-        if r.reason is not None or (r.colour_distance is not None and r.colour_distance > ceiling):
-            shown = 0
-        else:
-            shown = 2 if r.colour_distance is not None else 1
         area = o.explained / largest if o is not None and largest > 0 else 0.0
         beyond = o.beyond if o is not None else 0.0
-        return (shown, depth_evidence(r.fits[0] if r.fits else None, beyond, area), -j)
+        fit = depth_evidence(r.fits[0] if r.fits else None, beyond, area)
+        return (shown(r, r.colour_distance, ceiling), fit, -j)
 
     return max(range(len(results)), key=evidence)
+
+
+def shown(result: Result, colour: float | None, ceiling: float) -> int:
+    """What a part's best answer can show, the first key of `best_part` and of a patch's
+    `service.recognition.best_patch_part`: 2 when its model accepts it and its colours there (`colour`, its
+    object's against the query's, 0-2) are within `ceiling`; 1 when accepted with no colours to check (a
+    shape-only object); 0 when rejected, or its colours are another object's."""
+    if result.reason is not None or (colour is not None and colour > ceiling):
+        return 0
+    return 2 if colour is not None else 1
 
 
 def first(result: Result, k: int) -> Result:

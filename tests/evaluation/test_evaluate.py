@@ -185,6 +185,35 @@ def test_service_protocol_plumbing(tiny_bop, untrained_models, tmp_path):
 
 
 @pytest.mark.slow
+def test_the_service_protocol_with_patches(tiny_bop, untrained_models, tmp_path, capsys):
+    """`--patches`: each instance sent as the patch a user cuts (`evaluation.queries.patch_query`: no camera,
+    its object's window and the distance), ours alone, no BOP block (a patch's pose is in its own camera)."""
+    from evaluation import served
+    from evaluation.queries import patch_query
+
+    sent = []
+
+    def recorded(q, d, window_mm):
+        sent.append(patch_query(q, d, window_mm))
+        return sent[-1]
+
+    out = tmp_path / "patches.json"
+    args = ["evaluate", "--dataset", str(tiny_bop), "--modality", "rgb", "--model", str(untrained_models["rgb"])]  # fmt: skip
+    args += ["--frames", "0-3", "--methods", "ours", "--patches", "--json", str(out)]
+    served.patch_query, original = recorded, served.patch_query
+    try:
+        assert main(args) == 0
+    finally:
+        served.patch_query = original
+    summary = json.loads(out.read_text())
+    assert summary["n_samples"] == 8 and summary["timing_ms"]["calls"] == 8 and "bop" not in summary
+    assert any(n.startswith("patches:") for n in summary["notes"])
+    assert len(sent) == 8 and all(q.camera is None and q.u is None and q.rgb is not None for q in sent)
+    assert all(q.window_mm == 200.0 and q.distance_mm and q.distance_mm > 0 for q in sent)
+    assert main([*args, "--methods", "ours,hog"]) == 2 and "--patches needs" in capsys.readouterr().err
+
+
+@pytest.mark.slow
 def test_the_true_view_scores_zero(tiny_bop):
     """The service protocol's scoring: an answer giving the annotated view, placed along the ray through
     the object's centre, is the annotated pose (both errors ~0); another object counts 180°."""

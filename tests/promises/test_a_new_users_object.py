@@ -1,8 +1,8 @@
 """What a new user meets, on a real server (`posedesc serve` on loopback, the shipped models, the demo objects):
 their own mesh registered, its `posedesc render --patches` queries sent as written. Its patches, sent with the
 window the JSON says, are answered as that object and never as another one with confidence; registered
-shape-only beside the textured demo objects, it is found in a whole frame, and named with its centre, with colour
-and depth as with depth alone; deleted, it is never named again."""
+shape-only beside the textured demo objects, it is found in a whole frame, and named with its centre and in its
+patches, with colour and depth as with depth alone; deleted, it is never named again."""
 
 from __future__ import annotations
 
@@ -103,6 +103,19 @@ def test_a_shape_only_part_beside_textured_objects_is_found_with_colour_as_with_
             ).json()
             named[kind] += a["best"] is not None and a["best"]["name"] == "bare-part"
     assert named["depth"] >= 3 and named["rgb+depth"] >= named["depth"], named
+    patched = {"rgb+depth": 0, "depth": 0}  # its patches (no camera): each part asked, the surer answering
+    for q in qs:
+        for kind, keys in (("rgb+depth", ("patch_rgb", "patch_depth")), ("depth", ("patch_depth",))):
+            a = httpx.post(
+                f"{server.url}/recognize",
+                files=files(tmp_path / "q", q, *keys),
+                data=q["patch"]["form"],
+                timeout=120,
+            ).json()
+            hit = a["best"] is not None and a["best"]["name"] == "bare-part"
+            assert not hit or a["model"] == "posedesc-depth", (kind, a["model"])  # never through grey renders
+            patched[kind] += hit
+    assert patched["depth"] >= 3 and patched["rgb+depth"] >= patched["depth"], patched
     assert httpx.delete(f"{server.url}/objects/{oid}").status_code == 204
     after = httpx.post(
         f"{server.url}/recognize",

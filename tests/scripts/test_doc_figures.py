@@ -2,7 +2,7 @@
 (docs/results/): the patch windows before and after, the rules per video and the thresholds chosen
 leave-one-video-out, the catalogue objectness network's validation, the second depth network's runs, the five
 screening places, the two places verified, the quiet speed run, the area weight made again through the chain,
-the colour fit models kept on disk, a mixed store's RGB-D queries with a centre."""
+the colour fit models kept on disk, a mixed store's RGB-D queries with a centre and its RGB-D patches."""
 
 from __future__ import annotations
 
@@ -454,3 +454,33 @@ def test_the_mixed_store_s_parts_side_by_side_are_their_json() -> None:
             f"{two['recognise_median_ms']} / {two['recognise_p90_ms']} ms |"
         )
         assert row in text, row
+
+
+def test_a_mixed_store_s_rgbd_patches_are_their_jsons() -> None:
+    """The rules compared for a mixed store's RGB-D patch (the session probe's table), the evaluations before and
+    after, and docs/service.md's summary of them."""
+    text = experiments()
+    plain = text.replace("**", "")
+    rules = json.loads((RESULTS / "patch-mixed-rules.json").read_text())["sets"]
+    order = ("lmo-val", "ycbv-0000", "ycbv-0001", "ycbv-0002", "lmo-test")
+    for name in rules["lmo-val"]["rules"]:
+        row = " | ".join(f"{rules[s]['rules'][name]['open_set_on']:.1f}" for s in order)
+        assert f"| {row} |" in plain, (name, row)
+
+    def right(path: str) -> tuple[str, str, str]:
+        d = json.loads((RESULTS / path).read_text())
+        on, off = d["methods"]["ours"]["k1"]["180"], d["open_set_off"]["methods"]["ours"]["k1"]["180"]
+        return pct(on), pct(off), f"{d['timing_ms']['recognise_median']:.0f}"
+
+    service = " ".join((ROOT / "docs" / "service.md").read_text().split())
+    for key in ("lmo-val", "lmo-test", "ycbv-0", "ycbv-1", "ycbv-2"):
+        (b_on, b_off, b_ms), (a_on, a_off, a_ms) = (
+            right(f"patch-mixed-before-{key}.json"),
+            right(f"patch-mixed-{key}.json"),
+        )
+        row = f"| {b_on} / {b_off} | {b_ms} ms | {a_on} / {a_off} | {a_ms} ms |"
+        assert row in text, row
+        if key.startswith("ycbv"):
+            assert f"{a_on} %" in service or f"{a_on} and" in service, key
+    befores = [right(f"patch-mixed-before-ycbv-{s}.json")[0] for s in range(3)]
+    assert f"right {float(befores[0]):g}, {float(befores[1]):g} and {befores[2]} % a video before" in service

@@ -6,12 +6,22 @@ asked of its own model (a frame with its centre answered by the part whose answe
 from __future__ import annotations
 
 import shutil
+from dataclasses import replace
 
 import numpy as np
 import pytest
 import trimesh
 from fastapi.testclient import TestClient
-from service_helpers import depth_png, frame, frame_fields, png, register, service_settings, wait_ready
+from service_helpers import (
+    K,
+    depth_png,
+    frame,
+    frame_fields,
+    png,
+    register,
+    service_settings,
+    wait_ready,
+)
 
 from index.geometry.pose import View
 from index.templates.mesh import load_mesh
@@ -75,6 +85,36 @@ def test_rgbd_frames_of_shape_only_objects_are_answered_by_the_depth_model(
             assert r.status_code == 200, r.text
             assert (r.json()["model"], r.json()["matches"][0]["name"]) == (model, name), r.json()
             assert r.json()["matches"][0]["refined"] and np.isfinite(r.json()["matches"][0]["distance"])
+
+
+def test_beside_a_textured_object_an_rgbd_patch_of_a_shape_only_one_is_the_depth_models(
+    tmp_path, posedesc_models, renderer
+):
+    """A patch (no camera) of a store holding shape-only and textured objects, sent with colour and depth, is
+    asked of each part's model and answered by the part whose best answer shows the most
+    (`service.recognition.best_patch_part`): the L's patch by the depth model, whose templates are not grey
+    renders, the box of one hue by the RGB-D model, its colours in the patch its own. Before, the RGB-D
+    model answered every RGB-D patch."""
+    from index.features.patches import crops
+
+    part = shape_only_part()
+    box = trimesh.creation.box(extents=[60, 60, 60])  # one hue, two shades: textured, its colour anywhere
+    shades = np.where(np.arange(len(box.vertices))[:, None] % 2 == 0, [200, 40, 40, 255], [100, 20, 20, 255])
+    box.visual = trimesh.visual.ColorVisuals(box, vertex_colors=shades.astype(np.uint8))
+    with TestClient(create_app(service_settings(tmp_path, posedesc_models, level=1))) as c:
+        wait_ready(c)
+        made = {"part": register(c, part, "part"), "box": register(c, box, "box")}
+        assert [made[n]["textured"] for n in ("part", "box")] == [False, True]
+        spec = c.app.state.posedesc.embedders["rgbd"].info.spec
+        for mesh, name, model in ((part, "part", "posedesc-depth"), (box, "box", "posedesc-rgbd")):
+            rgb, depth = frame(renderer, mesh, VIEW, UV, wall_mm=1500.0)
+            window = made[name]["window_mm"]
+            rgbs, depths = crops(rgb, depth, K, UV, VIEW.distance, replace(spec, window_mm=window), (0.0,))
+            sent = {"rgb": ("p.png", png(rgbs[0])), "depth": ("d.png", depth_png(depths[0]))}
+            form = {"window_mm": str(window), "distance_mm": str(VIEW.distance), "k": "3"}
+            r = c.post("/recognize", files=sent, data=form)
+            assert r.status_code == 200, r.text
+            assert (r.json()["model"], r.json()["matches"][0]["name"]) == (model, name), r.json()
 
 
 def test_beside_textured_objects_an_rgbd_frames_shape_only_objects_are_found_by_the_depth_model(

@@ -6,6 +6,7 @@ apart, so a template's pose is visibly off), a rendered frame at a pose between 
 from __future__ import annotations
 
 from dataclasses import replace
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
@@ -225,7 +226,6 @@ def test_of_two_parts_the_answer_shown_best_is_chosen_first_by_what_its_kind_can
     """`best_part` (a store of shape-only and textured objects, an RGB-D frame with its centre): an answer its
     model accepts with its object's colours, then one accepted without colours to check, then the rest; the
     depth's evidence only among equals."""
-    from types import SimpleNamespace
 
     from index.draw import MeshCache
     from service.pipeline.fit import best_part
@@ -263,3 +263,32 @@ def test_two_parts_answers_follow_the_chosen_ones_each_field_with_its_answer():
     assert out.confidences == [0.8, 0.7, 0.6] and out.origins_mm == [500.0, 501.0, 500.0]
     assert [f.score if f else None for f in out.fits] == [0.9, None, 0.4]
     assert out.reason is None and out.timings_ms == {"fit": 3.0, "total": 9.0, "local": 3.0}
+
+
+def test_of_two_parts_a_patch_is_answered_by_what_its_answer_shows_then_the_more_confident():
+    """`service.recognition.best_patch_part` (a patch, no camera: no fit to judge the parts by): as `best_part`,
+    an answer its model accepts with its object's colours in the patch, then one accepted without colours to
+    check, then the rest; among equals the more confident; ties the first; a part without answers never. And
+    `split`: an RGB-D patch is asked of each part, as a frame with its centre; a whole frame is the detection's."""
+    from service.pipeline.query import Query
+    from service.recognition import best_patch_part, split
+
+    def part(confidence: float | None, reason: str | None = None) -> Result:
+        return replace(result_of([None], [confidence], 1), fits=[], reason=reason)
+
+    def chosen(parts: list[Result], colours: list[float | None] | None = None) -> int:
+        return best_patch_part(parts, colours or [None] * len(parts), 0.25)
+
+    assert chosen([part(0.9), part(0.5)], [None, 0.1]) == 1  # its colours agree: first
+    assert chosen([part(0.4), part(0.9)], [None, 0.4]) == 0  # another object's colours: after the shape
+    assert chosen([part(0.9, reason="lead"), part(0.3)]) == 1  # accepted first
+    assert chosen([part(0.4), part(0.7)]) == 1  # then the more confident
+    assert chosen([part(0.2, reason="lead"), part(0.6, reason="lead")]) == 1
+    assert chosen([part(0.5), part(0.5)]) == 0 and chosen([part(None), part(0.1)]) == 1
+    empty = replace(part(0.9), matches=[], confidences=[], origins_mm=[])
+    assert chosen([empty, part(0.1, reason="lead")]) == 1
+    d: Any = SimpleNamespace(modality="rgbd", depth=np.ones((4, 4), np.float32))
+    camera = dict(fx=500.0, fy=500.0, cx=2.0, cy=2.0)
+    assert split(Query(b"c", b"d"), d) and split(Query(b"c", b"d", u=2.0, v=2.0, **camera), d)
+    assert not split(Query(b"c", b"d", **camera), d)  # a whole frame: the detection splits it
+    assert not split(Query(b"c", b"d"), SimpleNamespace(modality="rgb", depth=None))
