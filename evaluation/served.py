@@ -368,7 +368,7 @@ def _ask(
                     result = recognise(state, q)
                     call_ms.append(1000 * (time.perf_counter() - t0))
                     obj[i], answer_views[i], _ = ours.answers(result.matches, dataset_ids, K_MAX)
-                    _fitted_views(result, answer_views[i], inst)
+                    _fitted_views(result, answer_views[i])
                     best = _best(result, int(obj[i, 0]), call_ms[-1] / 1000)
                     rejected[i] = result.reason is not None
                     if depth_errors is not None and q.distance_mm is None and obj[i, 0] == inst.obj_id:
@@ -420,16 +420,15 @@ def origin_errors(errors: np.ndarray) -> dict[str, float | int]:
     return out
 
 
-def _fitted_views(result: Result, views: np.ndarray, inst: Instance) -> None:
+def _fitted_views(result: Result, views: np.ndarray) -> None:
     """Each answer the pose fit moved (`service.pipeline.fit`) written into `views` (k, 3) as the view whose
-    pose along the instance's ray (as `score` reads a view) is the fitted rotation (`pose_to_view` inverts
-    `view_to_pose` for one ray): the errors are then the fitted pose's."""
-    u, v = inst.centre_uv
-    ray = np.linalg.inv(inst.K) @ np.array([u, v, 1.0])
+    pose along the query's ray (`Result.ray`: a frame's through the instance's centre, as `score` reads a
+    view; a patch's optical axis, its camera looking along that ray) is the fitted rotation (`pose_to_view`
+    inverts `view_to_pose` for one ray): the errors are then the fitted pose's."""
     for j in range(min(len(result.fits), len(views))):
         if result.fitted(j) is not None:
             R, _ = result.pose(j)
-            view = pose_to_view(R, ray / np.linalg.norm(ray))
+            view = pose_to_view(R, result.ray / np.linalg.norm(result.ray))
             views[j] = view.azimuth, view.elevation, view.inplane
 
 

@@ -66,8 +66,9 @@ def patch_colour_distance(
     """How far a patch's colours (no camera) are from the best answer's object's where its pose shows it
     (`chroma_distance`, 0-2), in the virtual camera of the patch as the network saw it (`patch_camera`: the
     patch at the model's size spanning `window_mm` at the distance it was answered at); None without colour,
-    an object without colours, or too little of it in view. The template's pose, not a fitted one: a patch
-    has no frame to fit against. What tells the parts of a mixed store apart for a patch
+    an object without colours, or too little of it in view. At the answer's pose: fitted in the same camera
+    when the patch has depth (`service.pipeline.fit.fitted_camera`). What tells the parts of a mixed store
+    apart for a patch
     (`service.recognition.best_patch_part`)."""
     if d.rgb is None or not result.matches:
         return None

@@ -8,7 +8,9 @@ that explains the frame no better than the template's pose leaves the answer whe
 The fits run on the query's worker thread with numpy and OpenCV, never on the renderer's thread (a
 registration's), so a query never waits behind a registration. What they need of each object (points and
 normals, outlines) is made once from the stored mesh and kept for the objects used most recently
-(`Shapes`). A patch (no camera) is not fitted: it has no frame to fit against."""
+(`Shapes`). A patch sent with depth is fitted against its own depth in the virtual camera it spans
+(`fitted_camera`), its answers re-ordered by the depth as a frame's are; a colour patch is not (not tried: the
+colour fit was chosen on frames)."""
 
 from __future__ import annotations
 
@@ -20,6 +22,7 @@ from typing import TypeVar
 import numpy as np
 
 from index.draw import DrawMesh, MeshCache
+from index.features.patches import PatchSpec, patch_camera
 from index.refine.colour import ColourModel, fit_colour
 from index.refine.depth import DepthModel, Outline, fit_depth, outline_of
 from index.refine.files import ColourFiles
@@ -144,11 +147,12 @@ class PoseFit:
         return max(q.k, self.reordered(q)) if self.reorders(q, d) else q.k
 
     def reorders(self, q: Query, d: Decoded) -> bool:
-        return self.reordered(q) > 1 and d.depth is not None and q.camera is not None and q.u is not None
+        return self.reordered(q) > 1 and d.depth is not None and (q.camera is None or q.u is not None)
 
     def __call__(self, result: Result, runs: Sequence[Context]) -> Result | None:
-        q, d, K = runs[0].query, runs[0].decoded, runs[0].query.camera
-        if self.count <= 0 or K is None or q.u is None or q.v is None:
+        q, d = runs[0].query, runs[0].decoded
+        K = fitted_camera(q, d, result.distance_mm)
+        if self.count <= 0 or K is None:
             return None
         count = self.count
         if self.reorders(q, d):  # each answer looked at coarsely, re-ordered, the best fitted fully
@@ -232,6 +236,19 @@ class PoseFit:
                 fit = replace(fit, t=t0)  # what the user sent is kept: see the class's docstring
             return fit
         return None
+
+
+def fitted_camera(q: Query, d: Decoded, distance_mm: float) -> np.ndarray | None:
+    """The camera a query's answers are fitted in: a frame's with its centre; a patch's with depth, the virtual
+    camera it spans (`patch_camera`: its window at the distance it was answered at, at its own size, its
+    answers posed on its optical axis), its depth the frame to fit against; None for a whole frame's search,
+    a colour patch (not tried: the colour fit was chosen on frames) or a frame without its camera."""
+    if q.camera is not None:
+        return q.camera if q.u is not None and q.v is not None else None
+    if d.depth is None:
+        return None
+    window = d.embedder.info.window_mm if q.window_mm is None else q.window_mm
+    return patch_camera(PatchSpec(d.depth.shape[1], window), distance_mm)
 
 
 def reranked(result: Result, n: int, outlines: Sequence[Outline] = ()) -> Result:

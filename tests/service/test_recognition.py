@@ -44,9 +44,11 @@ def test_recognise_is_decode_then_recognise_decoded(tmp_path, posedesc_models, l
             part = recognise_decoded(state, q, d)
             assert part.model == full.model and len(full.matches) == 7
             assert part.matches == full.matches
-            # each stage by its name (these models have no mask and no local features), then the sums
-            assert list(full.timings_ms) == ["decode", "cut", "embed", "search", "patch", "total"]
-            assert list(part.timings_ms) == ["cut", "embed", "search", "patch", "total"]
+            # each stage by its name (these models have no mask and no local features; a patch with depth is
+            # fitted in the camera it spans), then the sums
+            fit = ["fit"] * (q.depth is not None)
+            assert list(full.timings_ms) == ["decode", "cut", "embed", "search", *fit, "patch", "total"]
+            assert list(part.timings_ms) == ["cut", "embed", "search", *fit, "patch", "total"]
             assert full.timings_ms["total"] >= full.timings_ms["decode"]
             assert part.timings_ms["patch"] == part.timings_ms["cut"]  # cut + mask, without a mask
     finally:

@@ -94,11 +94,33 @@ def test_a_fitted_answers_fields_all_give_its_fitted_pose(client, shot):
     assert (m["azimuth"], m["elevation"], m["inplane"]) != tuple(m["template"].values())
 
 
-def test_a_patch_is_not_fitted(client, shot):
+def test_a_colour_patch_is_not_fitted(client, shot):
     r = client.post("/recognize", files={"rgb": ("p.png", png(np.full((64, 64, 3), 90, np.uint8)))})
     m = r.json()["matches"][0]
     assert m["refined"] is False and m["u"] is None and m["v"] is None
     assert (m["azimuth"], m["elevation"], m["inplane"]) == tuple(m["template"].values())
+
+
+def test_a_patch_with_depth_is_fitted_in_the_camera_it_spans(client, shot):
+    """A patch with depth (no camera) is fitted against its own depth in the virtual camera it spans
+    (`service.pipeline.fit.fitted_camera`), its answers posed on its optical axis: nearer the truth than its
+    template, with colour and depth as with depth alone. Before, a patch was never fitted."""
+    from index.features.patches import crops
+
+    window = client.get("/objects").json()[0]["window_mm"]
+    spec = replace(client.app.state.posedesc.embedders["depth"].info.spec, window_mm=window)
+    rgbs, depths = crops(shot["rgb"], shot["depth"], K, UV, VIEW.distance, spec, (0.0,))
+    axis = np.array([0.0, 0.0, 1.0])
+    truth, _ = view_to_pose(VIEW, ray=axis)
+    depth = ("d.png", depth_png(depths[0]))
+    for files in ({"depth": depth}, {"rgb": ("p.png", png(rgbs[0])), "depth": depth}):
+        r = client.post("/recognize", files=files, data={"k": "3", "window_mm": str(window)})
+        assert r.status_code == 200, r.text
+        m = r.json()["matches"][0]
+        assert m["name"] == "ell" and m["refined"] is True and m["u"] is None
+        R0, _ = view_to_pose(View(**m["template"], distance=VIEW.distance), ray=axis)
+        error = rotation_error(np.reshape(m["R"], (3, 3)), truth)
+        assert error < min(3.0, rotation_error(R0, truth)), (error, rotation_error(R0, truth))
 
 
 def test_in_colour_only_the_best_answer_is_fitted_by_default(client, shot):
