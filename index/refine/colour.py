@@ -33,7 +33,7 @@ import trimesh
 from scipy.sparse import csr_matrix
 
 from index.draw import DrawMesh
-from index.refine.fit import Fit, apply_twist
+from index.refine.fit import Fit, apply_twist, cross
 
 VIEWS = 600  # viewpoints on the sphere (Fibonacci): ~8 deg apart, the nearest within ~4 deg of any pose
 POINTS = 120  # contour points kept per viewpoint
@@ -117,9 +117,9 @@ def look_from(direction: np.ndarray) -> np.ndarray:
     `direction` (..., 3)."""
     z = -np.asarray(direction, float)
     up = np.where((np.abs(z[..., 2:3]) < 0.9), [0.0, 0.0, 1.0], [0.0, 1.0, 0.0])
-    x = np.cross(up, z)
+    x = cross(up, z)
     x /= np.linalg.norm(x, axis=-1, keepdims=True)
-    return np.stack([x, np.cross(z, x), z], axis=-2)
+    return np.stack([x, cross(z, x), z], axis=-2)
 
 
 class _Outline:
@@ -373,7 +373,7 @@ def _jacobian(q: np.ndarray, X: np.ndarray, n2: np.ndarray, K: np.ndarray) -> np
     a = np.column_stack(
         [n2[:, 0] * fx / z, n2[:, 1] * fy / z, -(n2[:, 0] * fx * X[:, 0] + n2[:, 1] * fy * X[:, 1]) / z**2]
     )
-    return np.hstack([np.cross(q, a), a])
+    return np.hstack([cross(q, a), a])
 
 
 def _valid_start(rgb: np.ndarray, K: np.ndarray, R0: np.ndarray, t0: np.ndarray) -> bool:

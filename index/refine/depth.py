@@ -38,7 +38,7 @@ import trimesh
 from scipy.spatial import cKDTree
 
 from index.draw import DrawMesh
-from index.refine.fit import Fit, apply_twist
+from index.refine.fit import Fit, apply_twist, cross
 from index.templates.mesh import diameter
 
 #: surface points of a DepthModel: 1,500 put a point every ~4 mm on a 150 mm object (LM-O's are 100-260
@@ -122,8 +122,8 @@ class DepthModel:
             vertices, faces = np.asarray(mesh.vertices, float), np.asarray(mesh.faces, np.int64)
             size = diameter(mesh) if len(faces) else 0.0
         tri = np.asarray(vertices, float)[np.asarray(faces, np.int64)]
-        cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-        area = np.linalg.norm(cross, axis=1)
+        doubled = cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])  # normal times twice the area
+        area = np.linalg.norm(doubled, axis=1)
         if len(tri) == 0 or area.sum() <= 0:
             raise ValueError("a depth model needs a mesh with a surface (faces of non-zero area)")
         rng = np.random.default_rng(seed)
@@ -133,7 +133,7 @@ class DepthModel:
         a, b = np.where(flip, 1 - a, a), np.where(flip, 1 - b, b)
         t = tri[pick]
         points = t[:, 0] + a[:, None] * (t[:, 1] - t[:, 0]) + b[:, None] * (t[:, 2] - t[:, 0])
-        normals = cross[pick] / area[pick, None]
+        normals = doubled[pick] / area[pick, None]
         return cls(points.astype(np.float32), normals.astype(np.float32), float(size))
 
     @property
@@ -358,7 +358,7 @@ def _icp(
         r = np.einsum("ij,ij->i", nu, pu - qu)
         weight = np.minimum(1.0, huber_mm / np.maximum(np.abs(r), 1e-9))
         # d r / d twist: a turn w about the origin t moves p by w x (p - t), a slide by itself
-        J = np.hstack([np.cross(pu - t, nu), nu])
+        J = np.hstack([cross(pu - t, nu), nu])
         A = (J * weight[:, None]).T @ J
         b = -(J * weight[:, None]).T @ r
         A += DAMPING * np.trace(A) / 6 * np.eye(6)

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 import trimesh
+from PIL import Image
 from scipy.spatial import cKDTree
 
 from index.geometry.units import UNIT_SCALE, UNITS, size_problem
@@ -78,7 +79,7 @@ def load_mesh(
             _refuse(mesh_limits.parsed(loaded), max_input_faces, "holds")
         mesh = _as_single_mesh(loaded)
         _check(mesh)
-        mesh = _face_colours_to_corners(mesh)
+        mesh = _renderable(_face_colours_to_corners(mesh))
     except MeshError:
         raise
     except Exception as e:  # trimesh raises anything from KeyError to struct.error on garbage
@@ -155,13 +156,76 @@ def _as_single_mesh(loaded: object) -> trimesh.Trimesh:
             return parts[0]
         for p in parts:  # mixed textures cannot be merged: bake each part to vertex colours first
             if isinstance(p.visual, trimesh.visual.TextureVisuals):
-                p.visual = p.visual.to_color()
+                p.visual = _baked(p)
         merged = trimesh.util.concatenate(parts)
         assert isinstance(merged, trimesh.Trimesh)  # meshes concatenate to a mesh
         return merged
     if not isinstance(loaded, trimesh.Trimesh):
         raise MeshError(f"the file holds a {type(loaded).__name__}, not a triangle mesh")
     return loaded
+
+
+#: the texture images' modes the renderer takes; others are converted (`_renderable`)
+TEXTURE_MODES = ("RGB", "RGBA")
+#: where trimesh's materials keep their images (a glTF's PBR material, an OBJ's simple one)
+TEXTURE_FIELDS = (
+    "baseColorTexture",
+    "metallicRoughnessTexture",
+    "normalTexture",
+    "occlusionTexture",
+    "emissiveTexture",
+    "image",
+)
+
+
+def _placed(visual: trimesh.visual.TextureVisuals, n: int) -> bool:
+    """Whether a texture has a finite (u, v) for each of the mesh's `n` vertices: else it cannot be placed."""
+    uv = visual.uv
+    return uv is not None and np.shape(uv) == (n, 2) and bool(np.isfinite(uv).all())
+
+
+def _baked(mesh: trimesh.Trimesh) -> trimesh.visual.ColorVisuals:
+    """A textured mesh's colours per vertex: its texture's where it can be placed, its material's one colour
+    where it cannot (a glTF primitive without texture coordinates: trimesh gives a single colour for the
+    whole part, which merged with other parts gave fewer colours than vertices, and a registration's 500)."""
+    visual = mesh.visual
+    assert isinstance(visual, trimesh.visual.TextureVisuals)
+    if _placed(visual, len(mesh.vertices)):
+        _convert_images(visual.material)
+        return visual.to_color()
+    colour = np.asarray(visual.to_color().vertex_colors, np.uint8).reshape(-1, 4)[:1]
+    return trimesh.visual.ColorVisuals(mesh, vertex_colors=np.repeat(colour, len(mesh.vertices), axis=0))
+
+
+def _renderable(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
+    """`mesh` with colours the renderer takes: a texture that cannot be placed baked to its material's colour,
+    texture images of other modes (grey with alpha, 1-bit, palette, 16-bit, float) converted to 8-bit RGB(A).
+    Unconverted, a grey-and-alpha or 1-bit texture made the renderer raise during a registration (a 500)."""
+    if isinstance(mesh.visual, trimesh.visual.TextureVisuals):
+        if _placed(mesh.visual, len(mesh.vertices)):
+            _convert_images(mesh.visual.material)
+        else:
+            mesh.visual = _baked(mesh)
+    return mesh
+
+
+def _convert_images(material: object) -> None:
+    """Every texture image of `material` as 8-bit RGB, or RGBA where it has transparency, in place."""
+    for name in TEXTURE_FIELDS:
+        image = getattr(material, name, None)
+        if isinstance(image, Image.Image) and image.mode not in TEXTURE_MODES:
+            setattr(material, name, _eight_bit(image))
+
+
+def _eight_bit(image: Image.Image) -> Image.Image:
+    """`image` as 8-bit RGB or RGBA: high-bit-depth greys scaled to their range's 0-255, not clipped."""
+    if image.mode in ("I;16", "I;16B", "I;16L", "I", "F"):
+        values = np.asarray(image, np.float64)
+        top = 1.0 if image.mode == "F" else 65535.0
+        grey = np.clip(np.nan_to_num(values / top) * 255.0, 0, 255).astype(np.uint8)
+        return Image.fromarray(grey, "L").convert("RGB")
+    alpha = "A" in image.mode or "a" in image.mode or "transparency" in image.info
+    return image.convert("RGBA" if alpha else "RGB")
 
 
 def _face_colours_to_corners(mesh: trimesh.Trimesh) -> trimesh.Trimesh:

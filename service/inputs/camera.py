@@ -15,6 +15,9 @@ from service.errors import ApiError
 
 #: the lengths OpenCV takes
 DIST_LENGTHS = (4, 5, 8, 12, 14)
+#: focal lengths and image coordinates beyond this are no camera's (fx and fy are at least 1 px: the form's
+#: fields and `cam_K` alike, so every camera matrix the service makes can be inverted)
+MAX_PX = 1e6
 
 
 def numbers(text: str, name: str) -> list[float]:
@@ -46,7 +49,16 @@ def intrinsics(cam_k: str) -> tuple[float, float, float, float]:
             "cam_K: a pinhole camera's matrix is fx 0 cx / 0 fy cy / 0 0 1 (no skew), row by row; got "
             + " ".join(f"{x:g}" for x in k),
         )
-    return float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2])
+    fx, fy, cx, cy = float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2])
+    if not (1.0 <= fx <= MAX_PX and 1.0 <= fy <= MAX_PX):
+        raise ApiError(
+            422, f"cam_K: the focal lengths fx and fy must be 1 to {MAX_PX:g} px, got fx {fx:g}, fy {fy:g}"
+        )
+    if not (abs(cx) <= MAX_PX and abs(cy) <= MAX_PX):
+        raise ApiError(
+            422, f"cam_K: the principal point must lie within {MAX_PX:g} px, got cx {cx:g}, cy {cy:g}"
+        )
+    return fx, fy, cx, cy
 
 
 def coefficients(dist: str) -> tuple[float, ...] | None:

@@ -74,12 +74,21 @@ def _open(data: bytes, what: str, max_pixels: int) -> Image.Image:
             im = Image.open(io.BytesIO(data), formats=("PNG", "JPEG"))
     except (UnidentifiedImageError, OSError, ValueError, SyntaxError):
         raise ApiError(422, _not_an_image(data, what)) from None
-    w, h = im.size
+    _sized(*im.size, what, max_pixels)
+    return im
+
+
+#: an image's least side, px: fewer is no frame or patch (and cut, resized or searched it breaks OpenCV)
+MIN_SIDE_PX = 8
+
+
+def _sized(w: int, h: int, what: str, max_pixels: int) -> None:
+    """Refuses an image of `w` x `h` px that is over the pixel limit (413) or under `MIN_SIDE_PX` a side (422):
+    PNG, JPEG, `.npy` and TIFF alike."""
     if w * h > max_pixels:
         raise ApiError(413, f"{what}: {w} x {h} px is over the limit of {max_pixels} pixels")
-    if w < 8 or h < 8:
-        raise ApiError(422, f"{what}: {w} x {h} px is too small")
-    return im
+    if w < MIN_SIDE_PX or h < MIN_SIDE_PX:
+        raise ApiError(422, f"{what}: {w} x {h} px is too small (at least {MIN_SIDE_PX} px a side)")
 
 
 def _load(im: Image.Image, what: str) -> Image.Image:
@@ -157,8 +166,7 @@ def _read_npy(data: bytes, max_pixels: int) -> np.ndarray:
         raise ApiError(422, "depth: a .npy file whose header does not read") from None
     if len(shape) != 2 or dtype not in (np.float32, np.float64):
         raise ApiError(422, f"{FLOAT_DEPTH}; this .npy holds {dtype} of shape {shape}")
-    if shape[0] * shape[1] > max_pixels:
-        raise ApiError(413, f"depth: {shape[1]} x {shape[0]} px is over the limit of {max_pixels} pixels")
+    _sized(shape[1], shape[0], "depth", max_pixels)
     buf.seek(0)
     try:
         return np.load(buf, allow_pickle=False)
@@ -174,9 +182,7 @@ def _read_tiff(data: bytes, max_pixels: int) -> np.ndarray:
             im = Image.open(io.BytesIO(data), formats=("TIFF",))
     except (UnidentifiedImageError, OSError, ValueError, SyntaxError):
         raise ApiError(422, "depth: a TIFF that does not read") from None
-    w, h = im.size
-    if w * h > max_pixels:
-        raise ApiError(413, f"depth: {w} x {h} px is over the limit of {max_pixels} pixels")
+    _sized(*im.size, "depth", max_pixels)
     if im.mode != "F":
         raise ApiError(422, f"{FLOAT_DEPTH}; this TIFF is {im.mode} (a 16-bit depth goes as PNG)")
     return np.asarray(_load(im, "depth"), np.float32)

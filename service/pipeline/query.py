@@ -29,7 +29,6 @@ from service.settings import Settings
 UNITS_HINT = " (a 16-bit PNG is read in mm times depth_scale: whole metres round to 0)"
 
 FRAME_FIELDS = ("fx", "fy", "cx", "cy", "u", "v")
-MAX_PX = 1e6  # focal lengths and image coordinates beyond this are no camera's
 MIN_DISTANCE_MM, MAX_DISTANCE_MM = 1.0, 100_000.0  # the object's distance, given or measured
 #: a distance sent below this is no object's in mm (the smallest registered, 20 mm, is seen from farther)
 PLAUSIBLE_DISTANCE_MM = 10.0

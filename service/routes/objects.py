@@ -6,6 +6,7 @@ import asyncio
 import errno
 import gc
 import logging
+import unicodedata
 from pathlib import Path
 from typing import Annotated, Literal
 
@@ -102,6 +103,7 @@ async def add_object(
     symmetry: Annotated[
         str,
         Form(
+            max_length=100,
             description="the turns that leave it looking the same: 'none', '180' (a half-turn about z), "
             "'full' (any turn about z), each with '+flip' (and end over end: a half-turn about x, or "
             "'+flip@30' about the axis 30 degrees from x in the xy plane; 'flip' alone); '180+flip' is a box, "
@@ -121,6 +123,11 @@ async def add_object(
         ),
     ] = None,
 ) -> Response | ObjectCreated:
+    if not name.strip() or any(unicodedata.category(c) == "Cc" for c in name):
+        raise ApiError(
+            422,
+            "name: it must show at least one character and hold no control characters (newline, tab, NUL)",
+        )
     if symmetry != AUTO:
         try:
             symmetry = canonical(symmetry)

@@ -13,8 +13,8 @@ from index.draw import PATCH_DRAW_PX
 from service.answers import answer, drawing
 from service.deps import KnownFieldsDep, StateDep
 from service.errors import ApiError, responses
-from service.inputs.camera import coefficients, intrinsics, undistorted_point
-from service.pipeline.query import MAX_DISTANCE_MM, MAX_PX, Query
+from service.inputs.camera import MAX_PX, coefficients, intrinsics, undistorted_point
+from service.pipeline.query import MAX_DISTANCE_MM, Query
 from service.schemas import RecognizeOut
 
 router = APIRouter(tags=["recognition"])

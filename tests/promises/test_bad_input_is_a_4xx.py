@@ -1,7 +1,9 @@
 """Bad input gets a 4xx with a message that says what to do, never a 200 with a silently wrong answer
 (README, "Errors"): the cases users met (issue 37) through the real app and its lifespan: depth in the
 wrong units for a whole frame, numbers that are no numbers, a principal point off the frame, a distance in
-metres, a patch that is not square, a greyscale image sent as colour, more answers drawn than asked for."""
+metres, a patch that is not square, a greyscale image sent as colour, more answers drawn than asked for; and
+what a fuzzing of the live service answered with a 500 or a 200 of NaN poses (2026-12-08): a `cam_K` whose
+focal lengths are zero, negative or absurd, a float depth (`.npy`, TIFF) too small to be a frame."""
 
 from __future__ import annotations
 
@@ -18,6 +20,7 @@ from service.main import create_app
 EXAMPLES = ROOT / "service" / "examples"
 CAMERA = {"fx": "572.4", "fy": "573.6", "cx": "325.3", "cy": "242.0"}
 CENTRED = {**CAMERA, "u": "380", "v": "250", "distance_mm": "600"}
+K_CENTRED = {"u": "380", "v": "250", "distance_mm": "600"}  # with a cam_K instead of fx, fy, cx, cy
 
 
 def npy(a: np.ndarray) -> bytes:
@@ -53,7 +56,18 @@ def images() -> dict[str, bytes]:
         "narrow patch": png(cv2.imread(str(EXAMPLES / "robot-patch.png"))[:, :50]),
         "float depth in m": npy((depth / 1000).astype(np.float32)),
         "float depth in mm": npy(depth.astype(np.float32)),  # sent without saying so: read as metres
+        "empty float depth": npy(np.zeros((0, 0), np.float32)),
+        "one-row float depth": npy(np.full((1, 640), 0.6, np.float32)),
+        "one-column float TIFF": tiff(np.full((640, 1), 0.6, np.float32)),
     }
+
+
+def tiff(a: np.ndarray) -> bytes:
+    from PIL import Image
+
+    buf = io.BytesIO()
+    Image.fromarray(a).save(buf, format="TIFF")
+    return buf.getvalue()
 
 
 CASES = {
@@ -70,6 +84,44 @@ CASES = {
     "distance_mm = 0.6 (metres)": (["rgb"], {**CENTRED, "distance_mm": "0.6"}, 422, ["distance_mm=600"]),
     "a patch 50 x 64 px": (["narrow patch"], {}, 422, ["square", "fx, fy, cx and cy", "every registered"]),
     "a greyscale image as rgb": (["grey"], CENTRED, 422, ["greyscale", "colour image"]),
+    "cam_K of focal length 0": (
+        ["rgb"],
+        {**K_CENTRED, "cam_K": "0 0 325 0 0 242 0 0 1"},
+        422,
+        ["cam_K", "fx 0"],
+    ),
+    "cam_K of a negative fy, a whole depth frame": (
+        ["depth"],
+        {"cam_K": "2000 0 325.3 0 -500 242 0 0 1"},
+        422,
+        ["cam_K", "focal lengths", "fy -500"],
+    ),
+    "cam_K of focal length 1e-300": (
+        ["rgb", "depth"],
+        {**K_CENTRED, "cam_K": "1e-300 0 325 0 1e-300 242 0 0 1"},
+        422,
+        ["focal lengths"],
+    ),
+    "cam_K of focal length 1e300": (
+        ["rgb"],
+        {**K_CENTRED, "cam_K": "1e300 0 325.3 0 1e300 242 0 0 1"},
+        422,
+        ["focal lengths"],
+    ),
+    "cam_K of principal point 1e9": (
+        ["rgb"],
+        {**K_CENTRED, "cam_K": "572 0 1e9 0 573 242 0 0 1"},
+        422,
+        ["principal point"],
+    ),
+    "an empty .npy depth": (["empty float depth"], {}, 422, ["0 x 0 px", "too small"]),
+    "a one-row .npy depth frame": (
+        ["one-row float depth"],
+        {**CAMERA, "cy": "0.5"},
+        422,
+        ["640 x 1 px", "too small"],
+    ),
+    "a one-column TIFF depth patch": (["one-column float TIFF"], {}, 422, ["1 x 640 px", "too small"]),
 }
 
 

@@ -7,7 +7,7 @@ from __future__ import annotations
 import threading
 
 from fastapi.testclient import TestClient
-from service_helpers import ply_bytes, register, service_settings, wait_ready
+from service_helpers import created, ply_bytes, register, service_settings, wait_ready
 
 from service.main import create_app
 
@@ -131,3 +131,71 @@ def test_auto_viewpoints_are_every_side_for_a_shape_only_mesh(tmp_path, posedesc
             "upper",
         )
         assert shape["templates"] > 1.5 * asked["templates"]  # upright test models: nothing turns over
+
+
+def _textured(mode: str):
+    """A 100 x 80 x 60 mm box textured with a 16 px image of PIL `mode`, as GLB bytes."""
+    import numpy as np
+    import trimesh
+    from PIL import Image
+
+    box = trimesh.creation.box((100, 80, 60))
+    image = Image.new(mode, (16, 16), 1 if mode == "1" else (200, 90) if mode == "LA" else 120)
+    box.visual = trimesh.visual.TextureVisuals(uv=np.random.default_rng(0).random((8, 2)), image=image)
+    return box
+
+
+def _two_parts_one_without_uv() -> bytes:
+    """A self-contained glTF of two textured boxes whose second primitive lost its texture coordinates."""
+    import json
+
+    box = _textured("RGB")
+    exported = box.export(file_type="gltf", embed_buffers=True)
+    doc = json.loads(next(v for k, v in exported.items() if k.endswith(".gltf")))
+    part = json.loads(json.dumps(doc["meshes"][0]["primitives"][0]))
+    part["attributes"].pop("TEXCOORD_0")
+    doc["meshes"].append({"primitives": [part]})
+    doc["nodes"].append({"mesh": 1, "translation": [150, 0, 0]})
+    doc["scenes"][0]["nodes"].append(len(doc["nodes"]) - 1)
+    return json.dumps(doc).encode()
+
+
+def test_textures_of_any_mode_and_parts_without_uvs_are_registered(tmp_path, posedesc_models):
+    """A fuzzing of the live service (2026-12-08): a GLB whose texture is grey with alpha or 1-bit, and a glTF
+    of two parts one of which has no texture coordinates, failed inside the registration (500, "registration
+    failed"). Their textures are now converted to 8-bit RGB(A), a texture that cannot be placed baked to its
+    material's colour: each is registered, answered 201, and listed."""
+    with TestClient(create_app(service_settings(tmp_path, posedesc_models, level=0))) as c:
+        wait_ready(c)
+        uploads = {
+            "grey-alpha": ("la.glb", _textured("LA").export(file_type="glb")),
+            "one-bit": ("bw.glb", _textured("1").export(file_type="glb")),
+            "two-parts": ("two.gltf", _two_parts_one_without_uv()),
+        }
+        for name, (file, data) in uploads.items():
+            r = c.post("/objects", files={"mesh": (file, data)}, data={"name": name})
+            assert r.status_code in (201, 202), r.text
+            assert created(c, r)["name"] == name
+        assert {o["name"] for o in c.get("/objects").json()} >= set(uploads)
+
+
+def test_a_blank_or_control_character_name_and_an_endless_symmetry_are_refused(
+    tmp_path, posedesc_models, l_shape
+):
+    """Names that show nothing or hold a newline, tab or NUL are refused (they were stored, and came back
+    after a restart); a symmetry of a megabyte is refused without being written back whole."""
+    with TestClient(create_app(service_settings(tmp_path, posedesc_models, level=0))) as c:
+        wait_ready(c)
+        before = c.get("/objects").json()
+        for name in ("   ", "a\nb", "tab\there", "nul\x00"):
+            r = c.post("/objects", files={"mesh": ("l.ply", ply_bytes(l_shape))}, data={"name": name})
+            assert r.status_code == 422, (name, r.text)
+            assert "control characters" in r.json()["detail"]
+        r = c.post(
+            "/objects",
+            files={"mesh": ("l.ply", ply_bytes(l_shape))},
+            data={"name": "L", "symmetry": "x" * 1_000_000},
+        )
+        assert r.status_code == 422 and "symmetry" in r.json()["detail"] and len(r.text) < 500, r.text[:300]
+        assert c.get("/objects").json() == before
+        assert register(c, l_shape, "L with a space")["name"] == "L with a space"  # inner spaces are a name's
