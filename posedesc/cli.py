@@ -22,6 +22,22 @@ class UserError(ValueError):
     """Bad input from the user: printed as one line, no traceback."""
 
 
+def same_models(data_dir: Path, keys: dict[str, tuple[int, str]], models_dir: Path) -> None:
+    """Refuses (one line) a data dir whose templates were made by other model files than `keys` (the models
+    of `models_dir`, `index.features.embed.store_keys`), before the store is opened: opening it drops those
+    templates for `posedesc serve` to make again, which `recognize` and `build-index` do not (a fuzzing of
+    the CLI, 2026-12-08: a `recognize --models` of another folder emptied a data dir's depth templates, and
+    the next recognition found nothing, exit 0)."""
+    from index.store import changed_models
+
+    if changed := changed_models(data_dir, keys):
+        raise UserError(
+            f"{data_dir}'s {', '.join(sorted(changed))} templates were made with other model files than those of "
+            f"{models_dir}: pass the models they were made with (--models), or start `posedesc serve` on the "
+            "data dir with these models once, which makes the templates again"
+        )
+
+
 class HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
     """Each option's help ends with its default, except where there is none to show (None, a flag)."""
 
@@ -39,13 +55,43 @@ class HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
 
 def camera_arguments(p: argparse.ArgumentParser, note: str = "") -> None:
     """`--fx --fy --cx --cy`: a frame's intrinsics in px, as the subcommands that take a frame name them."""
-    for name, what in (
-        ("fx", "focal x"),
-        ("fy", "focal y"),
-        ("cx", "principal point x"),
-        ("cy", "principal point y"),
+    for name, what, kind in (
+        ("fx", "focal x", bounded(1.0, 1e6)),
+        ("fy", "focal y", bounded(1.0, 1e6)),
+        ("cx", "principal point x", bounded(-1e6, 1e6)),
+        ("cy", "principal point y", bounded(-1e6, 1e6)),
     ):
-        p.add_argument(f"--{name}", type=float, help=f"{what} of the frame, px{note}")
+        p.add_argument(f"--{name}", type=kind, help=f"{what} of the frame, px{note}")
+
+
+def bounded(low: float, high: float, *, above: bool = False):
+    """An argparse type: a finite number from `low` (`above`: over it) to `high`, as the service's form takes
+    it; anything else is refused with the range (a fuzzing of the CLI, 2026-12-08: --fx nan, --distance-mm inf
+    and --fx -572 were answered, exit 0, with nothing found, invalid JSON or a wrong pose)."""
+
+    def number(text: str) -> float:
+        try:
+            x = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+        if not (low < x if above else low <= x) or not x <= high:  # NaN fails both
+            side = "over" if above else "from"
+            raise argparse.ArgumentTypeError(f"{text}: a finite number {side} {low:g} to {high:g}")
+        return x
+
+    number.__name__ = "number"  # argparse names the type in its messages
+    return number
+
+
+def count(text: str) -> int:
+    """An argparse type: a whole number of at least 1."""
+    try:
+        n = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+    if n < 1:
+        raise argparse.ArgumentTypeError(f"{text}: at least 1")
+    return n
 
 
 def _module_name(name: str) -> str:

@@ -48,6 +48,15 @@ class ApiError(Exception):
         self.status_code, self.detail = status_code, detail
 
 
+class NoSuchWindow(ApiError):
+    """A 422 for a patch whose window no registered object of the model asked has. A part of a mixed store
+    (`service.recognition`) may refuse a patch so while the other part has the window and refuses it for a
+    reason of its own: that reason is the one to tell."""
+
+    def __init__(self, detail: str):
+        super().__init__(422, detail)
+
+
 class NothingMeasured(ApiError):
     """A 422 for a place in the frame where nothing can be measured: no depth around it, a depth patch all
     zero, a distance no camera or window allows. Sent by the user it is bad input; at a place the service

@@ -11,7 +11,7 @@ import time
 from collections.abc import Sequence
 from dataclasses import replace
 
-from service.errors import ApiError
+from service.errors import ApiError, NoSuchWindow
 from service.pipeline.answer import Result
 from service.pipeline.colours import patch_colour_distance
 from service.pipeline.fit import best_part, shown
@@ -68,8 +68,8 @@ def recognise_decoded(state: AppState, q: Query, d: Decoded, decode_s: float | N
     outcomes = list(state.verifier.map(asked, range(len(parts))))
     results = [r for r in outcomes if isinstance(r, Result)]
     refused = [e for e in outcomes if isinstance(e, ApiError)]
-    if not results:
-        raise refused[0]
+    if not results:  # the reason of a part that has the patch's window, rather than "no object has it"
+        raise next((e for e in refused if not isinstance(e, NoSuchWindow)), refused[0])
     if len(results) < 2:
         best = 0
     elif q.camera is None:  # a patch: no frame to fit against, its colours at each answer's template pose

@@ -33,7 +33,7 @@ from index.store.records import (
 )
 from index.store.search import FaissSnapshot, ModelIndex, Snapshot
 from index.store.snapshot_files import AUTO_IVF_MIN, INDEX_KINDS
-from index.store.sqlite_file import SCHEMA, check_store
+from index.store.sqlite_file import SCHEMA, changed_models, check_store
 
 __all__ = [
     "INDEX_KINDS",
@@ -51,6 +51,7 @@ __all__ = [
     "StoreUnavailable",
     "TemplateSet",
     "TemplateStore",
+    "changed_models",
     "check_location",
     "check_store",
     "local_key",

@@ -51,6 +51,26 @@ def check_store(data_dir: str | Path) -> None:
         db.close()
 
 
+def changed_models(data_dir: str | Path, models: dict[str, tuple[int, str]]) -> dict[str, str]:
+    """The models of `models` (name -> (dim, fingerprint), as a store is opened with) whose templates in
+    `data_dir/store.sqlite` were made by another model file: name -> that file's fingerprint. Read only: opening
+    the store drops such a model's templates for the service to make again at its start, which a command
+    that does not make them (`posedesc recognize`, `build-index`) must not do. Nothing for a store not there
+    or that does not read (opening it then says why)."""
+    path = Path(data_dir) / "store.sqlite"
+    if not path.is_file():
+        return {}
+    try:
+        db = sqlite3.connect(f"file:{path}?mode=ro", uri=True)
+        try:
+            known = {n: (d, f) for n, f, d in db.execute("SELECT name, fingerprint, dim FROM models")}
+        finally:
+            db.close()
+    except sqlite3.Error:
+        return {}
+    return {n: known[n][1] for n, key in models.items() if n in known and tuple(known[n]) != tuple(key)}
+
+
 def check_sqlite(db: sqlite3.Connection, path: Path) -> None:
     try:
         problems = [row[0] for row in db.execute("PRAGMA quick_check(3)")]

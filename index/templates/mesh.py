@@ -223,7 +223,7 @@ def _eight_bit(image: Image.Image) -> Image.Image:
         values = np.asarray(image, np.float64)
         top = 1.0 if image.mode == "F" else 65535.0
         grey = np.clip(np.nan_to_num(values / top) * 255.0, 0, 255).astype(np.uint8)
-        return Image.fromarray(grey, "L").convert("RGB")
+        return Image.fromarray(grey).convert("RGB")  # 2-D uint8: mode L
     alpha = "A" in image.mode or "a" in image.mode or "transparency" in image.info
     return image.convert("RGBA" if alpha else "RGB")
 

@@ -10,7 +10,7 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
-from posedesc.cli import UserError
+from posedesc.cli import UserError, same_models
 
 
 def _symmetry(text: str) -> str:
@@ -47,7 +47,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "model's own metadata, as the service)")  # fmt: skip
     p.add_argument("--inplane-max", type=float, default=None,
                    help="in-plane range +-, degrees (>= 180: the whole turn; default as the service)")  # fmt: skip
-    p.add_argument("--level", type=int, default=3, help="template viewpoints: icosphere level (3 = 301)")
+    p.add_argument("--level", type=int, choices=range(6), default=3, metavar="0-5",
+                   help="template viewpoints: icosphere level (3 = 301)")  # fmt: skip
     p.add_argument("--name", action="append", default=[], metavar="FILE=NAME",
                    help="the name a mesh file is registered under (its file name without the extension, or "
                    "the whole file name), e.g. obj_000001=ape; repeat for each; default: the file's stem")  # fmt: skip
@@ -58,7 +59,7 @@ def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from index.features.embed import load_models, store_keys
-    from index.store import StoreError, open_store
+    from index.store import EMBEDDED, StoreError, open_store
     from index.templates.mesh import FORMATS_TEXT, MESH_FORMATS, MeshError, load_mesh
     from index.templates.register import TemplateConfig, register
     from index.templates.render import RenderWorker
@@ -73,6 +74,8 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"no meshes ({FORMATS_TEXT}) in {args.meshes}")
     names = _names(args.name, files)
     embedders = load_models(args.models)
+    if args.store == EMBEDDED:
+        same_models(args.data_dir, store_keys(embedders), args.models)
     try:
         store = open_store(args.store, args.data_dir, store_keys(embedders))
     except StoreError as e:

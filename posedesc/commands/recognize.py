@@ -21,7 +21,7 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
-from posedesc.cli import UserError, camera_arguments
+from posedesc.cli import UserError, bounded, camera_arguments, count, same_models
 
 IMAGES = (".png", ".jpg", ".jpeg")
 
@@ -50,16 +50,26 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--depth", type=Path, help="the depth of the one frame given (16-bit PNG, or float .npy/TIFF)"
     )
     p.add_argument(
-        "--depth-scale", type=float, help="mm per depth unit (default: the file's: mm, or metres if float)"
+        "--depth-scale",
+        type=bounded(0.0, 1000.0, above=True),
+        help="mm per depth unit (default: the file's: mm, or metres if float)",
     )
     camera_arguments(p)
     p.add_argument("--camera", type=Path, help="BOP scene_camera.json: each frame's cam_K and depth_scale")
-    p.add_argument("--u", type=float, help="the object's centre x, px (with --v: that object only)")
-    p.add_argument("--v", type=float, help="the object's centre y, px")
-    p.add_argument("--distance-mm", type=float, help="the object's distance (colour alone, with --u --v)")
-    p.add_argument("--k", type=int, default=5, help="answers per object (default 5)")
-    p.add_argument("--max-detections", type=int, default=10, help="objects a frame reports at most")
-    p.add_argument("--min-confidence", type=float, help="report objects found with at least this confidence")
+    p.add_argument(
+        "--u", type=bounded(-1e6, 1e6), help="the object's centre x, px (with --v: that object only)"
+    )
+    p.add_argument("--v", type=bounded(-1e6, 1e6), help="the object's centre y, px")
+    p.add_argument(
+        "--distance-mm",
+        type=bounded(0.0, 1e6, above=True),
+        help="the object's distance (colour alone, with --u --v)",
+    )
+    p.add_argument("--k", type=count, default=5, help="answers per object (default 5)")
+    p.add_argument("--max-detections", type=count, default=10, help="objects a frame reports at most")
+    p.add_argument(
+        "--min-confidence", type=bounded(0.0, 1.0), help="report objects found with at least this confidence"
+    )
     p.add_argument("--no-draw", action="store_true", help="write the JSON answers only")
 
 
@@ -174,9 +184,12 @@ def _depth_alone(rgb: Path | None, depth: Path | None) -> tuple[Path | None, Pat
     if rgb is not None and depth is None and rgb.suffix.lower() == ".png":
         from PIL import Image
 
-        with Image.open(rgb) as im:
-            if im.mode in ("I", "I;16", "I;16B", "I;16L"):
-                return None, rgb
+        try:
+            with Image.open(rgb) as im:
+                if im.mode in ("I", "I;16", "I;16B", "I;16L"):
+                    return None, rgb
+        except (OSError, ValueError):  # no image: refused when it is answered, the other frames go on
+            return rgb, depth
     return rgb, depth
 
 
@@ -208,7 +221,8 @@ def _state(args: argparse.Namespace):
     """The service's state on the data dir, as `posedesc serve` loads it (no demo objects added)."""
     if not args.data_dir.is_dir():
         raise UserError(f"no such data dir: {args.data_dir} (the service's, with the objects registered)")
-    from index.features.embed import load_models
+    from index.features.embed import load_models, store_keys
+    from index.store import EMBEDDED, StoreError
     from service.settings import Settings
     from service.state import load_state
 
@@ -216,7 +230,13 @@ def _state(args: argparse.Namespace):
     if not args.models.is_dir():
         raise UserError(f"no such models folder: {args.models}")
     say(f"loading the models of {args.models} and the objects of {args.data_dir} ...")
-    state = load_state(settings, load_models(args.models, settings.threads))
+    embedders = load_models(args.models, settings.threads)
+    if settings.store == EMBEDDED:
+        same_models(args.data_dir, store_keys(embedders), args.models)
+    try:
+        state = load_state(settings, embedders)
+    except StoreError as e:  # a damaged store.sqlite: one line, as build-index and serve say it
+        raise UserError(str(e)) from None
     objects = state.store.snapshot.objects
     if not objects:
         raise UserError(f"{args.data_dir} holds no registered object: register some (POST /objects)")

@@ -53,7 +53,7 @@ from index.refine.chroma import SurfaceColours
 from index.store import Snapshot
 from index.templates.register import TemplateConfig
 from index.templates.windows import window_classes
-from service.errors import ApiError
+from service.errors import ApiError, NoSuchWindow
 from service.pipeline.answer import Result, answer, judged, shown
 from service.pipeline.colours import Colours
 from service.pipeline.context import Context, Stage
@@ -192,8 +192,7 @@ def classes(q: Query, d: Decoded, snapshot: Snapshot) -> list[tuple[float | None
         ids = next((ids for w, ids in by.items() if abs(w - want) <= 0.01), None)
         if ids is None:
             held = ", ".join(f"{w:g}" for w in sorted(by))
-            raise ApiError(
-                422,
+            raise NoSuchWindow(
                 f"the patch spans a {want:g} mm window (window_mm), which no registered object has: "
                 f"registered objects' windows are {held} mm (each object's window_mm in GET /objects); cut "
                 "the patch through its object's window and send that window_mm, or send the whole frame "

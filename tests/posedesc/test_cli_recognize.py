@@ -169,3 +169,94 @@ def test_one_frame_in_a_terminal_says_what_it_loads_and_answers(registered, tmp_
     assert done.returncode == 0
     assert "loading the models of" in text and "1 objects registered: part" in text
     assert f"answering {frame} ..." in text
+
+
+@pytest.mark.parametrize(
+    ("args", "said"),
+    [
+        (["--fx", "nan", "--fy", "500", "--cx", "320", "--cy", "240"], "--fx: nan: a finite number from 1"),
+        (["--fx", "-572", "--fy", "500", "--cx", "320", "--cy", "240"], "--fx: -572: a finite number from 1"),
+        (["--u", "10", "--v", "10", "--distance-mm", "inf"], "--distance-mm: inf: a finite number over 0"),
+        (["--k", "0"], "--k: 0: at least 1"),
+        (["--max-detections", "-1"], "--max-detections: -1: at least 1"),
+        (["--min-confidence", "nan"], "--min-confidence: nan"),
+    ],
+)
+def test_impossible_numbers_are_refused_before_anything_runs(registered, tmp_path, args, said):
+    """A fuzzing of the CLI (2026-12-08) had these answered, exit 0: nothing found, a wrong pose, invalid JSON."""
+    data, queries = registered
+    done = posedesc(
+        "recognize", str(queries / "query-00-rgb.png"), "--data-dir", str(data), "--out", str(tmp_path), *args
+    )
+    assert done.returncode == 2 and said in done.stderr and "Traceback" not in done.stderr, done.stderr
+
+
+def test_a_file_that_is_no_image_fails_its_frame_and_the_others_are_answered(registered, tmp_path):
+    """An empty PNG in a folder of frames stopped the whole batch with a traceback (the 16-bit check opened
+    it first); now it fails alone, as a frame in the wrong units does."""
+    data, queries = registered
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    (folder / "a.png").write_bytes((queries / "query-00-depth.png").read_bytes())
+    (folder / "b.png").write_bytes(b"")
+    q = json.loads((queries / "query-00.json").read_text())["form"]
+    camera = [f"--{k}={q[k]}" for k in ("fx", "fy", "cx", "cy")]
+    done = posedesc(
+        "recognize", str(folder), "--data-dir", str(data), "--out", str(tmp_path / "o"), "--no-draw", *camera
+    )
+    assert done.returncode == 1 and "Traceback" not in done.stderr, done.stderr
+    assert "b.png: " in done.stderr and "1 of 2 frames answered" in done.stdout
+
+
+def _templates(data: Path) -> dict[str, int]:
+    import sqlite3
+
+    db = sqlite3.connect(data / "store.sqlite")
+    try:
+        return dict(db.execute("SELECT model, count(*) FROM templates GROUP BY model").fetchall())
+    finally:
+        db.close()
+
+
+def test_other_models_never_drop_a_data_dirs_templates(registered, tmp_path):
+    """`recognize` or `build-index` with a models folder whose depth model is another file: the store would
+    drop that model's templates on opening (for `serve` to make again at its start); a fuzzing of the CLI
+    (2026-12-08) found a data dir so emptied of its depth templates, and the next recognition finding nothing,
+    exit 0. Both now refuse in one line and leave the data dir as it was."""
+    import shutil
+
+    data, queries = registered
+    copy = tmp_path / "data"
+    shutil.copytree(data, copy)
+    other = tmp_path / "models"
+    shutil.copytree(MODELS, other, ignore=shutil.ignore_patterns("experiments", "*.md", "baseline"))
+    shutil.copy(MODELS / "experiments" / "posedesc-depth-upright.onnx", other / "posedesc-depth.onnx")
+    before = _templates(copy)
+    frame = queries / "query-00-depth.png"
+    q = json.loads((queries / "query-00.json").read_text())["form"]
+    camera = [f"--{k}={q[k]}" for k in ("fx", "fy", "cx", "cy")]
+    done = posedesc("recognize", str(frame), "--data-dir", str(copy), "--models", str(other), *camera)
+    assert done.returncode == 2 and "were made with other model files" in done.stderr, done.stderr
+    assert "depth" in done.stderr and "Traceback" not in done.stderr
+    meshes = tmp_path / "meshes"
+    meshes.mkdir()
+    (meshes / "again.ply").write_bytes(PART.read_bytes())
+    done = posedesc("build-index", "--meshes", str(meshes), "--data-dir", str(copy), "--models", str(other))
+    assert done.returncode == 2 and "were made with other model files" in done.stderr, done.stderr
+    assert _templates(copy) == before
+
+
+def test_a_damaged_store_is_one_line(registered, tmp_path):
+    import shutil
+
+    data, queries = registered
+    copy = tmp_path / "data"
+    shutil.copytree(data, copy)
+    with open(copy / "store.sqlite", "r+b") as f:
+        f.write(b"X" * 100)
+    q = json.loads((queries / "query-00.json").read_text())["form"]
+    camera = [f"--{k}={q[k]}" for k in ("fx", "fy", "cx", "cy")]
+    done = posedesc("recognize", str(queries / "query-00-depth.png"), "--data-dir", str(copy), *camera)
+    assert done.returncode == 2 and "not a usable store" in done.stderr and "Traceback" not in done.stderr, (
+        done.stderr
+    )

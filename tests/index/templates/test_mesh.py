@@ -4,6 +4,7 @@ refused with the units that would fit, bad meshes refused, heavy ones simplified
 import numpy as np
 import pytest
 import trimesh
+from PIL import Image
 
 from index.templates.mesh import FORMATS_TEXT, MESH_FORMATS, MeshError, diameter, load_mesh
 
@@ -167,3 +168,24 @@ def test_a_ply_cut_short_is_said_to_be_cut_short(tmp_path, l_shape, encoding):
         assert "KeyError" not in said and "IndexError" not in said
     (tmp_path / "whole.ply").write_bytes(whole)
     assert len(load_mesh(tmp_path / "whole.ply").faces) == len(l_shape.faces)
+
+
+@pytest.mark.parametrize(
+    ("image", "mode", "pixel"),
+    [
+        (
+            lambda: Image.fromarray(np.full((4, 4), 40000, np.uint16)),
+            "RGB",
+            [155] * 3,
+        ),
+        (lambda: Image.fromarray(np.full((4, 4), 0.5, np.float32)), "RGB", [127] * 3),
+        (lambda: Image.new("LA", (4, 4), (200, 90)), "RGBA", [200, 200, 200, 90]),
+        (lambda: Image.new("1", (4, 4), 1), "RGB", [255] * 3),
+    ],
+)
+def test_a_texture_of_any_mode_is_made_8_bit_rgb_as_the_renderer_takes_it(image, mode, pixel):
+    """A 16-bit or float grey is scaled from its range (not clipped to white); grey with alpha keeps its alpha."""
+    from index.templates.mesh import _eight_bit
+
+    out = _eight_bit(image())
+    assert out.mode == mode and np.asarray(out)[0, 0].tolist() == pixel

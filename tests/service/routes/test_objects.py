@@ -199,3 +199,31 @@ def test_a_blank_or_control_character_name_and_an_endless_symmetry_are_refused(
         assert r.status_code == 422 and "symmetry" in r.json()["detail"] and len(r.text) < 500, r.text[:300]
         assert c.get("/objects").json() == before
         assert register(c, l_shape, "L with a space")["name"] == "L with a space"  # inner spaces are a name's
+
+
+def test_a_mixed_stores_patch_is_refused_for_the_reason_of_the_part_that_has_its_window(
+    tmp_path, posedesc_models
+):
+    """An RGB-D patch of a store of textured and shape-only objects is asked of each part; when both refuse
+    it, the refusal told is the one of the part whose objects have the patch's window (the fuzzing of
+    2026-12-08: a 1600 mm patch 600 mm away was answered "no registered object has" that window, though the
+    shape-only "big" has it; its depth is what is wrong)."""
+    import cv2
+    import numpy as np
+    import trimesh
+
+    with TestClient(create_app(service_settings(tmp_path, posedesc_models, level=0))) as c:
+        wait_ready(c)
+        box = trimesh.creation.box((100, 80, 60))
+        box.visual.vertex_colors = np.random.default_rng(0).integers(0, 255, (8, 4)).astype(np.uint8)
+        register(c, box, "coloured")
+        assert register(c, trimesh.creation.box((1150, 1150, 1150)), "big")["window_mm"] == 1600
+        patch = cv2.imencode(".png", np.full((64, 64, 3), 90, np.uint8))[1].tobytes()
+        depth = cv2.imencode(".png", np.full((64, 64), 600, np.uint16))[1].tobytes()
+        r = c.post(
+            "/recognize",
+            files={"rgb": ("p.png", patch), "depth": ("d.png", depth)},
+            data={"window_mm": "1600"},
+        )
+        assert r.status_code == 422
+        assert "depth_scale" in r.json()["detail"] and "no registered object has" not in r.json()["detail"]
