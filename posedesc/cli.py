@@ -148,6 +148,10 @@ def main(argv: list[str] | None = None) -> int:
     except (UserError, ValueError, FileNotFoundError) as e:
         print(f"posedesc {args.command}: error: {e}", file=sys.stderr)
         return 2
+    except OSError as e:
+        # a path the user gave that cannot be written: a file where a folder goes, a name too long
+        print(f"posedesc {args.command}: error: {e}", file=sys.stderr)
+        return 2
     except KeyboardInterrupt:
         print(f"posedesc {args.command}: interrupted", file=sys.stderr)
         return 130

@@ -163,3 +163,13 @@ def test_render_patches_writes_queries_the_service_answers(tmp_path, l_shape):
             # and the pose is the one the JSON states (measured at level 3: within 6 degrees)
             pose = q["pose"]
             assert view_error(best["azimuth"], best["elevation"], pose["azimuth"], pose["elevation"]) <= 20.0
+
+
+def test_an_output_folder_under_a_file_is_one_line(tmp_path, l_shape):
+    """A path the user gave that cannot be written (a fuzzing of the CLI, 2026-12-08: a traceback from mkdir)."""
+    mesh = tmp_path / "l.ply"
+    l_shape.export(mesh)
+    (tmp_path / "afile").write_text("")
+    r = posedesc("render", str(mesh), "--out", str(tmp_path / "afile" / "sub"))
+    assert r.returncode == 2 and "Not a directory" in r.stderr and "Traceback" not in r.stderr, r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1
