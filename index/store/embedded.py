@@ -53,7 +53,7 @@ from index.store.snapshot_files import (
     grown,
     write_atomic,
 )
-from index.store.sqlite_file import SCHEMA, check_sqlite, disk_full
+from index.store.sqlite_file import SCHEMA, check_sqlite, disk_full, recorded_models
 
 log = logging.getLogger("index.store")
 
@@ -416,9 +416,9 @@ class EmbeddedStore(ModelIndexes):
             self._paths(m)[1].unlink(missing_ok=True)
 
     def _forget_changed_models(self, models: Mapping[str, tuple[int, str]]) -> None:
-        known = {n: (f, d) for n, f, d in self._db.execute("SELECT name, fingerprint, dim FROM models")}
+        known = recorded_models(self._db)
         for name, (dim, fingerprint) in models.items():
-            if known.get(name) == (fingerprint, dim):
+            if known.get(name) == (dim, fingerprint):
                 continue
             if name in known:
                 log.warning("model %s changed since its templates were made: they will be made again", name)

@@ -63,12 +63,18 @@ def changed_models(data_dir: str | Path, models: dict[str, tuple[int, str]]) -> 
     try:
         db = sqlite3.connect(f"file:{path}?mode=ro", uri=True)
         try:
-            known = {n: (d, f) for n, f, d in db.execute("SELECT name, fingerprint, dim FROM models")}
+            known = recorded_models(db)
         finally:
             db.close()
     except sqlite3.Error:
         return {}
-    return {n: known[n][1] for n, key in models.items() if n in known and tuple(known[n]) != tuple(key)}
+    return {n: known[n][1] for n, key in models.items() if n in known and known[n] != tuple(key)}
+
+
+def recorded_models(db: sqlite3.Connection) -> dict[str, tuple[int, str]]:
+    """The models a store's templates were made with, as a store is opened with them: name -> (dim,
+    fingerprint)."""
+    return {n: (int(d), str(f)) for n, f, d in db.execute("SELECT name, fingerprint, dim FROM models")}
 
 
 def check_sqlite(db: sqlite3.Connection, path: Path) -> None:

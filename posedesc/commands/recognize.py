@@ -62,7 +62,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--v", type=bounded(-1e6, 1e6), help="the object's centre y, px")
     p.add_argument(
         "--distance-mm",
-        type=bounded(0.0, 1e6, above=True),
+        type=bounded(0.0, 1e5, above=True),  # the service's MAX_DISTANCE_MM
         help="the object's distance (colour alone, with --u --v)",
     )
     p.add_argument("--k", type=count, default=5, help="answers per object (default 5)")
